@@ -1,0 +1,6 @@
+//! Tessera's coordinator: holds jobs, walks the progressive-refinement order, cuts it into
+//! batches, leases them to workers, and merges results into each job's framebuffer.
+#![forbid(unsafe_code)]
+#![deny(missing_docs)]
+
+pub mod quadtree;
