@@ -1,0 +1,15 @@
+//! Tessera's worker: the distributed ray tracer and the loop that takes batches from a
+//! coordinator and returns per-pixel sample sums.
+#![forbid(unsafe_code)]
+#![deny(missing_docs)]
+
+pub mod batch;
+pub mod bundle;
+pub mod client;
+pub mod fixed;
+pub mod render;
+pub mod scene;
+
+/// The renderer's build. Workers and coordinators refuse each other when it differs, since
+/// images are only bit-identical when every worker runs the same renderer.
+pub const RENDERER_VERSION: &str = env!("CARGO_PKG_VERSION");

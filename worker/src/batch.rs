@@ -1,0 +1,41 @@
+//! Rendering one batch: pixels × a sample range, summed per pixel in fixed point.
+
+use std::ops::Range;
+
+use glam::UVec2;
+
+use crate::fixed;
+use crate::render::Scene;
+
+/// The per-pixel sums of a rendered batch.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct BatchSums {
+    /// r, g, b fixed-point sums per pixel, in the batch's pixel order.
+    pub sums: Vec<u64>,
+    /// Samples whose radiance was NaN or infinite (counted as black).
+    pub nonfinite: u64,
+}
+
+/// Renders samples `samples` of each pixel. The result depends only on the scene and the
+/// arguments: fixed-point sums make it independent of how the work is split.
+pub fn render_batch(scene: &Scene, pixels: &[UVec2], samples: Range<u32>) -> BatchSums {
+    let mut sampler = scene.sampler();
+    let mut sums = Vec::with_capacity(pixels.len() * 3);
+    let mut nonfinite = 0;
+    for &pixel in pixels {
+        let mut acc = [0u64; 3];
+        for index in samples.clone() {
+            let l = scene.render_sample(&mut sampler, pixel, index);
+            match (fixed::to_fixed(l.x), fixed::to_fixed(l.y), fixed::to_fixed(l.z)) {
+                (Some(r), Some(g), Some(b)) => {
+                    acc[0] += r;
+                    acc[1] += g;
+                    acc[2] += b;
+                }
+                _ => nonfinite += 1,
+            }
+        }
+        sums.extend_from_slice(&acc);
+    }
+    BatchSums { sums, nonfinite }
+}

@@ -1,0 +1,211 @@
+//! Cook's jittered, stratified sampling as a pure function of (seed, pixel, sample index).
+//!
+//! Each 2-D dimension of a pixel's samples (the pixel area now; lens, time, light and
+//! lobes as the scene needs them) is stratified with a correlated multi-jittered pattern
+//! over the pixel's `spp` samples: one sample per cell of an `m × n` grid and per row and
+//! column of the finer grid (Kensler 2013). The strata of different dimensions are
+//! associated at random, as Cook's paper asks, by passing the sample index through a
+//! different keyed permutation for each dimension. Nothing is stored and nothing is seeded
+//! from entropy, so any worker, in any order, computes the same sample.
+
+use glam::{UVec2, Vec2};
+
+/// Hashes a few words into 64 well-mixed bits (a splitmix64-style finaliser per word).
+#[inline]
+pub fn hash_words(words: &[u64]) -> u64 {
+    let mut h: u64 = 0x9e37_79b9_7f4a_7c15;
+    for &w in words {
+        h ^= w.wrapping_add(0x9e37_79b9_7f4a_7c15).wrapping_add(h << 6).wrapping_add(h >> 2);
+        h = mix64(h);
+    }
+    h
+}
+
+#[inline]
+fn mix64(mut z: u64) -> u64 {
+    z = (z ^ (z >> 30)).wrapping_mul(0xbf58_476d_1ce4_e5b9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94d0_49bb_1331_11eb);
+    z ^ (z >> 31)
+}
+
+/// A uniform float in [0, 1) from 24 bits of a hash.
+#[inline]
+fn unit_float(h: u64) -> f32 {
+    (h >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
+}
+
+/// A keyed bijection of `0..len`, evaluated at `i` without storing the permutation: a
+/// keyed invertible mix on the smallest power-of-two domain that holds `len`, repeated
+/// (cycle walking) until it lands inside `0..len`.
+pub fn permute(i: u32, len: u32, key: u64) -> u32 {
+    debug_assert!(i < len);
+    if len <= 1 {
+        return 0;
+    }
+    let mask = u32::MAX >> (len - 1).leading_zeros();
+    let bits = 32 - mask.leading_zeros();
+    let (k0, k1) = (key as u32, (key >> 32) as u32);
+    let mut x = i;
+    loop {
+        // Every step is invertible modulo 2^bits: xor with a key, multiply by an odd
+        // constant, xor-shift right, add a key.
+        x ^= k0 & mask;
+        x = x.wrapping_mul(0x2c1b_3c6d | 1) & mask;
+        x ^= x >> (bits / 2).max(1);
+        x = x.wrapping_add(k1) & mask;
+        x = x.wrapping_mul(0x297a_2d39 | 1) & mask;
+        x ^= x >> (bits / 3).max(1);
+        x ^= (k1 >> 7) & mask;
+        x = x.wrapping_mul(0x1b87_3593 | 1) & mask;
+        x ^= x >> 1;
+        if x < len {
+            return x;
+        }
+    }
+}
+
+/// Sample `s` of an `n`-sample correlated multi-jittered pattern keyed by `key`.
+fn cmj(s: u32, n: u32, key: u64) -> Vec2 {
+    let m = (n as f32).sqrt().ceil().max(1.0) as u32;
+    let rows = n.div_ceil(m);
+    let (col, row) = (s % m, s / m);
+    // The fine-grid offsets are shuffled per pattern, so that columns and rows of the
+    // coarse grid do not line up.
+    let sx = permute(col, m, key ^ 0x51);
+    let sy = permute(row, rows, key ^ 0xa3);
+    let jx = unit_float(hash_words(&[key, u64::from(s), 1]));
+    let jy = unit_float(hash_words(&[key, u64::from(s), 2]));
+    let x = (col as f32 + (sy as f32 + jx) / rows as f32) / m as f32;
+    let y = (row as f32 + (sx as f32 + jy) / m as f32) / rows as f32;
+    Vec2::new(x.min(ONE_MINUS_EPSILON), y.min(ONE_MINUS_EPSILON))
+}
+
+/// The largest f32 below 1.
+pub const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON / 2.0;
+
+/// The sample generator of one pixel sample; dimensions are drawn in a fixed order.
+#[derive(Debug, Clone)]
+pub struct Sampler {
+    seed: u64,
+    spp: u32,
+    pixel: UVec2,
+    index: u32,
+    dimension: u32,
+}
+
+impl Sampler {
+    /// A sampler for patterns of `spp` samples per pixel.
+    pub fn new(seed: u64, spp: u32) -> Self {
+        Sampler { seed, spp: spp.max(1), pixel: UVec2::ZERO, index: 0, dimension: 0 }
+    }
+
+    /// Positions the sampler at sample `index` of `pixel`; the next draw is dimension 0.
+    pub fn start_pixel_sample(&mut self, pixel: UVec2, index: u32) {
+        self.pixel = pixel;
+        self.index = index;
+        self.dimension = 0;
+    }
+
+    fn dimension_key(&self) -> u64 {
+        hash_words(&[
+            self.seed,
+            u64::from(self.pixel.x) | (u64::from(self.pixel.y) << 32),
+            u64::from(self.dimension),
+        ])
+    }
+
+    /// The next 2-D dimension, stratified over the pixel's samples.
+    pub fn get_2d(&mut self) -> Vec2 {
+        let key = self.dimension_key();
+        self.dimension += 1;
+        if self.index >= self.spp {
+            // Beyond the pattern (not used by the farm today): plain random.
+            let h = hash_words(&[key, u64::from(self.index)]);
+            return Vec2::new(unit_float(h), unit_float(mix64(h)));
+        }
+        // Cook's random association: each dimension visits the strata in its own order.
+        let s = permute(self.index, self.spp, key);
+        cmj(s, self.spp, mix64(key))
+    }
+
+    /// The next 1-D dimension, stratified over the pixel's samples.
+    pub fn get_1d(&mut self) -> f32 {
+        let key = self.dimension_key();
+        self.dimension += 1;
+        if self.index >= self.spp {
+            return unit_float(hash_words(&[key, u64::from(self.index)]));
+        }
+        let s = permute(self.index, self.spp, key);
+        let jitter = unit_float(hash_words(&[key, u64::from(s), 3]));
+        ((s as f32 + jitter) / self.spp as f32).min(ONE_MINUS_EPSILON)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn permute_is_a_bijection() {
+        for len in [1u32, 2, 3, 5, 16, 17, 100, 1000] {
+            for key in [0u64, 1, 0xdead_beef, u64::MAX] {
+                let mut seen = vec![false; len as usize];
+                for i in 0..len {
+                    let p = permute(i, len, key) as usize;
+                    assert!(!seen[p], "len {len} key {key}: {p} twice");
+                    seen[p] = true;
+                }
+            }
+        }
+    }
+
+    /// Every sample of a pixel falls in its own stratum of the m×n grid, for any spp.
+    #[test]
+    fn pixel_samples_are_stratified() {
+        for spp in [1u32, 4, 9, 16, 7, 10, 64] {
+            let mut sampler = Sampler::new(7, spp);
+            let m = (spp as f32).sqrt().ceil() as u32;
+            let rows = spp.div_ceil(m);
+            let mut cells = std::collections::HashSet::new();
+            for i in 0..spp {
+                sampler.start_pixel_sample(UVec2::new(3, 4), i);
+                let p = sampler.get_2d();
+                assert!((0.0..1.0).contains(&p.x) && (0.0..1.0).contains(&p.y));
+                let cell = ((p.x * m as f32) as u32, (p.y * rows as f32) as u32);
+                assert!(cells.insert(cell), "spp {spp}: two samples in cell {cell:?}");
+            }
+        }
+    }
+
+    /// Revisiting (pixel, i) after other pixels gives identical values: the property that
+    /// makes reassignment and resume correct.
+    #[test]
+    fn samples_are_pure_functions_of_pixel_and_index() {
+        let mut a = Sampler::new(1, 16);
+        a.start_pixel_sample(UVec2::new(10, 20), 5);
+        let first = (a.get_2d(), a.get_1d(), a.get_2d());
+        for i in 0..16 {
+            a.start_pixel_sample(UVec2::new(i, 2 * i), i);
+            a.get_2d();
+        }
+        a.start_pixel_sample(UVec2::new(10, 20), 5);
+        assert_eq!(first, (a.get_2d(), a.get_1d(), a.get_2d()));
+    }
+
+    #[test]
+    fn dimensions_are_associated_at_random() {
+        // Pixel-area stratum and the next dimension's stratum must not be the same index.
+        let spp = 16;
+        let mut sampler = Sampler::new(3, spp);
+        let mut same = 0;
+        for i in 0..spp {
+            sampler.start_pixel_sample(UVec2::new(1, 1), i);
+            let a = sampler.get_1d();
+            let b = sampler.get_1d();
+            if (a * spp as f32) as u32 == (b * spp as f32) as u32 {
+                same += 1;
+            }
+        }
+        assert!(same < spp / 2, "{same} of {spp} strata paired identically");
+    }
+}
