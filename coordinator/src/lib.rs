@@ -3,4 +3,12 @@
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod farm;
+pub mod framebuffer;
+pub mod ids;
+pub mod output;
 pub mod quadtree;
+pub mod scheduler;
+pub mod service;
+
+pub use service::{CoordinatorService, Timing};

@@ -1,0 +1,421 @@
+//! The coordinator's state: jobs, workers, and who renders what. Pure: no I/O and no wire
+//! types; `service.rs` wraps it.
+
+use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tessera_worker::bundle::Bundle;
+
+use crate::framebuffer::{Framebuffer, MergeError};
+use crate::ids::{BatchId, JobId, WorkerId};
+use crate::scheduler::{BatchSpec, CompleteError, PassQueue};
+
+/// A batch failing this many times fails its job: the problem is not the worker.
+pub const MAX_BATCH_FAILURES: u32 = 3;
+/// The window over which samples per second are measured.
+const RATE_WINDOW: Duration = Duration::from_secs(5);
+
+/// Settings a submission may override.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct JobSettings {
+    /// Samples per pixel; `None` keeps the scene's.
+    pub spp: Option<u32>,
+}
+
+/// Where a job stands.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum JobState {
+    /// Waiting for its first batch to be leased.
+    Queued,
+    /// Batches are out.
+    Running,
+    /// Every sample is merged.
+    Done,
+    /// Stopped by a client.
+    Cancelled,
+    /// Stopped by an error.
+    Failed(String),
+}
+
+/// A job: its scene, its batches and its framebuffer.
+#[derive(Debug)]
+pub struct Job {
+    /// The id.
+    pub id: JobId,
+    /// The scene as submitted.
+    pub bundle: Arc<Bundle>,
+    /// The bundle's content hash.
+    pub scene_hash: String,
+    /// The settings.
+    pub settings: JobSettings,
+    /// Samples per pixel in effect.
+    pub spp: u32,
+    /// State.
+    pub state: JobState,
+    queue: PassQueue,
+    framebuffer: Framebuffer,
+    started: Option<Instant>,
+    finished: Option<Instant>,
+    /// (time, samples done) points for the recent rate.
+    rate: VecDeque<(Instant, u64)>,
+    failures: HashMap<BatchId, u32>,
+    nonfinite_samples: u64,
+}
+
+impl Job {
+    /// The framebuffer.
+    pub fn framebuffer(&self) -> &Framebuffer {
+        &self.framebuffer
+    }
+
+    /// Whether the job will hand out no more batches.
+    pub fn is_over(&self) -> bool {
+        matches!(self.state, JobState::Done | JobState::Cancelled | JobState::Failed(_))
+    }
+
+    /// A snapshot of progress.
+    pub fn progress(&self, now: Instant) -> JobProgress {
+        let rate = match (self.rate.front(), self.rate.back()) {
+            (Some(&(t0, s0)), Some(&(t1, s1))) if t1 > t0 => (s1 - s0) as f64 / (t1 - t0).as_secs_f64(),
+            _ => 0.0,
+        };
+        let end = self.finished.unwrap_or(now);
+        JobProgress {
+            id: self.id,
+            scene: self.bundle.name.clone(),
+            state: self.state.clone(),
+            width: self.framebuffer.width(),
+            height: self.framebuffer.height(),
+            spp: self.spp,
+            pass: self.queue.pass().number(),
+            samples_done: self.queue.samples_done(),
+            samples_total: self.queue.samples_total(),
+            samples_per_second: rate,
+            elapsed: self.started.map_or(Duration::ZERO, |s| end.saturating_duration_since(s)),
+            pass_one_done: self.queue.pass_one_pixels_done(),
+            nonfinite_samples: self.nonfinite_samples,
+        }
+    }
+}
+
+/// Progress figures of a job.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobProgress {
+    /// The job.
+    pub id: JobId,
+    /// Scene name.
+    pub scene: String,
+    /// State.
+    pub state: JobState,
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Samples per pixel.
+    pub spp: u32,
+    /// The pass being handed out.
+    pub pass: u32,
+    /// Samples merged.
+    pub samples_done: u64,
+    /// Samples in the job.
+    pub samples_total: u64,
+    /// Recent samples per second.
+    pub samples_per_second: f64,
+    /// Time since the first lease (to the end, once over).
+    pub elapsed: Duration,
+    /// Pass-one pixels merged.
+    pub pass_one_done: u64,
+    /// Samples that came back NaN or infinite (counted as black).
+    pub nonfinite_samples: u64,
+}
+
+impl JobProgress {
+    /// Fraction done, 0..=1.
+    pub fn fraction(&self) -> f64 {
+        if self.samples_total == 0 {
+            1.0
+        } else {
+            self.samples_done as f64 / self.samples_total as f64
+        }
+    }
+}
+
+/// A connected worker.
+#[derive(Debug, Clone)]
+pub struct WorkerInfo {
+    /// Name it gave.
+    pub name: String,
+    /// Render threads.
+    pub threads: u32,
+    /// Jobs whose scene it has received.
+    scenes: HashSet<JobId>,
+    /// Batches done.
+    pub batches_done: u64,
+    /// Last message received.
+    last_seen: Instant,
+}
+
+/// What a worker is handed: the job's scene first if it lacks it, then a batch.
+#[derive(Debug, Clone)]
+pub struct Assignment {
+    /// The job.
+    pub job: JobId,
+    /// The scene, when this worker has not had it.
+    pub scene: Option<(Arc<Bundle>, String, u32)>,
+    /// The scene hash the batch needs.
+    pub scene_hash: String,
+    /// The batch.
+    pub batch: BatchSpec,
+    /// Its attempt number.
+    pub attempt: u32,
+}
+
+/// Why a submission was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SubmitError {
+    /// The scene does not parse or validate.
+    #[error("{0}")]
+    Scene(#[from] tessera_worker::scene::SceneError),
+    /// spp override out of range.
+    #[error("spp must be 1..={max}, got {got}")]
+    Spp {
+        /// Requested.
+        got: u32,
+        /// Limit.
+        max: u32,
+    },
+}
+
+/// Why a worker's result was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ResultError {
+    /// No such job.
+    #[error("unknown {0}")]
+    UnknownJob(JobId),
+    /// Already merged or never cut (harmless: a duplicate).
+    #[error(transparent)]
+    Duplicate(#[from] CompleteError),
+    /// The sums are malformed; the batch goes back to the queue.
+    #[error("{job} {batch}: {source}")]
+    Malformed {
+        /// The job.
+        job: JobId,
+        /// The batch.
+        batch: BatchId,
+        /// What is wrong.
+        source: MergeError,
+    },
+}
+
+/// Everything the coordinator knows.
+#[derive(Debug, Default)]
+pub struct Farm {
+    jobs: BTreeMap<JobId, Job>,
+    workers: BTreeMap<WorkerId, WorkerInfo>,
+    next_job: u64,
+    next_worker: u64,
+}
+
+impl Farm {
+    /// An empty farm.
+    pub fn new() -> Self {
+        Farm::default()
+    }
+
+    /// Validates and queues a job.
+    pub fn submit(&mut self, bundle: Bundle, settings: JobSettings) -> Result<JobId, SubmitError> {
+        let scene = bundle.parse()?;
+        let max = tessera_worker::scene::limits::MAX_SPP;
+        let spp = match settings.spp {
+            Some(s) if s == 0 || s > max => return Err(SubmitError::Spp { got: s, max }),
+            Some(s) => s,
+            None => scene.spp,
+        };
+        self.next_job += 1;
+        let id = JobId(self.next_job);
+        let scene_hash = bundle.hash();
+        self.jobs.insert(
+            id,
+            Job {
+                id,
+                scene_hash,
+                bundle: Arc::new(bundle),
+                settings,
+                spp,
+                state: JobState::Queued,
+                queue: PassQueue::new(scene.width, scene.height, spp),
+                framebuffer: Framebuffer::new(scene.width, scene.height),
+                started: None,
+                finished: None,
+                rate: VecDeque::new(),
+                failures: HashMap::new(),
+                nonfinite_samples: 0,
+            },
+        );
+        Ok(id)
+    }
+
+    /// A job.
+    pub fn job(&self, id: JobId) -> Option<&Job> {
+        self.jobs.get(&id)
+    }
+
+    /// Every job, oldest first.
+    pub fn jobs(&self) -> impl Iterator<Item = &Job> {
+        self.jobs.values()
+    }
+
+    /// Registers a worker.
+    pub fn add_worker(&mut self, name: String, threads: u32, now: Instant) -> WorkerId {
+        self.next_worker += 1;
+        let id = WorkerId(self.next_worker);
+        let info = WorkerInfo { name, threads, scenes: HashSet::new(), batches_done: 0, last_seen: now };
+        self.workers.insert(id, info);
+        id
+    }
+
+    /// The connected workers.
+    pub fn workers(&self) -> impl Iterator<Item = (WorkerId, &WorkerInfo)> {
+        self.workers.iter().map(|(id, w)| (*id, w))
+    }
+
+    /// Batches leased to `worker` now.
+    pub fn in_flight(&self, worker: WorkerId) -> usize {
+        self.jobs
+            .values()
+            .map(|j| j.queue_leases_of(worker))
+            .sum()
+    }
+
+    /// Notes that `worker` is alive.
+    pub fn touch(&mut self, worker: WorkerId, now: Instant) {
+        if let Some(w) = self.workers.get_mut(&worker) {
+            w.last_seen = now;
+        }
+    }
+
+    /// A worker left: its leases go back to the queue at once.
+    pub fn remove_worker(&mut self, worker: WorkerId) -> usize {
+        self.workers.remove(&worker);
+        self.jobs.values_mut().map(|j| j.queue.take_back_worker(worker).len()).sum()
+    }
+
+    /// Takes back the leases of workers silent for longer than `timeout` (frozen, or cut
+    /// off without the connection noticing). They stay connected: should they wake up,
+    /// their results are still taken once.
+    pub fn expire_silent(&mut self, now: Instant, timeout: Duration) -> Vec<(WorkerId, usize)> {
+        let silent: Vec<WorkerId> = self
+            .workers
+            .iter()
+            .filter(|(_, w)| now.saturating_duration_since(w.last_seen) > timeout)
+            .map(|(id, _)| *id)
+            .collect();
+        silent
+            .into_iter()
+            .filter_map(|id| {
+                let n: usize = self.jobs.values_mut().map(|j| j.queue.take_back_worker(id).len()).sum();
+                (n > 0).then_some((id, n))
+            })
+            .collect()
+    }
+
+    /// The next batch for `worker`, from the oldest job that has one.
+    pub fn assign(&mut self, worker: WorkerId, now: Instant) -> Option<Assignment> {
+        let info = self.workers.get_mut(&worker)?;
+        for job in self.jobs.values_mut() {
+            if job.is_over() {
+                continue;
+            }
+            let Some(lease) = job.queue.lease_next(worker, now) else { continue };
+            let (batch, attempt) = (lease.spec.clone(), lease.attempt);
+            if job.state == JobState::Queued {
+                job.state = JobState::Running;
+                job.started = Some(now);
+                job.rate.push_back((now, 0));
+            }
+            let scene = info
+                .scenes
+                .insert(job.id)
+                .then(|| (job.bundle.clone(), job.scene_hash.clone(), job.spp));
+            return Some(Assignment { job: job.id, scene, scene_hash: job.scene_hash.clone(), batch, attempt });
+        }
+        None
+    }
+
+    /// Merges a batch's result, exactly once.
+    pub fn complete(
+        &mut self,
+        worker: WorkerId,
+        job_id: JobId,
+        batch: BatchId,
+        sums: &[u64],
+        nonfinite: u64,
+        now: Instant,
+    ) -> Result<(), ResultError> {
+        let job = self.jobs.get_mut(&job_id).ok_or(ResultError::UnknownJob(job_id))?;
+        if job.is_over() {
+            return Err(CompleteError::NotOutstanding { batch }.into());
+        }
+        // Check the sums before accepting the batch, so that a malformed result neither
+        // merges nor marks the batch done.
+        let spec = job.queue.outstanding(batch).ok_or(CompleteError::NotOutstanding { batch })?.clone();
+        let samples = spec.samples.end - spec.samples.start;
+        if let Err(source) = Framebuffer::check(&spec.quads, samples, sums) {
+            job.queue.take_back(batch);
+            return Err(ResultError::Malformed { job: job_id, batch, source });
+        }
+        job.queue.complete(batch)?;
+        job.framebuffer.merge(&spec.quads, samples, sums).expect("sums were checked above");
+        job.after_merge(nonfinite, now);
+        if let Some(w) = self.workers.get_mut(&worker) {
+            w.batches_done += 1;
+        }
+        Ok(())
+    }
+
+    /// A worker could not render a batch: retry elsewhere, or fail the job if the batch
+    /// keeps failing.
+    pub fn fail_batch(&mut self, job_id: JobId, batch: BatchId, error: &str) {
+        let Some(job) = self.jobs.get_mut(&job_id) else { return };
+        if job.is_over() || !job.queue.take_back(batch) {
+            return;
+        }
+        let n = job.failures.entry(batch).or_default();
+        *n += 1;
+        if *n >= MAX_BATCH_FAILURES {
+            job.queue.abandon();
+            job.state = JobState::Failed(format!("{batch} failed {n} times; last error: {error}"));
+            job.finished = Some(Instant::now());
+        }
+    }
+
+    /// Stops a job; its image stays.
+    pub fn cancel(&mut self, job_id: JobId) -> bool {
+        let Some(job) = self.jobs.get_mut(&job_id) else { return false };
+        if !job.is_over() {
+            job.queue.abandon();
+            job.state = JobState::Cancelled;
+            job.finished = Some(Instant::now());
+        }
+        true
+    }
+}
+
+impl Job {
+    fn queue_leases_of(&self, worker: WorkerId) -> usize {
+        self.queue.leased_by(worker)
+    }
+
+    fn after_merge(&mut self, nonfinite: u64, now: Instant) {
+        self.nonfinite_samples += nonfinite;
+        self.rate.push_back((now, self.queue.samples_done()));
+        while self.rate.len() > 2 && now.saturating_duration_since(self.rate[1].0) > RATE_WINDOW {
+            self.rate.pop_front();
+        }
+        if self.queue.is_finished() {
+            self.state = JobState::Done;
+            self.finished = Some(now);
+        }
+    }
+}

@@ -1,0 +1,164 @@
+//! A job's framebuffer: per-pixel fixed-point sums and sample counts (store sums, not
+//! averages), resolved into an image on demand, with the pass-one mosaic for pixels that
+//! have no sample yet.
+
+use tessera_worker::fixed;
+
+use crate::quadtree::{mosaic_source, Quad};
+
+/// Why a batch's sums could not be merged.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum MergeError {
+    /// The result does not have three sums per pixel.
+    #[error("expected {expected} sums (3 per pixel), got {got}")]
+    WrongLength {
+        /// 3 × pixels.
+        expected: usize,
+        /// What came.
+        got: usize,
+    },
+    /// A sum is larger than its samples can produce.
+    #[error("sum {value} of pixel {x},{y} exceeds the largest possible for {samples} samples")]
+    OutOfRange {
+        /// Column.
+        x: u32,
+        /// Row from the bottom.
+        y: u32,
+        /// The sum.
+        value: u64,
+        /// Samples it claims to hold.
+        samples: u32,
+    },
+}
+
+/// Accumulated samples of a `width × height` image, in the paper's coordinates.
+#[derive(Debug, Clone)]
+pub struct Framebuffer {
+    width: u32,
+    height: u32,
+    sums: Vec<[u64; 3]>,
+    counts: Vec<u32>,
+}
+
+impl Framebuffer {
+    /// An empty framebuffer.
+    pub fn new(width: u32, height: u32) -> Self {
+        let n = width as usize * height as usize;
+        Framebuffer { width, height, sums: vec![[0; 3]; n], counts: vec![0; n] }
+    }
+
+    /// Width in pixels.
+    pub fn width(&self) -> u32 {
+        self.width
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> u32 {
+        self.height
+    }
+
+    fn index(&self, x: u32, y: u32) -> usize {
+        y as usize * self.width as usize + x as usize
+    }
+
+    /// Adds `samples` samples to each of `quads`' pixels. Checks everything before
+    /// changing anything, so a refused result leaves the framebuffer as it was. Integer
+    /// addition makes the result independent of merge order (DESIGN contract 1).
+    pub fn merge(&mut self, quads: &[Quad], samples: u32, sums: &[u64]) -> Result<(), MergeError> {
+        Self::check(quads, samples, sums)?;
+        for (q, s) in quads.iter().zip(sums.chunks_exact(3)) {
+            let i = self.index(q.x, q.y);
+            for c in 0..3 {
+                // Saturating: only a scene far beyond the documented limits can get here.
+                self.sums[i][c] = self.sums[i][c].saturating_add(s[c]);
+            }
+            self.counts[i] = self.counts[i].saturating_add(samples);
+        }
+        Ok(())
+    }
+
+    /// Checks that `sums` can be the result of `samples` samples of each of `quads`.
+    pub fn check(quads: &[Quad], samples: u32, sums: &[u64]) -> Result<(), MergeError> {
+        if sums.len() != quads.len() * 3 {
+            return Err(MergeError::WrongLength { expected: quads.len() * 3, got: sums.len() });
+        }
+        let max = fixed::max_sum(samples);
+        for (q, s) in quads.iter().zip(sums.chunks_exact(3)) {
+            if let Some(&value) = s.iter().find(|&&v| v > max) {
+                return Err(MergeError::OutOfRange { x: q.x, y: q.y, value, samples });
+            }
+        }
+        Ok(())
+    }
+
+    /// The mean radiance of pixel `(x, y)`, or `None` before its first sample.
+    pub fn mean(&self, x: u32, y: u32) -> Option<[f32; 3]> {
+        let i = self.index(x, y);
+        let n = self.counts[i];
+        (n > 0).then(|| self.sums[i].map(|s| fixed::mean(s, n)))
+    }
+
+    /// The image as linear RGB, top row first (image order, ready to encode). A pixel
+    /// without samples shows the mosaic: the mean of the finest computed block covering it.
+    pub fn resolve(&self) -> Vec<f32> {
+        let (w, h) = (self.width, self.height);
+        let mut out = Vec::with_capacity(w as usize * h as usize * 3);
+        for row in 0..h {
+            let y = h - 1 - row;
+            for x in 0..w {
+                let rgb = self.mean(x, y).or_else(|| {
+                    mosaic_source(w, h, x, y, |sx, sy| self.counts[self.index(sx, sy)] > 0)
+                        .and_then(|(sx, sy)| self.mean(sx, sy))
+                });
+                out.extend_from_slice(&rgb.unwrap_or([0.0; 3]));
+            }
+        }
+        out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::quadtree::Walk;
+
+    fn one(v: f32) -> u64 {
+        fixed::to_fixed(v).unwrap()
+    }
+
+    #[test]
+    fn merge_order_does_not_change_the_bits() {
+        let quads: Vec<Quad> = Walk::new(4, 4).collect();
+        let sums_a: Vec<u64> = (0..48).map(|i| one(0.1 * i as f32 + 0.013)).collect();
+        let sums_b: Vec<u64> = (0..48).map(|i| one(1.7 / (i as f32 + 1.0))).collect();
+        let mut ab = Framebuffer::new(4, 4);
+        ab.merge(&quads, 1, &sums_a).unwrap();
+        ab.merge(&quads, 1, &sums_b).unwrap();
+        let mut ba = Framebuffer::new(4, 4);
+        ba.merge(&quads, 1, &sums_b).unwrap();
+        ba.merge(&quads, 1, &sums_a).unwrap();
+        let bits = |f: &Framebuffer| f.resolve().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        assert_eq!(bits(&ab), bits(&ba));
+    }
+
+    #[test]
+    fn bad_results_are_refused_without_change() {
+        let quads: Vec<Quad> = Walk::new(2, 2).collect();
+        let mut fb = Framebuffer::new(2, 2);
+        assert!(matches!(fb.merge(&quads, 1, &[0; 5]), Err(MergeError::WrongLength { .. })));
+        let mut sums = vec![0; 12];
+        sums[4] = u64::MAX;
+        assert!(matches!(fb.merge(&quads, 1, &sums), Err(MergeError::OutOfRange { .. })));
+        assert!(fb.mean(0, 0).is_none());
+    }
+
+    /// An early image shows the mosaic, not black with a few dots.
+    #[test]
+    fn mosaic_fills_the_frame_from_the_first_pixel() {
+        let mut fb = Framebuffer::new(8, 8);
+        let root = Walk::new(8, 8).next().unwrap();
+        fb.merge(&[root], 1, &[one(0.5), one(0.25), one(1.0)]).unwrap();
+        let img = fb.resolve();
+        assert!(img.chunks(3).all(|p| p == [0.5, 0.25, 1.0]));
+    }
+}

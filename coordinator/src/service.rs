@@ -1,0 +1,393 @@
+//! The gRPC face of the coordinator: checks every request, turns wire types into the
+//! farm's types and back, and is the only module of this crate that touches prost types.
+
+use std::pin::Pin;
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::coordinator_message::Msg as Out;
+use tessera_proto::v1::coordinator_server::{Coordinator, CoordinatorServer};
+use tessera_proto::v1::worker_message::Msg as In;
+use tessera_worker::bundle::Bundle;
+use tokio::sync::{mpsc, watch};
+use tokio_stream::wrappers::ReceiverStream;
+use tokio_stream::Stream;
+use tonic::{Request, Response, Status, Streaming};
+use tracing::{debug, info, warn};
+
+use crate::farm::{Farm, JobSettings, JobState, ResultError, SubmitError};
+use crate::ids::{BatchId, JobId, WorkerId};
+
+/// Timing of the worker protocol.
+#[derive(Debug, Clone, Copy)]
+pub struct Timing {
+    /// How often workers must send at least a heartbeat.
+    pub heartbeat: Duration,
+    /// Silence after which a worker's leases are taken back: several heartbeats, so that
+    /// a busy network or a paused scheduler does not cost work.
+    pub silence_timeout: Duration,
+}
+
+impl Default for Timing {
+    fn default() -> Self {
+        Timing { heartbeat: Duration::from_secs(2), silence_timeout: Duration::from_secs(10) }
+    }
+}
+
+/// The most batches a worker may ask to hold at once; bounds the coordinator's lease table.
+pub const MAX_CREDIT: u32 = 256;
+/// Rows per `ImageChunk`: about 1 MB at 4K width, far below gRPC's message limit.
+const ROWS_PER_CHUNK_PIXELS: usize = 1 << 16;
+/// The largest message the coordinator accepts (scene bundles with their assets).
+pub const MAX_MESSAGE_BYTES: usize = 256 << 20;
+
+/// The coordinator: the farm behind a lock, and a change counter that wakes the tasks
+/// feeding workers whenever there may be new work.
+#[derive(Clone)]
+pub struct CoordinatorService {
+    farm: Arc<Mutex<Farm>>,
+    changed: Arc<watch::Sender<u64>>,
+    timing: Timing,
+}
+
+impl CoordinatorService {
+    /// A coordinator with no jobs.
+    pub fn new(timing: Timing) -> Self {
+        let (changed, _) = watch::channel(0);
+        CoordinatorService { farm: Arc::new(Mutex::new(Farm::new())), changed: Arc::new(changed), timing }
+    }
+
+    /// The farm, locked. Held only for short, non-blocking work.
+    pub fn farm(&self) -> MutexGuard<'_, Farm> {
+        // A panic while holding the lock must not take every later request down with it:
+        // the farm's methods keep it consistent at every return.
+        self.farm.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// Wakes every worker feeder: a job arrived, leases came back, or a worker left.
+    pub fn notify(&self) {
+        self.changed.send_modify(|v| *v = v.wrapping_add(1));
+    }
+
+    /// A receiver of change notifications (also for in-process clients such as `render`).
+    pub fn subscribe(&self) -> watch::Receiver<u64> {
+        self.changed.subscribe()
+    }
+
+    /// Queues a job (in-process submission, as `tessera render` does).
+    pub fn submit(&self, bundle: Bundle, settings: JobSettings) -> Result<JobId, SubmitError> {
+        let id = self.farm().submit(bundle, settings)?;
+        info!(%id, "job queued");
+        self.notify();
+        Ok(id)
+    }
+
+    /// The tonic server for this service, with message limits set.
+    pub fn into_server(self) -> CoordinatorServer<Self> {
+        CoordinatorServer::new(self)
+            .max_decoding_message_size(MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(MAX_MESSAGE_BYTES)
+    }
+
+    /// Takes back the leases of silent workers, once a second, until the service is dropped.
+    pub fn spawn_reaper(&self) -> tokio::task::JoinHandle<()> {
+        let this = self.clone();
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_secs(1));
+            loop {
+                tick.tick().await;
+                let expired = this.farm().expire_silent(Instant::now(), this.timing.silence_timeout);
+                for (worker, n) in &expired {
+                    warn!(%worker, batches = n, "worker silent; its batches go to others");
+                }
+                if !expired.is_empty() {
+                    this.notify();
+                }
+                if Arc::strong_count(&this.farm) == 1 {
+                    return;
+                }
+            }
+        })
+    }
+
+    /// Feeds one worker stream until it ends.
+    async fn serve_worker(self, mut inbound: Streaming<pb::WorkerMessage>, tx: mpsc::Sender<Result<pb::CoordinatorMessage, Status>>) {
+        let refuse = |reason: String| pb::CoordinatorMessage { msg: Some(Out::Refused(pb::Refused { reason })) };
+        let hello = match inbound.message().await {
+            Ok(Some(pb::WorkerMessage { msg: Some(In::Hello(h)) })) => h,
+            Ok(_) => {
+                let _ = tx.send(Ok(refuse("the first message of a worker stream must be Hello".into()))).await;
+                return;
+            }
+            Err(e) => {
+                debug!("worker stream failed before Hello: {e}");
+                return;
+            }
+        };
+        if hello.protocol_version != pb::ProtocolVersion::Current as i32 {
+            let reason = format!(
+                "protocol version {} is not supported; this coordinator speaks version {}",
+                hello.protocol_version,
+                pb::ProtocolVersion::Current as i32
+            );
+            warn!(name = %hello.name, "{reason}");
+            let _ = tx.send(Ok(refuse(reason))).await;
+            return;
+        }
+        if hello.renderer_version != tessera_worker::RENDERER_VERSION {
+            let reason = format!(
+                "worker runs renderer {}, coordinator {}: images would not be bit-identical; run the same tessera build everywhere",
+                hello.renderer_version,
+                tessera_worker::RENDERER_VERSION
+            );
+            warn!(name = %hello.name, "{reason}");
+            let _ = tx.send(Ok(refuse(reason))).await;
+            return;
+        }
+        let threads = hello.threads.clamp(1, 4096);
+        let id = self.farm().add_worker(hello.name.clone(), threads, Instant::now());
+        info!(worker = %id, name = %hello.name, threads, "worker joined");
+        let welcome = pb::Welcome { worker_id: id.0, heartbeat_interval_ms: self.timing.heartbeat.as_millis() as u32 };
+        if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Welcome(welcome)) })).await.is_err() {
+            self.farm().remove_worker(id);
+            return;
+        }
+        let mut credit = hello.credit.min(MAX_CREDIT);
+        let mut changed = self.subscribe();
+        let end = loop {
+            // Hand out work while the worker wants it and there is some.
+            while credit > 0 {
+                let Some(a) = self.farm().assign(id, Instant::now()) else { break };
+                credit -= 1;
+                if let Some((bundle, hash, spp)) = a.scene {
+                    let scene = pb::JobScene {
+                        job_id: a.job.0,
+                        scene_hash: hash,
+                        bundle: Some(bundle_to_wire(&bundle)),
+                        settings: Some(pb::RenderSettings { spp }),
+                    };
+                    if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Scene(scene)) })).await.is_err() {
+                        break;
+                    }
+                }
+                let pixels = a.batch.quads.iter().flat_map(|q| [q.x, q.y]).collect();
+                let batch = pb::Batch {
+                    job_id: a.job.0,
+                    batch_id: a.batch.id.0,
+                    attempt: a.attempt,
+                    scene_hash: a.scene_hash,
+                    pass: a.batch.pass.number(),
+                    sample_start: a.batch.samples.start,
+                    sample_end: a.batch.samples.end,
+                    pixels,
+                };
+                if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Batch(batch)) })).await.is_err() {
+                    break;
+                }
+            }
+            tokio::select! {
+                msg = inbound.message() => match msg {
+                    Ok(Some(m)) => {
+                        self.farm().touch(id, Instant::now());
+                        match self.handle(id, m, &mut credit) {
+                            Ok(()) => {}
+                            Err(reason) => {
+                                warn!(worker = %id, "{reason}; disconnecting it");
+                                let _ = tx.send(Ok(refuse(reason))).await;
+                                break "refused";
+                            }
+                        }
+                    }
+                    Ok(None) => break "closed",
+                    Err(e) => { debug!(worker = %id, "stream error: {e}"); break "lost" }
+                },
+                r = changed.changed() => if r.is_err() { break "shutdown" },
+                _ = tx.closed() => break "lost",
+            }
+        };
+        let n = self.farm().remove_worker(id);
+        info!(worker = %id, batches_taken_back = n, "worker left ({end})");
+        self.notify();
+    }
+
+    /// Applies one worker message; `Err` is a reason to disconnect the worker.
+    fn handle(&self, id: WorkerId, m: pb::WorkerMessage, credit: &mut u32) -> Result<(), String> {
+        match m.msg {
+            Some(In::Results(r)) => {
+                let now = Instant::now();
+                let mut merged = false;
+                for res in r.results {
+                    let (job, batch) = (JobId(res.job_id), BatchId(res.batch_id));
+                    match self.farm().complete(id, job, batch, &res.sums, res.nonfinite_samples, now) {
+                        Ok(()) => merged = true,
+                        Err(ResultError::Duplicate(e)) => debug!(worker = %id, %job, "dropped duplicate: {e}"),
+                        Err(ResultError::UnknownJob(j)) => debug!(worker = %id, "result for unknown {j}"),
+                        Err(e @ ResultError::Malformed { .. }) => {
+                            self.notify();
+                            return Err(format!("malformed result: {e}"));
+                        }
+                    }
+                }
+                *credit = credit.saturating_add(r.credit).min(MAX_CREDIT);
+                if merged {
+                    self.notify();
+                }
+                Ok(())
+            }
+            Some(In::Heartbeat(_)) => Ok(()),
+            Some(In::Failed(f)) => {
+                warn!(worker = %id, job = f.job_id, batch = f.batch_id, "batch failed: {}", f.error);
+                self.farm().fail_batch(JobId(f.job_id), BatchId(f.batch_id), &f.error);
+                *credit = credit.saturating_add(f.credit).min(MAX_CREDIT);
+                self.notify();
+                Ok(())
+            }
+            Some(In::Hello(_)) => Err("Hello sent twice".into()),
+            None => Err("empty message".into()),
+        }
+    }
+}
+
+/// A bundle as it travels.
+pub fn bundle_to_wire(b: &Bundle) -> pb::SceneBundle {
+    pb::SceneBundle {
+        name: b.name.clone(),
+        text: b.text.clone(),
+        assets: b.assets.iter().map(|(path, data)| pb::Asset { path: path.clone(), data: data.clone() }).collect(),
+    }
+}
+
+/// A bundle from the wire.
+pub fn bundle_from_wire(b: pb::SceneBundle) -> Bundle {
+    let mut assets: Vec<(String, Vec<u8>)> = b.assets.into_iter().map(|a| (a.path, a.data)).collect();
+    assets.sort();
+    Bundle { name: b.name, text: b.text, assets }
+}
+
+fn state_to_wire(s: &JobState) -> pb::JobState {
+    match s {
+        JobState::Queued => pb::JobState::Queued,
+        JobState::Running => pb::JobState::Running,
+        JobState::Done => pb::JobState::Done,
+        JobState::Cancelled => pb::JobState::Cancelled,
+        JobState::Failed(_) => pb::JobState::Failed,
+    }
+}
+
+type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send + 'static>>;
+
+#[tonic::async_trait]
+impl Coordinator for CoordinatorService {
+    type WorkStream = BoxStream<pb::CoordinatorMessage>;
+    type FetchImageStream = BoxStream<pb::ImageChunk>;
+
+    async fn work(&self, request: Request<Streaming<pb::WorkerMessage>>) -> Result<Response<Self::WorkStream>, Status> {
+        let inbound = request.into_inner();
+        // Room for a full credit's worth of batches plus scenes, so that handing out work
+        // never waits on the worker reading.
+        let (tx, rx) = mpsc::channel(MAX_CREDIT as usize + 16);
+        tokio::spawn(self.clone().serve_worker(inbound, tx));
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    async fn submit(&self, request: Request<pb::SubmitRequest>) -> Result<Response<pb::SubmitResponse>, Status> {
+        let req = request.into_inner();
+        if req.protocol_version != pb::ProtocolVersion::Current as i32 {
+            return Err(Status::failed_precondition(format!(
+                "client speaks protocol version {}, coordinator {}",
+                req.protocol_version,
+                pb::ProtocolVersion::Current as i32
+            )));
+        }
+        let bundle = req.bundle.ok_or_else(|| Status::invalid_argument("submit without a scene bundle"))?;
+        let settings = JobSettings { spp: req.settings.and_then(|s| (s.spp != 0).then_some(s.spp)) };
+        let id = self.submit(bundle_from_wire(bundle), settings).map_err(|e| Status::invalid_argument(e.to_string()))?;
+        let farm = self.farm();
+        let job = farm.job(id).expect("just submitted");
+        let fb = job.framebuffer();
+        Ok(Response::new(pb::SubmitResponse { job_id: id.0, width: fb.width(), height: fb.height(), spp: job.spp }))
+    }
+
+    async fn status(&self, request: Request<pb::StatusRequest>) -> Result<Response<pb::StatusResponse>, Status> {
+        let want = request.into_inner().job_id;
+        let farm = self.farm();
+        let now = Instant::now();
+        if want != 0 && farm.job(JobId(want)).is_none() {
+            return Err(Status::not_found(format!("no job {want} on this coordinator")));
+        }
+        let jobs = farm
+            .jobs()
+            .filter(|j| want == 0 || j.id.0 == want)
+            .map(|j| {
+                let p = j.progress(now);
+                pb::JobStatus {
+                    job_id: p.id.0,
+                    scene: p.scene,
+                    state: state_to_wire(&p.state) as i32,
+                    width: p.width,
+                    height: p.height,
+                    spp: p.spp,
+                    pass: p.pass,
+                    samples_done: p.samples_done,
+                    samples_total: p.samples_total,
+                    samples_per_second: p.samples_per_second,
+                    elapsed_seconds: p.elapsed.as_secs_f64(),
+                    error: match &p.state {
+                        JobState::Failed(e) => e.clone(),
+                        _ => String::new(),
+                    },
+                    pass_one_done: p.pass_one_done,
+                }
+            })
+            .collect();
+        let workers = farm
+            .workers()
+            .map(|(id, w)| pb::WorkerStatus {
+                worker_id: id.0,
+                name: w.name.clone(),
+                threads: w.threads,
+                batches_in_flight: farm.in_flight(id) as u32,
+                batches_done: w.batches_done,
+            })
+            .collect();
+        Ok(Response::new(pb::StatusResponse { jobs, workers }))
+    }
+
+    async fn fetch_image(&self, request: Request<pb::FetchImageRequest>) -> Result<Response<Self::FetchImageStream>, Status> {
+        let id = JobId(request.into_inner().job_id);
+        let (width, height, rgb, state) = {
+            let farm = self.farm();
+            let job = farm.job(id).ok_or_else(|| Status::not_found(format!("no {id} on this coordinator")))?;
+            let fb = job.framebuffer();
+            (fb.width(), fb.height(), fb.resolve(), state_to_wire(&job.state))
+        };
+        let rows_per_chunk = (ROWS_PER_CHUNK_PIXELS / width.max(1) as usize).max(1);
+        let row_floats = width as usize * 3;
+        let chunks: Vec<Result<pb::ImageChunk, Status>> = rgb
+            .chunks(rows_per_chunk * row_floats)
+            .enumerate()
+            .map(|(i, rows)| {
+                Ok(pb::ImageChunk {
+                    width,
+                    height,
+                    row_start: (i * rows_per_chunk) as u32,
+                    rows: (rows.len() / row_floats) as u32,
+                    rgb: rows.iter().flat_map(|v| v.to_le_bytes()).collect(),
+                    state: state as i32,
+                })
+            })
+            .collect();
+        Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
+    }
+
+    async fn cancel(&self, request: Request<pb::CancelRequest>) -> Result<Response<pb::CancelResponse>, Status> {
+        let id = JobId(request.into_inner().job_id);
+        if !self.farm().cancel(id) {
+            return Err(Status::not_found(format!("no {id} on this coordinator")));
+        }
+        info!(%id, "job cancelled");
+        self.notify();
+        Ok(Response::new(pb::CancelResponse {}))
+    }
+}
