@@ -1,1 +1,209 @@
-fn main(){}
+//! `tessera`: the one command-line tool of the render farm.
+#![forbid(unsafe_code)]
+
+mod bench;
+mod local;
+mod remote;
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use anyhow::{Context, Result};
+use clap::{Parser, Subcommand};
+use tracing_subscriber::EnvFilter;
+
+/// Tessera: a render farm for distributed ray tracing with progressive refinement.
+#[derive(Debug, Parser)]
+#[command(version, about, long_about = None, propagate_version = true)]
+#[deny(missing_docs)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Debug, Subcommand)]
+#[deny(missing_docs)]
+enum Command {
+    /// Render a scene with local worker processes and write the image (.png or .exr).
+    Render(local::RenderArgs),
+    /// Run a coordinator that workers and clients connect to.
+    Coordinator {
+        /// Address to listen on, e.g. 0.0.0.0:7878 to accept workers from other machines.
+        #[arg(long, default_value = "127.0.0.1:7878", env = "TESSERA_LISTEN")]
+        listen: SocketAddr,
+        /// Seconds of silence after which a worker's batches go to others [default: 10].
+        #[arg(long, default_value_t = 10.0)]
+        worker_timeout: f64,
+    },
+    /// Run a worker that renders batches for a coordinator.
+    Worker(WorkerArgs),
+    /// Submit a scene to a coordinator; with -o, wait and write the image.
+    Submit(remote::SubmitArgs),
+    /// Show the jobs and workers of a coordinator.
+    Status {
+        /// The coordinator's URL, e.g. http://render-host:7878.
+        #[arg(long, env = "TESSERA_COORDINATOR")]
+        coordinator: String,
+    },
+    /// Cancel a job; its current image stays fetchable.
+    Cancel {
+        /// The job id.
+        job: u64,
+        /// The coordinator's URL.
+        #[arg(long, env = "TESSERA_COORDINATOR")]
+        coordinator: String,
+    },
+    /// Print the pass-one visit order of a WIDTH × HEIGHT image: one computed pixel per
+    /// line as `x y w h` (origin at the lower-left corner, y upward; w × h is the block the
+    /// pixel paints).
+    Order {
+        /// Image width in pixels.
+        width: u32,
+        /// Image height in pixels.
+        height: u32,
+    },
+    /// Benchmarks that print figures.
+    #[command(subcommand)]
+    Bench(bench::BenchCommand),
+}
+
+/// Arguments of `tessera worker`.
+#[derive(Debug, clap::Args)]
+#[deny(missing_docs)]
+pub struct WorkerArgs {
+    /// The coordinator's URL, e.g. http://render-host:7878.
+    #[arg(long, env = "TESSERA_COORDINATOR")]
+    coordinator: String,
+    /// Render threads [default: one per core].
+    #[arg(long)]
+    threads: Option<usize>,
+    /// Name shown in status [default: host name and process id].
+    #[arg(long)]
+    name: Option<String>,
+    /// Exit when the coordinator goes away instead of reconnecting.
+    #[arg(long)]
+    exit_on_disconnect: bool,
+}
+
+fn init_tracing(default: &str) {
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(default));
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
+}
+
+/// The cores this process may use.
+pub fn cores() -> usize {
+    std::thread::available_parallelism().map_or(1, |n| n.get())
+}
+
+fn host_name() -> String {
+    std::env::var("HOSTNAME")
+        .ok()
+        .or_else(|| std::fs::read_to_string("/etc/hostname").ok())
+        .map(|s| s.trim().to_string())
+        .filter(|s| !s.is_empty())
+        .unwrap_or_else(|| "worker".into())
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let quiet = matches!(cli.command, Command::Render(_) | Command::Submit(_) | Command::Order { .. } | Command::Bench(_));
+    init_tracing(if quiet { "warn" } else { "info" });
+    let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("error: cannot start the async runtime: {e}");
+            return ExitCode::FAILURE;
+        }
+    };
+    match runtime.block_on(run(cli.command)) {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("error: {}", one_line(&e));
+            ExitCode::FAILURE
+        }
+    }
+}
+
+/// An error and its causes on one line.
+fn one_line(e: &anyhow::Error) -> String {
+    e.chain().map(|c| c.to_string()).collect::<Vec<_>>().join(": ")
+}
+
+async fn run(command: Command) -> Result<ExitCode> {
+    match command {
+        Command::Render(args) => local::render(args).await,
+        Command::Coordinator { listen, worker_timeout } => {
+            if !(worker_timeout.is_finite() && worker_timeout > 0.0) {
+                anyhow::bail!("--worker-timeout must be a positive number of seconds");
+            }
+            let timing = tessera_coordinator::Timing {
+                silence_timeout: std::time::Duration::from_secs_f64(worker_timeout),
+                ..Default::default()
+            };
+            remote::serve_coordinator(listen, timing).await?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Worker(args) => {
+            let threads = args.threads.unwrap_or_else(cores);
+            if threads == 0 {
+                anyhow::bail!("--threads must be at least 1");
+            }
+            let config = tessera_worker::client::WorkerConfig {
+                coordinator: args.coordinator,
+                threads,
+                name: args.name.unwrap_or_else(|| format!("{}:{}", host_name(), std::process::id())),
+                exit_on_disconnect: args.exit_on_disconnect,
+            };
+            tessera_worker::client::run(config).await?;
+            Ok(ExitCode::SUCCESS)
+        }
+        Command::Submit(args) => remote::submit(args).await,
+        Command::Status { coordinator } => remote::status(&coordinator).await,
+        Command::Cancel { job, coordinator } => remote::cancel(&coordinator, job).await,
+        Command::Order { width, height } => {
+            use std::io::Write;
+            let stdout = std::io::stdout();
+            let mut out = std::io::BufWriter::new(stdout.lock());
+            for q in tessera_coordinator::quadtree::Walk::new(width, height) {
+                if let Err(e) = writeln!(out, "{} {} {} {}", q.x, q.y, q.w, q.h) {
+                    // A closed pipe (`| head`) is a normal way to stop reading.
+                    if e.kind() == std::io::ErrorKind::BrokenPipe {
+                        return Ok(ExitCode::SUCCESS);
+                    }
+                    return Err(e).context("writing the order");
+                }
+            }
+            match out.flush() {
+                Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e).context("writing the order"),
+                _ => Ok(ExitCode::SUCCESS),
+            }
+        }
+        Command::Bench(cmd) => bench::run(cmd).await,
+    }
+}
+
+/// Checks an output path before any work is done: a known extension and a directory
+/// that exists.
+pub fn check_output(path: &std::path::Path) -> Result<()> {
+    tessera_coordinator::output::Format::from_path(path)?;
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+    if !dir.is_dir() {
+        anyhow::bail!("cannot write {}: directory {} does not exist", path.display(), dir.display());
+    }
+    Ok(())
+}
+
+/// A path given on the command line.
+pub type PathArg = PathBuf;
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use clap::CommandFactory;
+
+    #[test]
+    fn cli_is_well_formed() {
+        Cli::command().debug_assert();
+    }
+}

@@ -1,1 +1,360 @@
-//! placeholder
+//! The worker's side of the farm: connect to a coordinator, announce the threads, take
+//! batches, render them on a pool of threads, and stream back per-pixel sums. The only
+//! module of this crate that touches prost types.
+
+use std::collections::{HashMap, VecDeque};
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use glam::UVec2;
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::coordinator_client::CoordinatorClient;
+use tessera_proto::v1::coordinator_message::Msg as In;
+use tessera_proto::v1::worker_message::Msg as Out;
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+use tonic::transport::{Channel, Endpoint};
+use tracing::{debug, info, warn};
+
+use crate::batch::render_batch;
+use crate::bundle::Bundle;
+use crate::render::Scene;
+
+/// Scenes a worker keeps at once (one per recent job); older ones are dropped.
+const SCENE_CACHE: usize = 8;
+/// Batches a worker wants in hand per render thread: one rendering, one waiting, so that
+/// no thread idles for a round trip to the coordinator.
+pub const CREDIT_PER_THREAD: u32 = 2;
+/// The largest message the worker accepts (scene bundles with their assets).
+const MAX_MESSAGE_BYTES: usize = 256 << 20;
+
+/// How a worker runs.
+#[derive(Debug, Clone)]
+pub struct WorkerConfig {
+    /// The coordinator's URL, e.g. `http://10.0.0.1:7878`.
+    pub coordinator: String,
+    /// Render threads.
+    pub threads: usize,
+    /// Name shown in status.
+    pub name: String,
+    /// Exit when the coordinator goes away instead of reconnecting (local render children).
+    pub exit_on_disconnect: bool,
+}
+
+/// Why a worker stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum WorkerError {
+    /// The URL is not usable.
+    #[error("bad coordinator address {url:?}: {reason}")]
+    BadAddress {
+        /// The URL.
+        url: String,
+        /// Why.
+        reason: String,
+    },
+    /// Nothing answers there.
+    #[error("cannot reach coordinator at {url}: {reason}")]
+    Unreachable {
+        /// The URL.
+        url: String,
+        /// Why.
+        reason: String,
+    },
+    /// The coordinator refused this worker.
+    #[error("coordinator refused this worker: {0}")]
+    Refused(String),
+    /// The connection broke.
+    #[error("lost the coordinator: {0}")]
+    Lost(String),
+}
+
+/// One batch for the render pool.
+struct Task {
+    generation: u64,
+    scene: Arc<Scene>,
+    batch: pb::Batch,
+    pixels: Vec<UVec2>,
+    reply: mpsc::UnboundedSender<pb::BatchResult>,
+}
+
+/// Render threads shared by every connection of the process.
+struct Pool {
+    tasks: crossbeam_channel::Sender<Task>,
+    generation: Arc<AtomicU64>,
+}
+
+impl Pool {
+    fn new(threads: usize) -> Pool {
+        let (tasks, rx) = crossbeam_channel::unbounded::<Task>();
+        let generation = Arc::new(AtomicU64::new(0));
+        for i in 0..threads {
+            let rx = rx.clone();
+            let current = generation.clone();
+            std::thread::Builder::new()
+                .name(format!("render-{i}"))
+                .spawn(move || {
+                    for task in rx {
+                        // Batches of a connection that is gone were taken back already.
+                        if task.generation != current.load(Ordering::Relaxed) {
+                            continue;
+                        }
+                        let start = Instant::now();
+                        let b = &task.batch;
+                        let sums = render_batch(&task.scene, &task.pixels, b.sample_start..b.sample_end);
+                        let _ = task.reply.send(pb::BatchResult {
+                            job_id: b.job_id,
+                            batch_id: b.batch_id,
+                            attempt: b.attempt,
+                            sums: sums.sums,
+                            nonfinite_samples: sums.nonfinite,
+                            render_micros: start.elapsed().as_micros() as u64,
+                        });
+                    }
+                })
+                .expect("spawning a render thread");
+        }
+        Pool { tasks, generation }
+    }
+}
+
+/// A capped exponential backoff for reconnecting.
+#[derive(Debug, Clone)]
+pub struct Backoff {
+    next: Duration,
+    max: Duration,
+}
+
+impl Backoff {
+    /// Starts at `first`, doubles up to `max`.
+    pub fn new(first: Duration, max: Duration) -> Self {
+        Backoff { next: first, max }
+    }
+
+    /// The next wait.
+    pub fn next_delay(&mut self) -> Duration {
+        let d = self.next;
+        self.next = (self.next * 2).min(self.max);
+        d
+    }
+}
+
+enum SessionEnd {
+    /// The coordinator closed the stream.
+    Closed,
+}
+
+/// Runs a worker until the coordinator refuses it, or (with `exit_on_disconnect`) until
+/// the coordinator goes away. A coordinator that cannot be reached at start is an error;
+/// one lost later is retried with backoff.
+pub async fn run(config: WorkerConfig) -> Result<(), WorkerError> {
+    let url = config.coordinator.clone();
+    let endpoint = Endpoint::from_shared(url.clone())
+        .map_err(|e| WorkerError::BadAddress { url: url.clone(), reason: e.to_string() })?
+        .connect_timeout(Duration::from_secs(5))
+        .tcp_nodelay(true)
+        .http2_keep_alive_interval(Duration::from_secs(10))
+        .keep_alive_timeout(Duration::from_secs(20));
+    let pool = Pool::new(config.threads.max(1));
+    let mut connected_once = false;
+    let mut backoff = Backoff::new(Duration::from_millis(250), Duration::from_secs(15));
+    loop {
+        let result = session(&endpoint, &config, &pool, &mut connected_once).await;
+        pool.generation.fetch_add(1, Ordering::Relaxed);
+        let reason = match result {
+            Ok(SessionEnd::Closed) => "the coordinator closed the connection".to_string(),
+            Err(WorkerError::Unreachable { .. }) if connected_once => "unreachable".to_string(),
+            Err(WorkerError::Lost(e)) => e,
+            Err(e) => return Err(e),
+        };
+        if config.exit_on_disconnect {
+            info!("coordinator gone ({reason}); exiting");
+            return Ok(());
+        }
+        let wait = backoff.next_delay();
+        warn!("coordinator lost ({reason}); reconnecting in {wait:?}");
+        tokio::time::sleep(wait).await;
+    }
+}
+
+async fn session(
+    endpoint: &Endpoint,
+    config: &WorkerConfig,
+    pool: &Pool,
+    connected_once: &mut bool,
+) -> Result<SessionEnd, WorkerError> {
+    let url = config.coordinator.clone();
+    let channel: Channel = endpoint
+        .connect()
+        .await
+        .map_err(|e| WorkerError::Unreachable { url: url.clone(), reason: error_chain(&e) })?;
+    let mut client = CoordinatorClient::new(channel)
+        .max_decoding_message_size(MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(MAX_MESSAGE_BYTES);
+    let (out, out_rx) = mpsc::channel::<pb::WorkerMessage>(64);
+    let threads = config.threads.max(1) as u32;
+    let hello = pb::Hello {
+        protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
+        renderer_version: crate::RENDERER_VERSION.to_string(),
+        name: config.name.clone(),
+        threads,
+        credit: threads * CREDIT_PER_THREAD,
+    };
+    out.send(pb::WorkerMessage { msg: Some(Out::Hello(hello)) }).await.expect("receiver is alive");
+    let mut inbound = client
+        .work(ReceiverStream::new(out_rx))
+        .await
+        .map_err(|s| WorkerError::Unreachable { url: url.clone(), reason: s.message().to_string() })?
+        .into_inner();
+    let heartbeat = match inbound.message().await {
+        Ok(Some(pb::CoordinatorMessage { msg: Some(In::Welcome(w)) })) => {
+            info!(worker_id = w.worker_id, threads, "connected to {url}");
+            Duration::from_millis(u64::from(w.heartbeat_interval_ms.clamp(100, 60_000)))
+        }
+        Ok(Some(pb::CoordinatorMessage { msg: Some(In::Refused(r)) })) => return Err(WorkerError::Refused(r.reason)),
+        Ok(_) => return Err(WorkerError::Lost("the coordinator did not answer Hello with Welcome".into())),
+        Err(s) => return Err(WorkerError::Lost(s.message().to_string())),
+    };
+    *connected_once = true;
+    let generation = pool.generation.load(Ordering::Relaxed);
+    let (reply, mut done) = mpsc::unbounded_channel::<pb::BatchResult>();
+    let mut scenes: SceneCache = SceneCache::default();
+    let mut tick = tokio::time::interval(heartbeat);
+    loop {
+        tokio::select! {
+            msg = inbound.message() => {
+                let m = match msg {
+                    Ok(Some(m)) => m,
+                    Ok(None) => return Ok(SessionEnd::Closed),
+                    Err(s) => return Err(WorkerError::Lost(s.message().to_string())),
+                };
+                match m.msg {
+                    Some(In::Scene(js)) => scenes.load(js).await,
+                    Some(In::Batch(b)) => match scenes.prepare(&b) {
+                        Ok((scene, pixels)) => {
+                            let task = Task { generation, scene, batch: b, pixels, reply: reply.clone() };
+                            pool.tasks.send(task).expect("render threads live as long as the process");
+                        }
+                        Err(error) => {
+                            warn!(job = b.job_id, batch = b.batch_id, "cannot render batch: {error}");
+                            let failed = pb::BatchFailed { job_id: b.job_id, batch_id: b.batch_id, attempt: b.attempt, error, credit: 1 };
+                            send(&out, Out::Failed(failed)).await?;
+                        }
+                    },
+                    Some(In::Refused(r)) => return Err(WorkerError::Refused(r.reason)),
+                    Some(In::Welcome(_)) | None => debug!("ignored an unexpected message"),
+                }
+            }
+            Some(first) = done.recv() => {
+                let mut results = vec![first];
+                while let Ok(r) = done.try_recv() {
+                    results.push(r);
+                }
+                let credit = results.len() as u32;
+                send(&out, Out::Results(pb::Results { results, credit })).await?;
+                tick.reset();
+            }
+            _ = tick.tick() => send(&out, Out::Heartbeat(pb::Heartbeat {})).await?,
+        }
+    }
+}
+
+async fn send(out: &mpsc::Sender<pb::WorkerMessage>, msg: Out) -> Result<(), WorkerError> {
+    out.send(pb::WorkerMessage { msg: Some(msg) })
+        .await
+        .map_err(|_| WorkerError::Lost("the outbound stream closed".into()))
+}
+
+/// The scenes of recent jobs, by job id: parsed, or the reason they could not be.
+#[derive(Default)]
+struct SceneCache {
+    scenes: HashMap<u64, (String, Result<Arc<Scene>, String>)>,
+    order: VecDeque<u64>,
+}
+
+impl SceneCache {
+    async fn load(&mut self, js: pb::JobScene) {
+        let job = js.job_id;
+        let claimed = js.scene_hash.clone();
+        let spp = js.settings.map_or(0, |s| s.spp);
+        let parsed = match js.bundle {
+            None => Err("the coordinator sent a job without its scene".to_string()),
+            Some(b) => {
+                let mut assets: Vec<(String, Vec<u8>)> = b.assets.into_iter().map(|a| (a.path, a.data)).collect();
+                assets.sort();
+                let bundle = Bundle { name: b.name, text: b.text, assets };
+                // Parsing a large scene is CPU work: keep it off the async threads.
+                tokio::task::spawn_blocking(move || {
+                    let actual = bundle.hash();
+                    if actual != claimed {
+                        return Err(format!(
+                            "scene content hashes to {actual}, but the coordinator named it {claimed}: refusing a scene that differs from the submitted one"
+                        ));
+                    }
+                    let mut scene = bundle.parse().map_err(|e| e.to_string())?;
+                    if spp > 0 {
+                        scene.spp = spp;
+                    }
+                    Ok(Arc::new(scene))
+                })
+                .await
+                .unwrap_or_else(|e| Err(format!("scene loading panicked: {e}")))
+            }
+        };
+        if let Err(e) = &parsed {
+            warn!(job, "scene refused: {e}");
+        }
+        self.scenes.insert(job, (js.scene_hash, parsed));
+        self.order.push_back(job);
+        while self.order.len() > SCENE_CACHE {
+            if let Some(old) = self.order.pop_front() {
+                self.scenes.remove(&old);
+            }
+        }
+    }
+
+    /// The scene and pixels of a batch, checked against each other.
+    fn prepare(&self, b: &pb::Batch) -> Result<(Arc<Scene>, Vec<UVec2>), String> {
+        let (hash, scene) =
+            self.scenes.get(&b.job_id).ok_or_else(|| format!("no scene received for job {}", b.job_id))?;
+        if *hash != b.scene_hash {
+            return Err(format!("batch names scene {}, but job {} has scene {hash}", b.scene_hash, b.job_id));
+        }
+        let scene = scene.clone()?;
+        if b.pixels.len() % 2 != 0 {
+            return Err("pixel list has an odd number of coordinates".into());
+        }
+        if b.sample_start >= b.sample_end || b.sample_end > crate::scene::limits::MAX_SPP {
+            return Err(format!("bad sample range {}..{}", b.sample_start, b.sample_end));
+        }
+        let pixels: Vec<UVec2> = b.pixels.chunks_exact(2).map(|p| UVec2::new(p[0], p[1])).collect();
+        if let Some(p) = pixels.iter().find(|p| p.x >= scene.width || p.y >= scene.height) {
+            return Err(format!("pixel {},{} is outside the {}x{} image", p.x, p.y, scene.width, scene.height));
+        }
+        Ok((scene, pixels))
+    }
+}
+
+/// An error with its causes, on one line.
+fn error_chain(e: &dyn std::error::Error) -> String {
+    let mut s = e.to_string();
+    let mut source = e.source();
+    while let Some(cause) = source {
+        s.push_str(": ");
+        s.push_str(&cause.to_string());
+        source = cause.source();
+    }
+    s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn backoff_doubles_up_to_its_cap() {
+        let mut b = Backoff::new(Duration::from_millis(250), Duration::from_secs(1));
+        let waits: Vec<u64> = (0..5).map(|_| b.next_delay().as_millis() as u64).collect();
+        assert_eq!(waits, [250, 500, 1000, 1000, 1000]);
+    }
+}

@@ -1,0 +1,254 @@
+//! `tessera render`: a coordinator in this process, local worker processes on loopback,
+//! a progress bar, and the image written at the end (or at Ctrl-C, unfinished).
+
+use std::path::{Path, PathBuf};
+use std::process::{ExitCode, Stdio};
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, Context, Result};
+use indicatif::{ProgressBar, ProgressStyle};
+use tessera_coordinator::farm::{JobProgress, JobSettings, JobState};
+use tessera_coordinator::ids::JobId;
+use tessera_coordinator::{CoordinatorService, Timing};
+use tessera_worker::bundle::Bundle;
+use tokio::net::TcpListener;
+use tokio::process::{Child, Command};
+use tokio_stream::wrappers::TcpListenerStream;
+
+/// Arguments of `tessera render`.
+#[derive(Debug, clap::Args)]
+#[deny(missing_docs)]
+pub struct RenderArgs {
+    /// The scene file (TOML).
+    pub scene: PathBuf,
+    /// The image to write: .png (8-bit sRGB) or .exr (linear float).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Local worker processes [default: one per core].
+    #[arg(long)]
+    pub workers: Option<usize>,
+    /// Samples per pixel [default: the scene's].
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Render threads per worker [default: cores / workers, at least 1].
+    #[arg(long)]
+    pub threads: Option<usize>,
+}
+
+/// How a local render ended.
+#[derive(Debug)]
+pub enum Ending {
+    /// Every sample is in.
+    Done,
+    /// Ctrl-C.
+    Interrupted,
+}
+
+/// A finished (or interrupted) local render.
+pub struct LocalRender {
+    /// How it ended.
+    pub ending: Ending,
+    /// Final progress figures.
+    pub progress: JobProgress,
+    /// From start (before workers were spawned) to the end.
+    pub wall: Duration,
+    /// From start to the first pass-one result: the first full-frame mosaic.
+    pub first_preview: Option<Duration>,
+    /// Image size and linear RGB, top row first.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// Pixels.
+    pub rgb: Vec<f32>,
+}
+
+/// Options of a local render.
+pub struct LocalOptions {
+    /// Worker processes.
+    pub workers: usize,
+    /// Threads per worker.
+    pub threads: usize,
+    /// spp override.
+    pub spp: Option<u32>,
+    /// Show a progress bar.
+    pub progress_bar: bool,
+}
+
+/// Kills the local workers when dropped, so that no process outlives the render, whatever
+/// path the render leaves by.
+struct Workers(Vec<Child>);
+
+impl Workers {
+    fn spawn(url: &str, n: usize, threads: usize) -> Result<Workers> {
+        let exe = std::env::current_exe().context("locating the tessera executable")?;
+        let mut children = Vec::with_capacity(n);
+        for i in 0..n {
+            let mut cmd = Command::new(&exe);
+            cmd.args(["worker", "--coordinator", url, "--exit-on-disconnect"])
+                .args(["--threads", &threads.to_string(), "--name", &format!("local-{i}")])
+                .stdin(Stdio::null())
+                .stdout(Stdio::null())
+                .kill_on_drop(true);
+            if std::env::var_os("RUST_LOG").is_none() {
+                cmd.env("RUST_LOG", "warn");
+            }
+            children.push(cmd.spawn().with_context(|| format!("starting local worker {i}"))?);
+        }
+        Ok(Workers(children))
+    }
+
+    /// Whether every worker has exited.
+    fn all_exited(&mut self) -> bool {
+        self.0.iter_mut().all(|c| matches!(c.try_wait(), Ok(Some(_))))
+    }
+
+    async fn shutdown(mut self) {
+        for c in &mut self.0 {
+            let _ = c.start_kill();
+        }
+        for c in &mut self.0 {
+            let _ = c.wait().await;
+        }
+    }
+}
+
+/// Renders `scene` with local worker processes.
+pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRender> {
+    let start = Instant::now();
+    let bundle = Bundle::read(scene)?;
+    let service = CoordinatorService::new(Timing::default());
+    let job = service.submit(bundle, JobSettings { spp: opts.spp }).map_err(|e| anyhow!(e))?;
+    let listener = TcpListener::bind("127.0.0.1:0").await.context("binding a loopback port for the coordinator")?;
+    let addr = listener.local_addr()?;
+    let server = tokio::spawn(
+        tonic::transport::Server::builder()
+            .add_service(service.clone().into_server())
+            .serve_with_incoming(TcpListenerStream::new(listener)),
+    );
+    let reaper = service.spawn_reaper();
+    let mut workers = Workers::spawn(&format!("http://{addr}"), opts.workers, opts.threads)?;
+
+    let bar = opts.progress_bar.then(progress_bar);
+    let mut changed = service.subscribe();
+    let mut first_preview = None;
+    let mut workers_gone_since: Option<Instant> = None;
+    let ctrl_c = tokio::signal::ctrl_c();
+    tokio::pin!(ctrl_c);
+    let ending = loop {
+        tokio::select! {
+            _ = changed.changed() => {}
+            _ = tokio::time::sleep(Duration::from_millis(200)) => {}
+            _ = &mut ctrl_c => break Ending::Interrupted,
+        }
+        let p = progress(&service, job);
+        if first_preview.is_none() && p.pass_one_done > 0 {
+            first_preview = Some(start.elapsed());
+        }
+        if let Some(bar) = &bar {
+            update_bar(bar, &p);
+        }
+        match &p.state {
+            JobState::Done => break Ending::Done,
+            JobState::Failed(e) => {
+                workers.shutdown().await;
+                return Err(anyhow!("the render failed: {e}"));
+            }
+            _ => {}
+        }
+        // Local workers exit only when something is wrong (they crashed, or were killed):
+        // give a moment for a last result, then stop rather than wait forever.
+        if workers.all_exited() {
+            let since = *workers_gone_since.get_or_insert_with(Instant::now);
+            if since.elapsed() > Duration::from_secs(1) {
+                workers.shutdown().await;
+                return Err(anyhow!("every local worker exited before the render finished (see their messages above)"));
+            }
+        }
+    };
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
+    }
+    let progress = progress(&service, job);
+    let (width, height, rgb) = {
+        let farm = service.farm();
+        let fb = farm.job(job).expect("job exists").framebuffer();
+        (fb.width(), fb.height(), fb.resolve())
+    };
+    workers.shutdown().await;
+    server.abort();
+    reaper.abort();
+    Ok(LocalRender { ending, progress, wall: start.elapsed(), first_preview, width, height, rgb })
+}
+
+fn progress(service: &CoordinatorService, job: JobId) -> JobProgress {
+    service.farm().job(job).expect("job exists").progress(Instant::now())
+}
+
+fn progress_bar() -> ProgressBar {
+    let bar = ProgressBar::new(1000);
+    bar.set_style(
+        ProgressStyle::with_template("{spinner} pass {prefix} [{bar:32}] {percent:>3}% {msg} ETA {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    bar
+}
+
+/// Samples per second in human units.
+pub fn rate(samples_per_second: f64) -> String {
+    if samples_per_second >= 1e6 {
+        format!("{:.2} Msamples/s", samples_per_second / 1e6)
+    } else {
+        format!("{:.0} ksamples/s", samples_per_second / 1e3)
+    }
+}
+
+fn update_bar(bar: &ProgressBar, p: &JobProgress) {
+    bar.set_prefix(p.pass.to_string());
+    bar.set_position((p.fraction() * 1000.0) as u64);
+    bar.set_message(rate(p.samples_per_second));
+}
+
+/// `tessera render`.
+pub async fn render(args: RenderArgs) -> Result<ExitCode> {
+    crate::check_output(&args.output)?;
+    let cores = crate::cores();
+    let workers = args.workers.unwrap_or(cores);
+    if workers == 0 || workers > 256 {
+        anyhow::bail!("--workers must be 1..=256, got {workers}");
+    }
+    let threads = args.threads.unwrap_or((cores / workers).max(1));
+    if threads == 0 {
+        anyhow::bail!("--threads must be at least 1");
+    }
+    let opts = LocalOptions { workers, threads, spp: args.spp, progress_bar: true };
+    let r = render_local(&args.scene, opts).await?;
+    tessera_coordinator::output::write_image(&args.output, r.width, r.height, &r.rgb)?;
+    let p = &r.progress;
+    if p.nonfinite_samples > 0 {
+        eprintln!("warning: {} samples were NaN or infinite and counted as black", p.nonfinite_samples);
+    }
+    match r.ending {
+        Ending::Done => {
+            eprintln!(
+                "wrote {} ({}x{}, {} spp) in {:.2} s, {}",
+                args.output.display(),
+                r.width,
+                r.height,
+                p.spp,
+                r.wall.as_secs_f64(),
+                rate(p.samples_done as f64 / p.elapsed.as_secs_f64().max(1e-9))
+            );
+            Ok(ExitCode::SUCCESS)
+        }
+        Ending::Interrupted => {
+            eprintln!(
+                "interrupted at {:.1}% (pass {}): wrote the unfinished image to {}",
+                p.fraction() * 100.0,
+                p.pass,
+                args.output.display()
+            );
+            Ok(ExitCode::from(130))
+        }
+    }
+}

@@ -1,0 +1,202 @@
+//! The farm spread over machines: a standalone coordinator, and the clients that submit,
+//! watch, fetch and cancel jobs over gRPC.
+
+use std::net::SocketAddr;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Duration;
+
+use anyhow::{anyhow, bail, Context, Result};
+use tessera_coordinator::service::{bundle_to_wire, MAX_MESSAGE_BYTES};
+use tessera_coordinator::{CoordinatorService, Timing};
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::coordinator_client::CoordinatorClient;
+use tessera_worker::bundle::Bundle;
+use tonic::transport::{Channel, Endpoint};
+
+/// Arguments of `tessera submit`.
+#[derive(Debug, clap::Args)]
+#[deny(missing_docs)]
+pub struct SubmitArgs {
+    /// The scene file (TOML).
+    pub scene: PathBuf,
+    /// The coordinator's URL, e.g. http://render-host:7878.
+    #[arg(long, env = "TESSERA_COORDINATOR")]
+    pub coordinator: String,
+    /// Wait for the job and write its image here (.png or .exr); implies --wait.
+    #[arg(short, long)]
+    pub output: Option<PathBuf>,
+    /// Samples per pixel [default: the scene's].
+    #[arg(long)]
+    pub spp: Option<u32>,
+    /// Wait until the job is over, showing progress.
+    #[arg(long)]
+    pub wait: bool,
+}
+
+/// Runs a coordinator until Ctrl-C.
+pub async fn serve_coordinator(listen: SocketAddr, timing: Timing) -> Result<()> {
+    let service = CoordinatorService::new(timing);
+    let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("cannot listen on {listen}"))?;
+    tracing::info!("coordinator listening on {}", listener.local_addr()?);
+    let _reaper = service.spawn_reaper();
+    tonic::transport::Server::builder()
+        .add_service(service.into_server())
+        .serve_with_incoming_shutdown(tokio_stream::wrappers::TcpListenerStream::new(listener), async {
+            let _ = tokio::signal::ctrl_c().await;
+            tracing::info!("shutting down");
+        })
+        .await
+        .context("coordinator server failed")
+}
+
+/// A client of the coordinator at `url`.
+pub async fn connect(url: &str) -> Result<CoordinatorClient<Channel>> {
+    let endpoint = Endpoint::from_shared(url.to_string())
+        .map_err(|e| anyhow!("bad coordinator address {url:?}: {e}"))?
+        .connect_timeout(Duration::from_secs(5));
+    let channel = endpoint.connect().await.map_err(|e| {
+        let mut reason = e.to_string();
+        let mut source = std::error::Error::source(&e);
+        while let Some(s) = source {
+            reason = format!("{reason}: {s}");
+            source = s.source();
+        }
+        anyhow!("cannot reach coordinator at {url}: {reason}")
+    })?;
+    Ok(CoordinatorClient::new(channel)
+        .max_decoding_message_size(MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(MAX_MESSAGE_BYTES))
+}
+
+fn status_error(s: tonic::Status) -> anyhow::Error {
+    anyhow!("{}", s.message())
+}
+
+/// `tessera submit`.
+pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
+    if let Some(out) = &args.output {
+        crate::check_output(out)?;
+    }
+    let bundle = Bundle::read(&args.scene)?;
+    // Refuse a bad scene here, with its location, before any network traffic.
+    bundle.parse()?;
+    let mut client = connect(&args.coordinator).await?;
+    let response = client
+        .submit(pb::SubmitRequest {
+            protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
+            bundle: Some(bundle_to_wire(&bundle)),
+            settings: Some(pb::RenderSettings { spp: args.spp.unwrap_or(0) }),
+        })
+        .await
+        .map_err(status_error)?
+        .into_inner();
+    let job = response.job_id;
+    eprintln!("submitted job {job}: {}x{}, {} spp", response.width, response.height, response.spp);
+    println!("{job}");
+    if args.output.is_none() && !args.wait {
+        return Ok(ExitCode::SUCCESS);
+    }
+    let status = wait(&mut client, job).await?;
+    let state = pb::JobState::try_from(status.state).unwrap_or(pb::JobState::Unspecified);
+    if state == pb::JobState::Failed {
+        bail!("job {job} failed: {}", status.error);
+    }
+    if let Some(out) = &args.output {
+        let (w, h, rgb) = fetch_image(&mut client, job).await?;
+        tessera_coordinator::output::write_image(out, w, h, &rgb)?;
+        eprintln!("wrote {} ({w}x{h}), job {}", out.display(), state.as_str_name());
+    }
+    Ok(if state == pb::JobState::Done { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+}
+
+/// Polls a job until it is over, with a progress bar.
+async fn wait(client: &mut CoordinatorClient<Channel>, job: u64) -> Result<pb::JobStatus> {
+    let bar = indicatif::ProgressBar::new(1000);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template("pass {prefix} [{bar:32}] {percent:>3}% {msg} ETA {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    loop {
+        let response = client.status(pb::StatusRequest { job_id: job }).await.map_err(status_error)?.into_inner();
+        let s = response.jobs.into_iter().next().ok_or_else(|| anyhow!("job {job} vanished"))?;
+        let total = s.samples_total.max(1) as f64;
+        bar.set_prefix(s.pass.to_string());
+        bar.set_position((s.samples_done as f64 / total * 1000.0) as u64);
+        let waiting = if response.workers.is_empty() { ", waiting for workers" } else { "" };
+        bar.set_message(format!("{}{waiting}", crate::local::rate(s.samples_per_second)));
+        match pb::JobState::try_from(s.state) {
+            Ok(pb::JobState::Queued | pb::JobState::Running) => {}
+            _ => {
+                bar.finish_and_clear();
+                return Ok(s);
+            }
+        }
+        tokio::time::sleep(Duration::from_millis(250)).await;
+    }
+}
+
+/// A job's current image: width, height, linear RGB top row first.
+pub async fn fetch_image(client: &mut CoordinatorClient<Channel>, job: u64) -> Result<(u32, u32, Vec<f32>)> {
+    let mut stream = client.fetch_image(pb::FetchImageRequest { job_id: job }).await.map_err(status_error)?.into_inner();
+    let mut size = None;
+    let mut rgb = Vec::new();
+    while let Some(chunk) = stream.message().await.map_err(status_error)? {
+        let (w, h) = *size.get_or_insert((chunk.width, chunk.height));
+        if (chunk.width, chunk.height) != (w, h) || chunk.rgb.len() % 4 != 0 {
+            bail!("the coordinator sent an inconsistent image chunk");
+        }
+        if u64::from(chunk.row_start) * u64::from(w) * 3 != (rgb.len() as u64) {
+            bail!("the coordinator sent image rows out of order");
+        }
+        rgb.extend(chunk.rgb.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])));
+    }
+    let (w, h) = size.ok_or_else(|| anyhow!("the coordinator sent no image"))?;
+    if rgb.len() != w as usize * h as usize * 3 {
+        bail!("the coordinator sent {} values for a {w}x{h} image", rgb.len());
+    }
+    Ok((w, h, rgb))
+}
+
+/// `tessera status`.
+pub async fn status(url: &str) -> Result<ExitCode> {
+    let mut client = connect(url).await?;
+    let s = client.status(pb::StatusRequest { job_id: 0 }).await.map_err(status_error)?.into_inner();
+    println!("{:>5}  {:<10} {:>5} {:>7}  {:>4} {:>12}  scene", "job", "state", "pass", "done", "spp", "rate");
+    for j in &s.jobs {
+        let state = pb::JobState::try_from(j.state).map_or("?", |s| s.as_str_name());
+        let state = state.trim_start_matches("JOB_STATE_").to_lowercase();
+        let done = j.samples_done as f64 / j.samples_total.max(1) as f64 * 100.0;
+        println!(
+            "{:>5}  {:<10} {:>5} {:>6.1}%  {:>4} {:>12}  {} ({}x{}){}",
+            j.job_id,
+            state,
+            j.pass,
+            done,
+            j.spp,
+            crate::local::rate(j.samples_per_second),
+            j.scene,
+            j.width,
+            j.height,
+            if j.error.is_empty() { String::new() } else { format!(": {}", j.error) }
+        );
+    }
+    println!();
+    println!("{:>6}  {:<24} {:>7} {:>9} {:>12}", "worker", "name", "threads", "in flight", "batches done");
+    for w in &s.workers {
+        println!("{:>6}  {:<24} {:>7} {:>9} {:>12}", w.worker_id, w.name, w.threads, w.batches_in_flight, w.batches_done);
+    }
+    if s.workers.is_empty() {
+        println!("(no workers connected)");
+    }
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `tessera cancel`.
+pub async fn cancel(url: &str, job: u64) -> Result<ExitCode> {
+    let mut client = connect(url).await?;
+    client.cancel(pb::CancelRequest { job_id: job }).await.map_err(status_error)?;
+    eprintln!("cancelled job {job}");
+    Ok(ExitCode::SUCCESS)
+}
