@@ -118,8 +118,17 @@ async fn wait(client: &mut CoordinatorClient<Channel>, job: u64) -> Result<pb::J
             .expect("valid template")
             .progress_chars("=> "),
     );
+    let mut said_waiting = false;
     loop {
         let response = client.status(pb::StatusRequest { job_id: job }).await.map_err(status_error)?.into_inner();
+        // Say it once, also where the bar is hidden (no terminal): a job with no worker
+        // otherwise looks like a hang.
+        if response.workers.is_empty() && !said_waiting {
+            bar.suspend(|| eprintln!("job {job}: no workers connected; waiting for a worker to join"));
+            said_waiting = true;
+        } else if !response.workers.is_empty() {
+            said_waiting = false;
+        }
         let s = response.jobs.into_iter().next().ok_or_else(|| anyhow!("job {job} vanished"))?;
         let total = s.samples_total.max(1) as f64;
         bar.set_prefix(s.pass.to_string());

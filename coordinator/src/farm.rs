@@ -175,7 +175,7 @@ pub struct Assignment {
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum SubmitError {
     /// The scene does not parse or validate.
-    #[error("{0}")]
+    #[error(transparent)]
     Scene(#[from] tessera_worker::scene::SceneError),
     /// spp override out of range.
     #[error("spp must be 1..={max}, got {got}")]

@@ -1,0 +1,102 @@
+//! End-to-end: bad input at every entry point gets a clear one-line error and a non-zero
+//! exit, never a panic or a hang.
+
+mod common;
+
+use common::*;
+
+fn stderr_of(args: &[&str]) -> String {
+    let o = run(args);
+    assert!(!o.status.success(), "tessera {args:?} should fail");
+    let err = String::from_utf8(o.stderr).unwrap();
+    assert!(!err.contains("panicked"), "tessera {args:?} panicked: {err}");
+    let lines: Vec<&str> = err.lines().filter(|l| l.starts_with("error:")).collect();
+    assert_eq!(lines.len(), 1, "expected one error line from {args:?}, got: {err}");
+    lines[0].to_string()
+}
+
+fn write_scene(dir: &std::path::Path, text: &str) -> String {
+    let p = dir.join("bad.toml");
+    std::fs::write(&p, text).unwrap();
+    p.to_str().unwrap().to_string()
+}
+
+#[test]
+fn bad_scene_files_name_file_line_and_column() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.png");
+    let out = out.to_str().unwrap();
+    let good = std::fs::read_to_string(small_scene()).unwrap();
+
+    let missing = dir.path().join("nope.toml");
+    let e = stderr_of(&["render", missing.to_str().unwrap(), "-o", out]);
+    assert!(e.contains("cannot read scene") && e.contains("nope.toml"), "{e}");
+
+    let cases = [
+        (good.replace("width = 64", "width = 6x4"), "bad.toml:4:"),
+        (good.replace("radius = 0.4", "radius = -0.4"), "positive"),
+        (good.replace("material = \"red\"", "material = \"blue\""), "unknown material \"blue\""),
+        (good.replace("radius = 0.4", "radius = nan"), "positive"),
+        (good.replace("center = [1.8, 0.4, -0.8]", "center = [1.8, nan, -0.8]"), "finite"),
+        (good.replace("fov = 40", "fov = 40\nzoom = 2"), "zoom"),
+    ];
+    for (text, want) in cases {
+        let scene = write_scene(dir.path(), &text);
+        let e = stderr_of(&["render", &scene, "-o", out]);
+        assert!(e.contains(want) && e.contains("bad.toml:"), "expected {want:?} in: {e}");
+    }
+    assert!(!std::path::Path::new(out).exists(), "no image for a bad scene");
+}
+
+#[test]
+fn bad_arguments_are_refused_before_work() {
+    let scene = small_scene();
+    let scene = scene.to_str().unwrap();
+    let e = stderr_of(&["render", scene, "-o", "/tmp/x.jpg"]);
+    assert!(e.contains("use .png or .exr"), "{e}");
+    let e = stderr_of(&["render", scene, "-o", "/no/such/dir/x.png"]);
+    assert!(e.contains("does not exist"), "{e}");
+    let e = stderr_of(&["render", scene, "-o", "/tmp/x.png", "--workers", "0"]);
+    assert!(e.contains("--workers"), "{e}");
+    let e = stderr_of(&["render", scene, "-o", "/tmp/x.png", "--spp", "0"]);
+    assert!(e.contains("spp"), "{e}");
+    let o = run(&["render", scene]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--output"));
+}
+
+#[test]
+fn bad_or_absent_coordinator_is_a_clear_error() {
+    let scene = small_scene();
+    let scene = scene.to_str().unwrap();
+    let e = stderr_of(&["status", "--coordinator", "not a url"]);
+    assert!(e.contains("bad coordinator address"), "{e}");
+    let e = stderr_of(&["worker", "--coordinator", "not a url"]);
+    assert!(e.contains("bad coordinator address"), "{e}");
+    // A port nothing listens on: bind one, then free it.
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let url = format!("http://127.0.0.1:{port}");
+    for args in [
+        vec!["status", "--coordinator", &url],
+        vec!["worker", "--coordinator", &url],
+        vec!["submit", scene, "--coordinator", &url],
+        vec!["cancel", "3", "--coordinator", &url],
+    ] {
+        let e = stderr_of(&args);
+        assert!(e.contains("cannot reach coordinator"), "{args:?}: {e}");
+    }
+    let e = stderr_of(&["coordinator", "--listen", "nonsense"]);
+    assert!(e.contains("nonsense") || e.contains("invalid"), "{e}");
+}
+
+#[test]
+fn submitting_a_bad_scene_or_asking_for_a_missing_job_is_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let coord = Coordinator::start(&[]);
+    let scene = write_scene(dir.path(), "[render]\nwidth = 4\n");
+    let e = stderr_of(&["submit", &scene, "--coordinator", &coord.url]);
+    assert!(e.contains("bad.toml:") && e.contains("height"), "{e}");
+    let e = stderr_of(&["cancel", "99", "--coordinator", &coord.url]);
+    assert!(e.contains("no job 99"), "{e}");
+    // The coordinator is still serving.
+    assert!(coord.status().contains("no workers connected"));
+}

@@ -1,0 +1,160 @@
+//! Helpers for end-to-end tests: real `tessera` processes on loopback.
+#![allow(dead_code)]
+
+use std::io::{BufRead, BufReader};
+use std::path::{Path, PathBuf};
+use std::process::{Child, Command, Output, Stdio};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// The `tessera` binary under test.
+pub fn tessera() -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_tessera"));
+    cmd.env("RUST_LOG", "info").stdin(Stdio::null());
+    cmd
+}
+
+/// Runs `tessera args…` to completion, with a time limit so that a hang fails the test.
+pub fn run(args: &[&str]) -> Output {
+    run_with_timeout(args, Duration::from_secs(120))
+}
+
+/// Runs `tessera args…`; panics if it takes longer than `limit`.
+pub fn run_with_timeout(args: &[&str], limit: Duration) -> Output {
+    let mut child = tessera().args(args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+    let start = Instant::now();
+    loop {
+        if child.try_wait().unwrap().is_some() {
+            return child.wait_with_output().unwrap();
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let out = child.wait_with_output().unwrap();
+            panic!("tessera {args:?} hung for {limit:?}; stderr:\n{}", String::from_utf8_lossy(&out.stderr));
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    }
+}
+
+/// The repository's root (where `scenes/` lives).
+pub fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The small end-to-end test scene.
+pub fn small_scene() -> PathBuf {
+    root().join("tests/scenes/small.toml")
+}
+
+/// A process killed (and reaped) when dropped, with its stderr collected.
+pub struct Proc {
+    pub child: Child,
+    pub stderr: Arc<Mutex<String>>,
+}
+
+impl Proc {
+    pub fn spawn(args: &[&str]) -> Proc {
+        let mut child = tessera().args(args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+        let stderr = Arc::new(Mutex::new(String::new()));
+        let pipe = child.stderr.take().unwrap();
+        let sink = stderr.clone();
+        std::thread::spawn(move || {
+            for line in BufReader::new(pipe).lines().map_while(Result::ok) {
+                let mut s = sink.lock().unwrap();
+                s.push_str(&line);
+                s.push('\n');
+            }
+        });
+        Proc { child, stderr }
+    }
+
+    pub fn pid(&self) -> u32 {
+        self.child.id()
+    }
+
+    /// Waits until stderr contains `needle`; returns the line that holds it.
+    pub fn wait_for(&self, needle: &str, limit: Duration) -> String {
+        let start = Instant::now();
+        loop {
+            if let Some(line) = self.stderr.lock().unwrap().lines().find(|l| l.contains(needle)) {
+                return line.to_string();
+            }
+            if start.elapsed() > limit {
+                panic!("no {needle:?} within {limit:?}; stderr:\n{}", self.stderr.lock().unwrap());
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+
+    /// Sends a signal (by number) to the process.
+    pub fn signal(&self, sig: i32) {
+        let status = Command::new("kill").arg(format!("-{sig}")).arg(self.pid().to_string()).status().unwrap();
+        assert!(status.success());
+    }
+
+    pub fn wait(&mut self, limit: Duration) -> std::process::ExitStatus {
+        let start = Instant::now();
+        loop {
+            if let Some(s) = self.child.try_wait().unwrap() {
+                return s;
+            }
+            if start.elapsed() > limit {
+                panic!("process did not exit within {limit:?}; stderr:\n{}", self.stderr.lock().unwrap());
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+impl Drop for Proc {
+    fn drop(&mut self) {
+        let _ = self.child.kill();
+        let _ = self.child.wait();
+    }
+}
+
+/// A standalone coordinator on a free loopback port.
+pub struct Coordinator {
+    pub proc: Proc,
+    pub url: String,
+}
+
+impl Coordinator {
+    pub fn start(extra: &[&str]) -> Coordinator {
+        let mut args = vec!["coordinator", "--listen", "127.0.0.1:0"];
+        args.extend_from_slice(extra);
+        let proc = Proc::spawn(&args);
+        let line = proc.wait_for("coordinator listening on ", Duration::from_secs(30));
+        let addr = line.rsplit("listening on ").next().unwrap().trim().to_string();
+        Coordinator { proc, url: format!("http://{addr}") }
+    }
+
+    /// A worker connected to this coordinator.
+    pub fn worker(&self, threads: u32) -> Proc {
+        let w = Proc::spawn(&["worker", "--coordinator", &self.url, "--threads", &threads.to_string()]);
+        w.wait_for("connected to", Duration::from_secs(30));
+        w
+    }
+
+    /// `tessera status` output.
+    pub fn status(&self) -> String {
+        let out = run(&["status", "--coordinator", &self.url]);
+        assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+        String::from_utf8(out.stdout).unwrap()
+    }
+}
+
+/// The bytes of a file.
+pub fn read(path: &Path) -> Vec<u8> {
+    std::fs::read(path).unwrap_or_else(|e| panic!("reading {}: {e}", path.display()))
+}
+
+/// Renders the small scene locally with `workers` workers into `out`.
+pub fn render_local(scene: &Path, out: &Path, workers: u32, extra: &[&str]) {
+    let mut args = vec!["render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--workers"];
+    let w = workers.to_string();
+    args.push(&w);
+    args.extend_from_slice(extra);
+    let o = run(&args);
+    assert!(o.status.success(), "render failed: {}", String::from_utf8_lossy(&o.stderr));
+}
