@@ -56,7 +56,10 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             }
             let pool = rayon::ThreadPoolBuilder::new().num_threads(cores).build().map_err(|e| anyhow!(e))?;
             let (w, h, n) = (parsed.width, parsed.height, parsed.spp);
-            println!("scene {} ({w}x{h}, {n} spp), {cores} cores; farm: {workers} workers x {threads} threads", scene.display());
+            println!(
+                "scene {} ({w}x{h}, {n} spp), {cores} cores; farm: {workers} workers x {threads} threads",
+                scene.display()
+            );
             let (mut single, mut farm, mut preview) = (Vec::new(), Vec::new(), Vec::new());
             for run in 0..runs {
                 // Alternate, so that drifting machine load hits both alike.
@@ -72,7 +75,8 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
                 });
                 std::hint::black_box(rows);
                 single.push(t.elapsed());
-                let r = render_local(&scene, LocalOptions { workers, threads, spp, progress_bar: false }).await?;
+                let r =
+                    render_local(&scene, LocalOptions { workers, threads, spp, progress_bar: false }).await?;
                 farm.push(r.wall);
                 preview.push(r.first_preview.unwrap_or(r.wall));
                 println!(
@@ -85,8 +89,16 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             }
             let (s, f, p) = (median(single), median(farm), median(preview));
             let samples = u64::from(w) * u64::from(h) * u64::from(n);
-            println!("median one process:   {:.3} s ({})", s.as_secs_f64(), crate::local::rate(samples as f64 / s.as_secs_f64()));
-            println!("median farm:          {:.3} s ({})", f.as_secs_f64(), crate::local::rate(samples as f64 / f.as_secs_f64()));
+            println!(
+                "median one process:   {:.3} s ({})",
+                s.as_secs_f64(),
+                crate::local::rate(samples as f64 / s.as_secs_f64())
+            );
+            println!(
+                "median farm:          {:.3} s ({})",
+                f.as_secs_f64(),
+                crate::local::rate(samples as f64 / f.as_secs_f64())
+            );
             println!("farm overhead:        {:+.1} %", (f.as_secs_f64() / s.as_secs_f64() - 1.0) * 100.0);
             println!("first full-frame preview: {:.1} ms after start (workers spawned, scene sent, first batch back)", p.as_secs_f64() * 1e3);
             Ok(ExitCode::SUCCESS)

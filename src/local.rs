@@ -118,7 +118,8 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
     let bundle = Bundle::read(scene)?;
     let service = CoordinatorService::new(Timing::default());
     let job = service.submit(bundle, JobSettings { spp: opts.spp }).map_err(|e| anyhow!(e))?;
-    let listener = TcpListener::bind("127.0.0.1:0").await.context("binding a loopback port for the coordinator")?;
+    let listener =
+        TcpListener::bind("127.0.0.1:0").await.context("binding a loopback port for the coordinator")?;
     let addr = listener.local_addr()?;
     let server = tokio::spawn(
         tonic::transport::Server::builder()
@@ -161,7 +162,9 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
             let since = *workers_gone_since.get_or_insert_with(Instant::now);
             if since.elapsed() > Duration::from_secs(1) {
                 workers.shutdown().await;
-                return Err(anyhow!("every local worker exited before the render finished (see their messages above)"));
+                return Err(anyhow!(
+                    "every local worker exited before the render finished (see their messages above)"
+                ));
             }
         }
     };

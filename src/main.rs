@@ -107,7 +107,10 @@ fn host_name() -> String {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
-    let quiet = matches!(cli.command, Command::Render(_) | Command::Submit(_) | Command::Order { .. } | Command::Bench(_));
+    let quiet = matches!(
+        cli.command,
+        Command::Render(_) | Command::Submit(_) | Command::Order { .. } | Command::Bench(_)
+    );
     init_tracing(if quiet { "warn" } else { "info" });
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
         Ok(r) => r,

@@ -37,7 +37,8 @@ pub struct SubmitArgs {
 /// Runs a coordinator until Ctrl-C.
 pub async fn serve_coordinator(listen: SocketAddr, timing: Timing) -> Result<()> {
     let service = CoordinatorService::new(timing);
-    let listener = tokio::net::TcpListener::bind(listen).await.with_context(|| format!("cannot listen on {listen}"))?;
+    let listener =
+        tokio::net::TcpListener::bind(listen).await.with_context(|| format!("cannot listen on {listen}"))?;
     tracing::info!("coordinator listening on {}", listener.local_addr()?);
     let _reaper = service.spawn_reaper();
     tonic::transport::Server::builder()
@@ -56,13 +57,7 @@ pub async fn connect(url: &str) -> Result<CoordinatorClient<Channel>> {
         .map_err(|e| anyhow!("bad coordinator address {url:?}: {e}"))?
         .connect_timeout(Duration::from_secs(5));
     let channel = endpoint.connect().await.map_err(|e| {
-        let mut reason = e.to_string();
-        let mut source = std::error::Error::source(&e);
-        while let Some(s) = source {
-            reason = format!("{reason}: {s}");
-            source = s.source();
-        }
-        anyhow!("cannot reach coordinator at {url}: {reason}")
+        anyhow!("cannot reach coordinator at {url}: {}", tessera_worker::client::error_chain(&e))
     })?;
     Ok(CoordinatorClient::new(channel)
         .max_decoding_message_size(MAX_MESSAGE_BYTES)
@@ -120,7 +115,8 @@ async fn wait(client: &mut CoordinatorClient<Channel>, job: u64) -> Result<pb::J
     );
     let mut said_waiting = false;
     loop {
-        let response = client.status(pb::StatusRequest { job_id: job }).await.map_err(status_error)?.into_inner();
+        let response =
+            client.status(pb::StatusRequest { job_id: job }).await.map_err(status_error)?.into_inner();
         // Say it once, also where the bar is hidden (no terminal): a job with no worker
         // otherwise looks like a hang.
         if response.workers.is_empty() && !said_waiting {
@@ -148,7 +144,8 @@ async fn wait(client: &mut CoordinatorClient<Channel>, job: u64) -> Result<pb::J
 
 /// A job's current image: width, height, linear RGB top row first.
 pub async fn fetch_image(client: &mut CoordinatorClient<Channel>, job: u64) -> Result<(u32, u32, Vec<f32>)> {
-    let mut stream = client.fetch_image(pb::FetchImageRequest { job_id: job }).await.map_err(status_error)?.into_inner();
+    let mut stream =
+        client.fetch_image(pb::FetchImageRequest { job_id: job }).await.map_err(status_error)?.into_inner();
     let mut size = None;
     let mut rgb = Vec::new();
     while let Some(chunk) = stream.message().await.map_err(status_error)? {
@@ -194,7 +191,10 @@ pub async fn status(url: &str) -> Result<ExitCode> {
     println!();
     println!("{:>6}  {:<24} {:>7} {:>9} {:>12}", "worker", "name", "threads", "in flight", "batches done");
     for w in &s.workers {
-        println!("{:>6}  {:<24} {:>7} {:>9} {:>12}", w.worker_id, w.name, w.threads, w.batches_in_flight, w.batches_done);
+        println!(
+            "{:>6}  {:<24} {:>7} {:>9} {:>12}",
+            w.worker_id, w.name, w.threads, w.batches_in_flight, w.batches_done
+        );
     }
     if s.workers.is_empty() {
         println!("(no workers connected)");

@@ -39,7 +39,14 @@ fn standalone_farm_matches_local_render() {
     let _w2 = coord.worker(2);
     for (name, reference) in [("farm.png", &local), ("farm.exr", &local_exr)] {
         let out = dir.path().join(name);
-        let o = run(&["submit", small_scene().to_str().unwrap(), "--coordinator", &coord.url, "-o", out.to_str().unwrap()]);
+        let o = run(&[
+            "submit",
+            small_scene().to_str().unwrap(),
+            "--coordinator",
+            &coord.url,
+            "-o",
+            out.to_str().unwrap(),
+        ]);
         assert!(o.status.success(), "submit failed: {}", String::from_utf8_lossy(&o.stderr));
         assert_eq!(read(&out), read(reference), "{name} differs from the local render");
     }
@@ -98,8 +105,14 @@ fn job_waits_for_workers_and_says_so() {
     let dir = tempfile::tempdir().unwrap();
     let coord = Coordinator::start(&[]);
     let out = dir.path().join("out.png");
-    let mut submit =
-        Proc::spawn(&["submit", small_scene().to_str().unwrap(), "--coordinator", &coord.url, "-o", out.to_str().unwrap()]);
+    let mut submit = Proc::spawn(&[
+        "submit",
+        small_scene().to_str().unwrap(),
+        "--coordinator",
+        &coord.url,
+        "-o",
+        out.to_str().unwrap(),
+    ]);
     submit.wait_for("waiting for a worker", Duration::from_secs(30));
     let status = coord.status();
     assert!(status.contains("queued") && status.contains("no workers connected"), "{status}");

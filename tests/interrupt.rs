@@ -36,7 +36,16 @@ fn sigint_writes_unfinished_image_and_leaves_no_process() {
     let tag = format!("interrupt-{}", std::process::id());
     let mut child = tessera()
         .env("TESSERA_TEST_TAG", &tag)
-        .args(["render", small_scene().to_str().unwrap(), "-o", out.to_str().unwrap(), "--workers", "2", "--spp", "8192"])
+        .args([
+            "render",
+            small_scene().to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--workers",
+            "2",
+            "--spp",
+            "8192",
+        ])
         .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
@@ -65,7 +74,11 @@ fn sigint_writes_unfinished_image_and_leaves_no_process() {
     assert!(img.pixels().all(|p| p.0 != [0, 0, 0]), "unfinished image has unpainted pixels");
     let start = std::time::Instant::now();
     while !processes_with_tag(&tag).is_empty() {
-        assert!(start.elapsed() < Duration::from_secs(10), "processes left behind: {:?}", processes_with_tag(&tag));
+        assert!(
+            start.elapsed() < Duration::from_secs(10),
+            "processes left behind: {:?}",
+            processes_with_tag(&tag)
+        );
         std::thread::sleep(Duration::from_millis(50));
     }
 }

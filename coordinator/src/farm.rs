@@ -282,10 +282,7 @@ impl Farm {
 
     /// Batches leased to `worker` now.
     pub fn in_flight(&self, worker: WorkerId) -> usize {
-        self.jobs
-            .values()
-            .map(|j| j.queue_leases_of(worker))
-            .sum()
+        self.jobs.values().map(|j| j.queue_leases_of(worker)).sum()
     }
 
     /// Notes that `worker` is alive.
@@ -334,11 +331,15 @@ impl Farm {
                 job.started = Some(now);
                 job.rate.push_back((now, 0));
             }
-            let scene = info
-                .scenes
-                .insert(job.id)
-                .then(|| (job.bundle.clone(), job.scene_hash.clone(), job.spp));
-            return Some(Assignment { job: job.id, scene, scene_hash: job.scene_hash.clone(), batch, attempt });
+            let scene =
+                info.scenes.insert(job.id).then(|| (job.bundle.clone(), job.scene_hash.clone(), job.spp));
+            return Some(Assignment {
+                job: job.id,
+                scene,
+                scene_hash: job.scene_hash.clone(),
+                batch,
+                attempt,
+            });
         }
         None
     }

@@ -68,9 +68,9 @@ impl Framebuffer {
         Self::check(quads, samples, sums)?;
         for (q, s) in quads.iter().zip(sums.chunks_exact(3)) {
             let i = self.index(q.x, q.y);
-            for c in 0..3 {
+            for (acc, v) in self.sums[i].iter_mut().zip(s) {
                 // Saturating: only a scene far beyond the documented limits can get here.
-                self.sums[i][c] = self.sums[i][c].saturating_add(s[c]);
+                *acc = acc.saturating_add(*v);
             }
             self.counts[i] = self.counts[i].saturating_add(samples);
         }

@@ -112,12 +112,18 @@ impl CoordinatorService {
     }
 
     /// Feeds one worker stream until it ends.
-    async fn serve_worker(self, mut inbound: Streaming<pb::WorkerMessage>, tx: mpsc::Sender<Result<pb::CoordinatorMessage, Status>>) {
-        let refuse = |reason: String| pb::CoordinatorMessage { msg: Some(Out::Refused(pb::Refused { reason })) };
+    async fn serve_worker(
+        self,
+        mut inbound: Streaming<pb::WorkerMessage>,
+        tx: mpsc::Sender<Result<pb::CoordinatorMessage, Status>>,
+    ) {
+        let refuse =
+            |reason: String| pb::CoordinatorMessage { msg: Some(Out::Refused(pb::Refused { reason })) };
         let hello = match inbound.message().await {
             Ok(Some(pb::WorkerMessage { msg: Some(In::Hello(h)) })) => h,
             Ok(_) => {
-                let _ = tx.send(Ok(refuse("the first message of a worker stream must be Hello".into()))).await;
+                let _ =
+                    tx.send(Ok(refuse("the first message of a worker stream must be Hello".into()))).await;
                 return;
             }
             Err(e) => {
@@ -148,7 +154,8 @@ impl CoordinatorService {
         let threads = hello.threads.clamp(1, 4096);
         let id = self.farm().add_worker(hello.name.clone(), threads, Instant::now());
         info!(worker = %id, name = %hello.name, threads, "worker joined");
-        let welcome = pb::Welcome { worker_id: id.0, heartbeat_interval_ms: self.timing.heartbeat.as_millis() as u32 };
+        let welcome =
+            pb::Welcome { worker_id: id.0, heartbeat_interval_ms: self.timing.heartbeat.as_millis() as u32 };
         if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Welcome(welcome)) })).await.is_err() {
             self.farm().remove_worker(id);
             return;
@@ -221,7 +228,9 @@ impl CoordinatorService {
                     let (job, batch) = (JobId(res.job_id), BatchId(res.batch_id));
                     match self.farm().complete(id, job, batch, &res.sums, res.nonfinite_samples, now) {
                         Ok(()) => merged = true,
-                        Err(ResultError::Duplicate(e)) => debug!(worker = %id, %job, "dropped duplicate: {e}"),
+                        Err(ResultError::Duplicate(e)) => {
+                            debug!(worker = %id, %job, "dropped duplicate: {e}")
+                        }
                         Err(ResultError::UnknownJob(j)) => debug!(worker = %id, "result for unknown {j}"),
                         Err(e @ ResultError::Malformed { .. }) => {
                             self.notify();
@@ -254,7 +263,11 @@ pub fn bundle_to_wire(b: &Bundle) -> pb::SceneBundle {
     pb::SceneBundle {
         name: b.name.clone(),
         text: b.text.clone(),
-        assets: b.assets.iter().map(|(path, data)| pb::Asset { path: path.clone(), data: data.clone() }).collect(),
+        assets: b
+            .assets
+            .iter()
+            .map(|(path, data)| pb::Asset { path: path.clone(), data: data.clone() })
+            .collect(),
     }
 }
 
@@ -282,7 +295,10 @@ impl Coordinator for CoordinatorService {
     type WorkStream = BoxStream<pb::CoordinatorMessage>;
     type FetchImageStream = BoxStream<pb::ImageChunk>;
 
-    async fn work(&self, request: Request<Streaming<pb::WorkerMessage>>) -> Result<Response<Self::WorkStream>, Status> {
+    async fn work(
+        &self,
+        request: Request<Streaming<pb::WorkerMessage>>,
+    ) -> Result<Response<Self::WorkStream>, Status> {
         let inbound = request.into_inner();
         // Room for a full credit's worth of batches plus scenes, so that handing out work
         // never waits on the worker reading.
@@ -291,7 +307,10 @@ impl Coordinator for CoordinatorService {
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }
 
-    async fn submit(&self, request: Request<pb::SubmitRequest>) -> Result<Response<pb::SubmitResponse>, Status> {
+    async fn submit(
+        &self,
+        request: Request<pb::SubmitRequest>,
+    ) -> Result<Response<pb::SubmitResponse>, Status> {
         let req = request.into_inner();
         if req.protocol_version != pb::ProtocolVersion::Current as i32 {
             return Err(Status::failed_precondition(format!(
@@ -302,14 +321,24 @@ impl Coordinator for CoordinatorService {
         }
         let bundle = req.bundle.ok_or_else(|| Status::invalid_argument("submit without a scene bundle"))?;
         let settings = JobSettings { spp: req.settings.and_then(|s| (s.spp != 0).then_some(s.spp)) };
-        let id = self.submit(bundle_from_wire(bundle), settings).map_err(|e| Status::invalid_argument(e.to_string()))?;
+        let id = self
+            .submit(bundle_from_wire(bundle), settings)
+            .map_err(|e| Status::invalid_argument(e.to_string()))?;
         let farm = self.farm();
         let job = farm.job(id).expect("just submitted");
         let fb = job.framebuffer();
-        Ok(Response::new(pb::SubmitResponse { job_id: id.0, width: fb.width(), height: fb.height(), spp: job.spp }))
+        Ok(Response::new(pb::SubmitResponse {
+            job_id: id.0,
+            width: fb.width(),
+            height: fb.height(),
+            spp: job.spp,
+        }))
     }
 
-    async fn status(&self, request: Request<pb::StatusRequest>) -> Result<Response<pb::StatusResponse>, Status> {
+    async fn status(
+        &self,
+        request: Request<pb::StatusRequest>,
+    ) -> Result<Response<pb::StatusResponse>, Status> {
         let want = request.into_inner().job_id;
         let farm = self.farm();
         let now = Instant::now();
@@ -354,11 +383,15 @@ impl Coordinator for CoordinatorService {
         Ok(Response::new(pb::StatusResponse { jobs, workers }))
     }
 
-    async fn fetch_image(&self, request: Request<pb::FetchImageRequest>) -> Result<Response<Self::FetchImageStream>, Status> {
+    async fn fetch_image(
+        &self,
+        request: Request<pb::FetchImageRequest>,
+    ) -> Result<Response<Self::FetchImageStream>, Status> {
         let id = JobId(request.into_inner().job_id);
         let (width, height, rgb, state) = {
             let farm = self.farm();
-            let job = farm.job(id).ok_or_else(|| Status::not_found(format!("no {id} on this coordinator")))?;
+            let job =
+                farm.job(id).ok_or_else(|| Status::not_found(format!("no {id} on this coordinator")))?;
             let fb = job.framebuffer();
             (fb.width(), fb.height(), fb.resolve(), state_to_wire(&job.state))
         };
@@ -381,7 +414,10 @@ impl Coordinator for CoordinatorService {
         Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
     }
 
-    async fn cancel(&self, request: Request<pb::CancelRequest>) -> Result<Response<pb::CancelResponse>, Status> {
+    async fn cancel(
+        &self,
+        request: Request<pb::CancelRequest>,
+    ) -> Result<Response<pb::CancelResponse>, Status> {
         let id = JobId(request.into_inner().job_id);
         if !self.farm().cancel(id) {
             return Err(Status::not_found(format!("no {id} on this coordinator")));

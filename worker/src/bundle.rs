@@ -36,7 +36,8 @@ pub enum BundleError {
 impl Bundle {
     /// Reads a scene file (and, once the format references assets, those assets).
     pub fn read(path: &Path) -> Result<Bundle, BundleError> {
-        let bytes = std::fs::read(path).map_err(|source| BundleError::Read { path: path.to_owned(), source })?;
+        let bytes =
+            std::fs::read(path).map_err(|source| BundleError::Read { path: path.to_owned(), source })?;
         let text = String::from_utf8(bytes).map_err(|_| BundleError::NotText { path: path.to_owned() })?;
         Ok(Bundle { name: path.display().to_string(), text, assets: Vec::new() })
     }

@@ -211,7 +211,9 @@ async fn session(
             info!(worker_id = w.worker_id, threads, "connected to {url}");
             Duration::from_millis(u64::from(w.heartbeat_interval_ms.clamp(100, 60_000)))
         }
-        Ok(Some(pb::CoordinatorMessage { msg: Some(In::Refused(r)) })) => return Err(WorkerError::Refused(r.reason)),
+        Ok(Some(pb::CoordinatorMessage { msg: Some(In::Refused(r)) })) => {
+            return Err(WorkerError::Refused(r.reason))
+        }
         Ok(_) => return Err(WorkerError::Lost("the coordinator did not answer Hello with Welcome".into())),
         Err(s) => return Err(WorkerError::Lost(s.message().to_string())),
     };
@@ -280,7 +282,8 @@ impl SceneCache {
         let parsed = match js.bundle {
             None => Err("the coordinator sent a job without its scene".to_string()),
             Some(b) => {
-                let mut assets: Vec<(String, Vec<u8>)> = b.assets.into_iter().map(|a| (a.path, a.data)).collect();
+                let mut assets: Vec<(String, Vec<u8>)> =
+                    b.assets.into_iter().map(|a| (a.path, a.data)).collect();
                 assets.sort();
                 let bundle = Bundle { name: b.name, text: b.text, assets };
                 // Parsing a large scene is CPU work: keep it off the async threads.
@@ -321,7 +324,7 @@ impl SceneCache {
             return Err(format!("batch names scene {}, but job {} has scene {hash}", b.scene_hash, b.job_id));
         }
         let scene = scene.clone()?;
-        if b.pixels.len() % 2 != 0 {
+        if !b.pixels.len().is_multiple_of(2) {
             return Err("pixel list has an odd number of coordinates".into());
         }
         if b.sample_start >= b.sample_end || b.sample_end > crate::scene::limits::MAX_SPP {
@@ -329,19 +332,26 @@ impl SceneCache {
         }
         let pixels: Vec<UVec2> = b.pixels.chunks_exact(2).map(|p| UVec2::new(p[0], p[1])).collect();
         if let Some(p) = pixels.iter().find(|p| p.x >= scene.width || p.y >= scene.height) {
-            return Err(format!("pixel {},{} is outside the {}x{} image", p.x, p.y, scene.width, scene.height));
+            return Err(format!(
+                "pixel {},{} is outside the {}x{} image",
+                p.x, p.y, scene.width, scene.height
+            ));
         }
         Ok((scene, pixels))
     }
 }
 
-/// An error with its causes, on one line.
-fn error_chain(e: &dyn std::error::Error) -> String {
+/// An error with its causes on one line, each said once (transport errors repeat their
+/// sources in their own messages).
+pub fn error_chain(e: &dyn std::error::Error) -> String {
     let mut s = e.to_string();
     let mut source = e.source();
     while let Some(cause) = source {
-        s.push_str(": ");
-        s.push_str(&cause.to_string());
+        let text = cause.to_string();
+        if !s.contains(&text) {
+            s.push_str(": ");
+            s.push_str(&text);
+        }
         source = cause.source();
     }
     s

@@ -299,7 +299,9 @@ pub fn parse_scene(file: &str, text: &str) -> Result<Scene, SceneError> {
         return Err(ctx.err(rspan, format!("spp must be 1..={}, got {}", limits::MAX_SPP, r.spp)));
     }
     if r.max_depth > limits::MAX_DEPTH {
-        return Err(ctx.err(rspan, format!("max_depth must be at most {}, got {}", limits::MAX_DEPTH, r.max_depth)));
+        return Err(
+            ctx.err(rspan, format!("max_depth must be at most {}, got {}", limits::MAX_DEPTH, r.max_depth))
+        );
     }
     let background = ctx.colour(&rspan, "render.background", r.background)?;
     let ambient = ctx.colour(&rspan, "render.ambient", r.ambient)?;
@@ -312,7 +314,9 @@ pub fn parse_scene(file: &str, text: &str) -> Result<Scene, SceneError> {
     let fov = ctx.number(&cspan, "camera.fov (degrees)", c.fov, 1e-4..179.9)?;
     let forward = look_at - position;
     if forward.length_squared() == 0.0 || forward.cross(up).length_squared() == 0.0 {
-        return Err(ctx.err(cspan, "camera.look_at must differ from camera.position and not lie along camera.up"));
+        return Err(
+            ctx.err(cspan, "camera.look_at must differ from camera.position and not lie along camera.up")
+        );
     }
     let camera = Camera::new(position, look_at, up, fov.to_radians(), r.width, r.height);
 
@@ -464,7 +468,9 @@ material = "red"
     #[test]
     fn bad_image_size_and_camera_are_refused() {
         assert!(err(&MINIMAL.replace("width = 8", "width = 0")).message.contains("image size"));
-        assert!(err(&MINIMAL.replace("look_at = [0, 0, 0]", "look_at = [0, 0, 5]")).message.contains("look_at"));
+        assert!(err(&MINIMAL.replace("look_at = [0, 0, 0]", "look_at = [0, 0, 5]"))
+            .message
+            .contains("look_at"));
         assert!(err(&MINIMAL.replace("[camera]", "[cam]")).message.contains("cam"));
     }
 

@@ -221,7 +221,10 @@ mod tests {
                     }
                     let o = offset_ray_origin(h.p, h.p_error, h.n, w);
                     assert!(o.is_finite(), "{h:?}");
-                    assert!(s.intersect(&Ray::new(o, w), f32::INFINITY).is_none(), "scale {scale} offset {offset}");
+                    assert!(
+                        s.intersect(&Ray::new(o, w), f32::INFINITY).is_none(),
+                        "scale {scale} offset {offset}"
+                    );
                 }
             }
         }
