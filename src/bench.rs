@@ -89,7 +89,8 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             }
             // The minimum is the run least disturbed by other load on a shared machine; the
             // median shows what a typical run costs.
-            let min_ratio = farm.iter().min().unwrap().as_secs_f64() / single.iter().min().unwrap().as_secs_f64();
+            let min_ratio =
+                farm.iter().min().unwrap().as_secs_f64() / single.iter().min().unwrap().as_secs_f64();
             let (s, f, p) = (median(single), median(farm), median(preview));
             let samples = u64::from(w) * u64::from(h) * u64::from(n);
             println!(
