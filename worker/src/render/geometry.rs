@@ -33,10 +33,14 @@ pub struct Hit {
     pub p: Vec3,
     /// A conservative bound on the floating-point error of `p`, per axis.
     pub p_error: Vec3,
-    /// Geometric normal, unit length, pointing out of the surface.
+    /// Geometric normal, unit length, pointing out of the surface (front side).
     pub n: Vec3,
-    /// Material index.
-    pub material: u32,
+    /// Shading normal (interpolated for meshes), on the same side as `n`.
+    pub ns: Vec3,
+    /// Surface coordinates for textures.
+    pub uv: glam::Vec2,
+    /// The primitive hit (set by the scene).
+    pub prim: u32,
 }
 
 /// γ(n) of floating-point error analysis: the relative error bound of n operations.
@@ -86,35 +90,38 @@ pub fn next_down(v: f32) -> f32 {
 /// A sphere.
 #[derive(Debug, Clone)]
 pub struct Sphere {
-    center: Vec3,
-    radius: f32,
-    material: u32,
+    /// Centre.
+    pub center: Vec3,
+    /// Radius, positive.
+    pub radius: f32,
 }
 
 impl Sphere {
     /// A sphere of positive `radius` around `center`.
-    pub fn new(center: Vec3, radius: f32, material: u32) -> Self {
-        Sphere { center, radius, material }
+    pub fn new(center: Vec3, radius: f32) -> Self {
+        Sphere { center, radius }
     }
 
-    /// Both ray parameters where the ray's line meets the sphere, nearest first.
+    /// Both ray parameters where the ray's line meets the sphere, nearest first. The
+    /// direction need not be unit length (moving objects intersect in object space).
     fn roots(&self, ray: &Ray) -> Option<(f32, f32)> {
         // In f64: the quadratic loses the digits that decide a grazing hit, and the
         // discriminant of a small, distant sphere underflows in f32.
         let oc = (ray.origin - self.center).as_dvec3();
         let d = ray.dir.as_dvec3();
+        let a = d.length_squared();
         let b = oc.dot(d);
         let r = f64::from(self.radius);
-        // c = |oc|² - r², and the discriminant in the form that avoids cancellation:
-        // r² - |oc - b·d|² (Hearn and Baker; Ray Tracing Gems ch. 7).
-        let perp = oc - d * b;
-        let disc = r * r - perp.length_squared();
+        // b² - a·c in the form that avoids cancellation: a·(r² - |oc - d·b/a|²)
+        // (Hearn and Baker; Ray Tracing Gems ch. 7).
+        let perp = oc - d * (b / a);
+        let disc = a * (r * r - perp.length_squared());
         if disc < 0.0 {
             return None;
         }
         let c = oc.length_squared() - r * r;
         let q = -b - b.signum() * disc.sqrt();
-        let (t0, t1) = if q == 0.0 { (0.0, 0.0) } else { (c / q, q) };
+        let (t0, t1) = if q == 0.0 { (0.0, 0.0) } else { (c / q, q / a) };
         let (t0, t1) = if t0 <= t1 { (t0, t1) } else { (t1, t0) };
         Some((t0 as f32, t1 as f32))
     }
@@ -128,7 +135,9 @@ impl Sphere {
         let n = local.try_normalize().unwrap_or(-ray.dir);
         let p = self.center + n * self.radius;
         let p_error = (self.center.abs() + (n * self.radius).abs()) * gamma(6);
-        Hit { t, p, p_error, n, material: self.material }
+        let u = 0.5 + n.z.atan2(n.x) * (0.5 / std::f32::consts::PI);
+        let v = n.y.clamp(-1.0, 1.0).acos() * std::f32::consts::FRAC_1_PI;
+        Hit { t, p, p_error, n, ns: n, uv: glam::Vec2::new(u, 1.0 - v), prim: 0 }
     }
 
     /// The nearest hit in (0, t_max).
@@ -156,14 +165,13 @@ pub struct Plane {
     n: Vec3,
     /// n · p for every point p of the plane.
     d: f32,
-    material: u32,
 }
 
 impl Plane {
     /// The plane through `point` with normal `normal` (any non-zero length).
-    pub fn new(point: Vec3, normal: Vec3, material: u32) -> Self {
+    pub fn new(point: Vec3, normal: Vec3) -> Self {
         let n = normal.normalize();
-        Plane { n, d: n.dot(point), material }
+        Plane { n, d: n.dot(point) }
     }
 
     /// The hit in (0, t_max), if the ray meets the plane there.
@@ -181,7 +189,7 @@ impl Plane {
         let p = ray.at(t);
         let p = p - self.n * (self.n.dot(p) - self.d);
         let p_error = (p.abs() + Vec3::splat(self.d.abs())) * gamma(5);
-        Some(Hit { t, p, p_error, n: self.n, material: self.material })
+        Some(Hit { t, p, p_error, n: self.n, ns: self.n, uv: glam::Vec2::new(p.x, p.z), prim: 0 })
     }
 }
 
@@ -191,7 +199,7 @@ mod tests {
 
     #[test]
     fn sphere_hit_from_outside_and_inside() {
-        let s = Sphere::new(Vec3::ZERO, 1.0, 0);
+        let s = Sphere::new(Vec3::ZERO, 1.0);
         let outside = Ray::new(Vec3::new(0.0, 0.0, 5.0), Vec3::NEG_Z);
         let h = s.intersect(&outside, f32::INFINITY).unwrap();
         assert!((h.t - 4.0).abs() < 1e-5 && (h.n - Vec3::Z).length() < 1e-6);
@@ -209,7 +217,7 @@ mod tests {
         for (scale, offset) in [(1e-4f32, 0.0f32), (1.0, 0.0), (1e4, 0.0), (1.0, 1e5), (1e4, 1e5)] {
             {
                 let c = Vec3::splat(offset);
-                let s = Sphere::new(c, scale, 0);
+                let s = Sphere::new(c, scale);
                 for i in 0..200 {
                     let a = i as f32 * 0.37;
                     let dir = Vec3::new(a.cos(), (a * 1.3).sin(), a.sin()).normalize();
@@ -232,9 +240,9 @@ mod tests {
 
     #[test]
     fn plane_hit_and_parallel_miss() {
-        let p = Plane::new(Vec3::ZERO, Vec3::Y, 2);
+        let p = Plane::new(Vec3::ZERO, Vec3::Y);
         let h = p.intersect(&Ray::new(Vec3::new(1.0, 2.0, 0.0), Vec3::NEG_Y), f32::INFINITY).unwrap();
-        assert!((h.t - 2.0).abs() < 1e-6 && h.material == 2);
+        assert!((h.t - 2.0).abs() < 1e-6 && h.n == Vec3::Y);
         assert!(p.intersect(&Ray::new(Vec3::Y, Vec3::X), f32::INFINITY).is_none());
     }
 }

@@ -1,10 +1,16 @@
-//! Whitted's transport: direct light from every light with shadow rays, then recursive
-//! mirror reflection and refraction.
+//! Cook's transport. At every hit: light from every light (area lights sampled over their
+//! surface and combined with the BSDF sample by multiple importance sampling); then one
+//! BSDF sample, followed when it picked a specular or glossy lobe, ended after a light
+//! check when it picked a diffuse one (no diffuse interreflection). Surfaces of the classic
+//! model are shaded as Whitted did, with Cook's blurred reflection and refraction: both
+//! the reflected and the refracted ray are traced.
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
-use super::geometry::{offset_ray_origin, Ray};
-use super::Scene;
+use super::bsdf::{Frame, Lobe};
+use super::geometry::{offset_ray_origin, Hit, Ray};
+use super::material::{Classic, Material};
+use super::{Sampler, Scene};
 
 /// Reflects `v` (pointing away from the surface) about the normal `n`.
 #[inline]
@@ -13,7 +19,7 @@ pub fn reflect(v: Vec3, n: Vec3) -> Vec3 {
 }
 
 /// Refracts `wi` (pointing away from the surface, on the side of `n`) into a medium with
-/// relative index `eta` (inside over outside); `None` on total internal reflection.
+/// relative index `eta` (far side over near side); `None` on total internal reflection.
 #[inline]
 pub fn refract(wi: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
     let cos_i = wi.dot(n);
@@ -26,58 +32,145 @@ pub fn refract(wi: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
     Some((-wi / eta + (cos_i / eta - cos_t) * n).normalize())
 }
 
-/// Light that reaches `to` from `from` through the scene: zero behind an opaque surface,
-/// tinted by the transmission of every transparent surface crossed (the classic model's
-/// coloured shadows; refraction of shadow rays is not followed).
-fn transmittance(scene: &Scene, from: Vec3, to: Vec3) -> Vec3 {
-    let d = to - from;
-    let dist = d.length();
-    let ray = Ray::new(from, d / dist);
-    let mut tr = Vec3::ONE;
-    // Stop just short of the light: rounding of `dist` must not count the light's own
-    // position as a blocker.
-    scene.for_each_hit(&ray, dist * (1.0 - 1e-5), |hit| {
-        tr *= scene.materials[hit.material as usize].transmit;
-        tr != Vec3::ZERO
-    });
-    tr
+/// The power heuristic (β = 2) weight of a strategy with density `a` against one with `b`.
+#[inline]
+fn power_heuristic(a: f32, b: f32) -> f32 {
+    let (a2, b2) = (a * a, b * b);
+    if a2 + b2 == 0.0 || !a2.is_finite() {
+        return 1.0;
+    }
+    a2 / (a2 + b2)
 }
 
-/// The radiance arriving along `ray`, recursion depth `depth`.
-pub fn radiance(scene: &Scene, ray: &Ray, depth: u32) -> Vec3 {
-    let Some(hit) = scene.intersect(ray, f32::INFINITY) else {
-        return scene.background;
-    };
-    let m = &scene.materials[hit.material as usize];
+/// Shortens a shadow ray so that the light's own surface at its end does not count as a
+/// blocker: relative, so it holds at every scale.
+const SHADOW_SHORTEN: f32 = 1.0 - 1e-4;
+
+/// The radiance arriving along `ray`; `depth` segments precede it.
+pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32) -> Vec3 {
+    let mut l = Vec3::ZERO;
+    let mut beta = Vec3::ONE;
+    let mut ray = *ray;
+    // How the current ray was sampled, for weighting a light it hits.
+    let mut from_dirac = true;
+    let mut prev_pdf = 0.0f32;
+    let mut prev_p = ray.origin;
+    let mut last = false;
+    for depth in depth..scene.max_depth {
+        let Some(sh) = scene.intersect(&ray, f32::INFINITY, time) else {
+            l += beta * scene.background;
+            break;
+        };
+        let hit = sh.hit;
+        if let Some(li) = sh.light {
+            let light = &scene.lights[li as usize];
+            let le = light.emitted(hit.n, ray.dir);
+            if le != Vec3::ZERO {
+                let w = if from_dirac { 1.0 } else { power_heuristic(prev_pdf, light.pdf(prev_p, ray.dir, hit.t)) };
+                l += beta * le * w;
+            }
+            // Light surfaces reflect nothing.
+            break;
+        }
+        if last {
+            break;
+        }
+        let material = &scene.materials[sh.material as usize];
+        if let Material::Classic(c) = material {
+            l += beta * classic(scene, sampler, &ray, &hit, c, depth, time);
+            break;
+        }
+        let bsdf = material.bsdf(&scene.textures, hit.p, hit.uv).expect("physically based material");
+        let wo_world = -ray.dir;
+        // Dielectrics need to know inside from outside; opaque surfaces shade both sides.
+        let mut ns = hit.ns;
+        if !matches!(material, Material::Dielectric { .. } | Material::RoughDielectric { .. }) && ns.dot(wo_world) < 0.0
+        {
+            ns = -ns;
+        }
+        let frame = Frame::new(ns);
+        let wo = frame.to_local(wo_world);
+        if depth + 1 < scene.max_depth && !bsdf.is_delta() {
+            for light in &scene.lights {
+                let u = if light.is_delta() { Vec2::ZERO } else { sampler.get_2d() };
+                let Some(ls) = light.sample(hit.p, u) else { continue };
+                let f = bsdf.eval(wo, frame.to_local(ls.wi));
+                if f == Vec3::ZERO {
+                    continue;
+                }
+                let origin = offset_ray_origin(hit.p, hit.p_error, hit.n, ls.wi);
+                let tr = scene.transmittance(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time);
+                if tr == Vec3::ZERO {
+                    continue;
+                }
+                let w = if light.is_delta() { 1.0 } else { power_heuristic(ls.pdf, bsdf.pdf(wo, frame.to_local(ls.wi))) };
+                l += beta * f * ls.weighted * tr * w;
+            }
+        }
+        let u_lobe = sampler.get_1d();
+        let u = sampler.get_2d();
+        let Some(s) = bsdf.sample(wo, u_lobe, u) else { break };
+        beta *= s.weight;
+        if beta == Vec3::ZERO || !beta.is_finite() {
+            break;
+        }
+        let wi = frame.to_world(s.wi).normalize();
+        prev_p = hit.p;
+        prev_pdf = s.pdf;
+        from_dirac = s.lobe == Lobe::Specular;
+        // A diffuse lobe ends the path: its ray only looks for a light (for MIS).
+        last = s.lobe == Lobe::Diffuse;
+        ray = Ray::new(offset_ray_origin(hit.p, hit.p_error, hit.n, wi), wi);
+    }
+    l
+}
+
+/// Perturbs the unit direction `w` around itself by a GGX-distributed normal of roughness
+/// `alpha` (Cook's blurred reflection and refraction); keeps it on the side of `n` it must
+/// stay on (`side` = +1 above, -1 below).
+fn blur(w: Vec3, n: Vec3, alpha: f32, u: Vec2, side: f32) -> Vec3 {
+    let tan2 = alpha * alpha * u.x / (1.0 - u.x).max(1e-12);
+    let cos_t = 1.0 / (1.0 + tan2).sqrt();
+    let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+    let phi = 2.0 * std::f32::consts::PI * u.y;
+    let frame = Frame::new(w);
+    let d = frame.to_world(Vec3::new(sin_t * phi.cos(), sin_t * phi.sin(), cos_t)).normalize();
+    // A lobe that dips through the surface is folded back, as a blurred mirror would.
+    if d.dot(n) * side < 0.0 {
+        (d - 2.0 * d.dot(n) * n).normalize()
+    } else {
+        d
+    }
+}
+
+/// The classic model at a hit: ambient, diffuse and Phong highlight from every light
+/// (with coloured shadows through transmissive surfaces), then the reflected and
+/// refracted rays, blurred by `gloss` and `translucency`.
+fn classic(scene: &Scene, sampler: &mut Sampler, ray: &Ray, hit: &Hit, m: &Classic, depth: u32, time: f32) -> Vec3 {
     let wo = -ray.dir;
     let entering = hit.n.dot(wo) >= 0.0;
-    // The normal on the side the ray comes from.
-    let n = if entering { hit.n } else { -hit.n };
+    // The normals on the side the ray comes from.
+    let (n, ns) = if entering { (hit.n, hit.ns) } else { (-hit.n, -hit.ns) };
+    let color = m.color.eval(&scene.textures, hit.p, hit.uv);
 
-    let mut l = scene.ambient * m.ambient * m.color;
+    let mut l = scene.ambient * m.ambient * color;
     for light in &scene.lights {
-        let to_light = light.position - hit.p;
-        let dist2 = to_light.length_squared();
-        if dist2 == 0.0 {
+        let u = if light.is_delta() { Vec2::ZERO } else { sampler.get_2d() };
+        let Some(ls) = light.sample(hit.p, u) else { continue };
+        let cos = ns.dot(ls.wi);
+        if cos <= 0.0 || n.dot(ls.wi) <= 0.0 {
             continue;
         }
-        let wi = to_light / dist2.sqrt();
-        let cos = n.dot(wi);
-        if cos <= 0.0 {
-            continue;
-        }
-        let origin = offset_ray_origin(hit.p, hit.p_error, n, wi);
-        let tr = transmittance(scene, origin, light.position);
+        let origin = offset_ray_origin(hit.p, hit.p_error, n, ls.wi);
+        let tr = scene.transmittance(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time);
         if tr == Vec3::ZERO {
             continue;
         }
-        let irradiance = light.intensity * tr / dist2;
-        let mut f = m.color * (m.diffuse * cos);
+        let mut f = color * (m.diffuse * cos);
         if m.specular > 0.0 {
-            let highlight = reflect(wi, n).dot(wo).max(0.0).powf(m.shininess);
-            f += Vec3::splat(m.specular * highlight);
+            f += Vec3::splat(m.specular * reflect(ls.wi, ns).dot(wo).max(0.0).powf(m.shininess));
         }
-        l += irradiance * f;
+        l += ls.weighted * tr * f;
     }
 
     if depth + 1 >= scene.max_depth {
@@ -86,19 +179,25 @@ pub fn radiance(scene: &Scene, ray: &Ray, depth: u32) -> Vec3 {
     let mut mirror = m.reflect;
     if m.transmit != Vec3::ZERO {
         let eta = if entering { m.ior } else { 1.0 / m.ior };
-        match refract(wo, n, eta) {
-            Some(wt) => {
+        match refract(wo, ns, eta) {
+            Some(mut wt) => {
+                if m.translucency > 0.0 {
+                    wt = blur(wt, n, m.translucency, sampler.get_2d(), -1.0);
+                }
                 let origin = offset_ray_origin(hit.p, hit.p_error, n, wt);
-                l += m.transmit * radiance(scene, &Ray::new(origin, wt), depth + 1);
+                l += m.transmit * radiance(scene, sampler, &Ray::new(origin, wt), depth + 1, time);
             }
             // Total internal reflection: the transmitted light is reflected instead.
             None => mirror += m.transmit,
         }
     }
     if mirror != Vec3::ZERO {
-        let wr = reflect(wo, n);
+        let mut wr = reflect(wo, ns);
+        if m.gloss > 0.0 {
+            wr = blur(wr, n, m.gloss, sampler.get_2d(), 1.0);
+        }
         let origin = offset_ray_origin(hit.p, hit.p_error, n, wr);
-        l += mirror * radiance(scene, &Ray::new(origin, wr), depth + 1);
+        l += mirror * radiance(scene, sampler, &Ray::new(origin, wr), depth + 1, time);
     }
     l
 }

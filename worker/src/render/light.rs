@@ -1,13 +1,184 @@
-//! Lights of a Whitted scene.
+//! Lights: point and directional (Dirac) lights, and area lights — emitting rectangles and
+//! spheres — sampled over their surface so that shadows get penumbrae.
 
-use glam::Vec3;
+use std::f32::consts::PI;
 
-/// A point light of radiant intensity `intensity` (per channel): the irradiance at
-/// distance d is intensity / d².
+use glam::{Vec2, Vec3};
+
+use super::bsdf::Frame;
+use super::geometry::Sphere;
+use super::shape::Rect;
+
+/// A light.
 #[derive(Debug, Clone)]
-pub struct PointLight {
-    /// Position.
-    pub position: Vec3,
-    /// Radiant intensity per channel (colour times strength).
-    pub intensity: Vec3,
+pub enum Light {
+    /// A point of radiant intensity `intensity`: irradiance intensity / d².
+    Point {
+        /// Position.
+        position: Vec3,
+        /// Radiant intensity per channel.
+        intensity: Vec3,
+    },
+    /// Parallel light arriving from `direction`'s opposite with irradiance `irradiance`.
+    Directional {
+        /// Unit direction the light travels in.
+        direction: Vec3,
+        /// Irradiance on a surface facing the light.
+        irradiance: Vec3,
+    },
+    /// An emitting parallelogram, front side only.
+    Rect {
+        /// The shape.
+        rect: Rect,
+        /// Emitted radiance.
+        radiance: Vec3,
+    },
+    /// An emitting sphere, outwards.
+    Sphere {
+        /// The shape.
+        sphere: Sphere,
+        /// Emitted radiance.
+        radiance: Vec3,
+    },
+}
+
+/// A sampled light contribution at a point.
+#[derive(Debug, Clone, Copy)]
+pub struct LightSample {
+    /// Unit direction from the point towards the light.
+    pub wi: Vec3,
+    /// Distance to the sampled light point (infinite for directional light).
+    pub dist: f32,
+    /// Radiance (area lights) or irradiance-like value (Dirac lights) arriving, divided
+    /// by the density: the estimator's light factor.
+    pub weighted: Vec3,
+    /// Solid-angle density (0 for Dirac lights).
+    pub pdf: f32,
+}
+
+impl Light {
+    /// Whether the light is a Dirac light (no area to sample, no MIS).
+    pub fn is_delta(&self) -> bool {
+        matches!(self, Light::Point { .. } | Light::Directional { .. })
+    }
+
+    /// Samples light arriving at `p`.
+    pub fn sample(&self, p: Vec3, u: Vec2) -> Option<LightSample> {
+        match self {
+            Light::Point { position, intensity } => {
+                let d = *position - p;
+                let dist2 = d.length_squared();
+                (dist2 > 0.0).then(|| {
+                    let dist = dist2.sqrt();
+                    LightSample { wi: d / dist, dist, weighted: *intensity / dist2, pdf: 0.0 }
+                })
+            }
+            Light::Directional { direction, irradiance } => {
+                Some(LightSample { wi: -*direction, dist: f32::INFINITY, weighted: *irradiance, pdf: 0.0 })
+            }
+            Light::Rect { rect, radiance } => {
+                let q = rect.point(2.0 * u.x - 1.0, 2.0 * u.y - 1.0);
+                let d = q - p;
+                let dist2 = d.length_squared();
+                let dist = dist2.sqrt();
+                let wi = d / dist;
+                let cos_l = -wi.dot(rect.normal());
+                if cos_l <= 0.0 || dist2 == 0.0 {
+                    return None;
+                }
+                let pdf = dist2 / (cos_l * rect.area());
+                Some(LightSample { wi, dist, weighted: *radiance / pdf, pdf })
+            }
+            Light::Sphere { sphere, radiance } => {
+                let (wi, pdf) = sample_sphere_cone(sphere, p, u)?;
+                let dist = sphere_entry(sphere, p, wi)?;
+                Some(LightSample { wi, dist, weighted: *radiance / pdf, pdf })
+            }
+        }
+    }
+
+    /// The solid-angle density with which `sample` picks direction `wi` from `p`, given
+    /// that the ray hits this light at distance `dist` (for MIS).
+    pub fn pdf(&self, p: Vec3, wi: Vec3, dist: f32) -> f32 {
+        match self {
+            Light::Point { .. } | Light::Directional { .. } => 0.0,
+            Light::Rect { rect, .. } => {
+                let cos_l = -wi.dot(rect.normal());
+                if cos_l <= 0.0 {
+                    return 0.0;
+                }
+                dist * dist / (cos_l * rect.area())
+            }
+            Light::Sphere { sphere, .. } => {
+                let d2 = (sphere.center - p).length_squared();
+                let r2 = sphere.radius * sphere.radius;
+                if d2 <= r2 {
+                    return uniform_area_pdf(sphere, p, wi, dist);
+                }
+                let cos_max = (1.0 - r2 / d2).max(0.0).sqrt();
+                1.0 / (2.0 * PI * (1.0 - cos_max))
+            }
+        }
+    }
+
+    /// Radiance leaving the light's surface towards `-dir` at a point with normal `n`.
+    pub fn emitted(&self, n: Vec3, dir: Vec3) -> Vec3 {
+        match self {
+            Light::Rect { radiance, rect } => {
+                if dir.dot(rect.normal()) < 0.0 {
+                    *radiance
+                } else {
+                    Vec3::ZERO
+                }
+            }
+            Light::Sphere { radiance, .. } => {
+                if dir.dot(n) < 0.0 {
+                    *radiance
+                } else {
+                    Vec3::ZERO
+                }
+            }
+            _ => Vec3::ZERO,
+        }
+    }
+}
+
+/// Samples a direction uniformly inside the cone that the sphere subtends from `p`; from
+/// inside the sphere, a uniform direction (every direction sees the sphere).
+fn sample_sphere_cone(sphere: &Sphere, p: Vec3, u: Vec2) -> Option<(Vec3, f32)> {
+    let to_c = sphere.center - p;
+    let d2 = to_c.length_squared();
+    let r2 = sphere.radius * sphere.radius;
+    if d2 <= r2 {
+        let z = 1.0 - 2.0 * u.x;
+        let r = (1.0 - z * z).max(0.0).sqrt();
+        let phi = 2.0 * PI * u.y;
+        return Some((Vec3::new(r * phi.cos(), r * phi.sin(), z), 1.0 / (4.0 * PI)));
+    }
+    let cos_max = (1.0 - r2 / d2).max(0.0).sqrt();
+    let cos_t = 1.0 - u.x * (1.0 - cos_max);
+    let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+    let phi = 2.0 * PI * u.y;
+    let frame = Frame::new(to_c / d2.sqrt());
+    let wi = frame.to_world(Vec3::new(sin_t * phi.cos(), sin_t * phi.sin(), cos_t));
+    Some((wi.normalize(), 1.0 / (2.0 * PI * (1.0 - cos_max))))
+}
+
+fn uniform_area_pdf(_sphere: &Sphere, _p: Vec3, _wi: Vec3, _dist: f32) -> f32 {
+    1.0 / (4.0 * PI)
+}
+
+/// The distance along `wi` from `p` to the sphere's surface (its near side from outside,
+/// its far side from inside). A grazing cone sample that misses by rounding takes the
+/// closest approach.
+fn sphere_entry(sphere: &Sphere, p: Vec3, wi: Vec3) -> Option<f32> {
+    let oc = (p - sphere.center).as_dvec3();
+    let d = wi.as_dvec3();
+    let b = oc.dot(d);
+    let r = f64::from(sphere.radius);
+    let perp = oc - d * b;
+    let disc = (r * r - perp.length_squared()).max(0.0);
+    let c = oc.length_squared() - r * r;
+    let t = if c > 0.0 { -b - disc.sqrt() } else { -b + disc.sqrt() };
+    (t > 0.0).then_some(t as f32)
 }

@@ -1,14 +1,19 @@
-//! Materials of the classic (Whitted / Phong) model.
+//! Materials: the classic (Whitted/Phong) model of the seed paper, with Cook's gloss and
+//! translucency, and the physically based family of `bsdf.rs`.
 
-use glam::Vec3;
+use glam::{Vec2, Vec3};
 
-/// The classic model's material: ambient, diffuse colour, Phong highlight, and mirror
-/// reflection and refraction coefficients. Colours are reflectances of the classic model,
-/// not energy-conserving BSDFs.
+use super::bsdf::{fresnel_diffuse_reflectance, Bsdf, SMOOTH_ALPHA};
+use super::texture::{Tex, Texture};
+
+/// The classic model: ambient, diffuse colour, Phong highlight, mirror reflection and
+/// refraction coefficients. Colours are reflectances of the classic model, not
+/// energy-conserving BSDFs. `gloss` and `translucency` blur the reflected and refracted
+/// rays (Cook 1984): the roughness of a lobe around the ideal direction; 0 is sharp.
 #[derive(Debug, Clone, PartialEq)]
-pub struct Material {
+pub struct Classic {
     /// Diffuse colour.
-    pub color: Vec3,
+    pub color: Tex,
     /// Fraction of the scene's ambient light reflected (times `color`).
     pub ambient: f32,
     /// Diffuse coefficient (times `color`).
@@ -23,4 +28,97 @@ pub struct Material {
     pub transmit: Vec3,
     /// Index of refraction of the inside.
     pub ior: f32,
+    /// Roughness of the reflection lobe (0: sharp mirror).
+    pub gloss: f32,
+    /// Roughness of the refraction lobe (0: clear).
+    pub translucency: f32,
+}
+
+/// A material.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Material {
+    /// The classic model.
+    Classic(Classic),
+    /// Lambertian, albedo/π.
+    Lambert {
+        /// Albedo.
+        albedo: Tex,
+    },
+    /// Ideal mirror, no Fresnel.
+    Mirror {
+        /// Reflectance.
+        reflectance: Vec3,
+    },
+    /// Smooth dielectric (glass).
+    Dielectric {
+        /// Index of refraction inside (outside 1).
+        ior: f32,
+    },
+    /// Conductor with a complex index, smooth or rough (GGX).
+    Conductor {
+        /// Real part.
+        eta: Vec3,
+        /// Imaginary part.
+        k: Vec3,
+        /// GGX roughness (0: smooth).
+        roughness: f32,
+    },
+    /// Rough dielectric (frosted glass).
+    RoughDielectric {
+        /// Index inside.
+        ior: f32,
+        /// GGX roughness.
+        roughness: f32,
+    },
+    /// Smooth plastic: dielectric coat over a diffuse base.
+    Plastic {
+        /// Base albedo.
+        diffuse: Tex,
+        /// Coat index.
+        ior: f32,
+    },
+}
+
+impl Material {
+    /// The BSDF at a point, for the physically based materials.
+    pub fn bsdf(&self, textures: &[Texture], p: Vec3, uv: Vec2) -> Option<Bsdf> {
+        Some(match self {
+            Material::Classic(_) => return None,
+            Material::Lambert { albedo } => Bsdf::Lambert { albedo: albedo.eval(textures, p, uv) },
+            Material::Mirror { reflectance } => Bsdf::Mirror { reflectance: *reflectance },
+            Material::Dielectric { ior } => Bsdf::Dielectric { eta: *ior },
+            Material::Conductor { eta, k, roughness } if *roughness < SMOOTH_ALPHA => {
+                Bsdf::SmoothConductor { eta: *eta, k: *k }
+            }
+            Material::Conductor { eta, k, roughness } => Bsdf::RoughConductor { eta: *eta, k: *k, alpha: *roughness },
+            Material::RoughDielectric { ior, roughness } if *roughness < SMOOTH_ALPHA => Bsdf::Dielectric { eta: *ior },
+            Material::RoughDielectric { ior, roughness } => Bsdf::RoughDielectric { eta: *ior, alpha: *roughness },
+            Material::Plastic { diffuse, ior } => Bsdf::Plastic {
+                diffuse: diffuse.eval(textures, p, uv),
+                eta: *ior,
+                fdr: fresnel_diffuse_reflectance(*ior),
+            },
+        })
+    }
+
+    /// What fraction of light a shadow ray passes through this surface: the classic
+    /// model's transmission (coloured shadows), zero for everything else (Cook's
+    /// transport: shadows through glass are black, no caustics).
+    pub fn shadow_transmission(&self) -> Vec3 {
+        match self {
+            Material::Classic(c) => c.transmit,
+            _ => Vec3::ZERO,
+        }
+    }
+
+    /// Whether the material scatters into glossy lobes (for "pay for what you use").
+    pub fn is_glossy(&self) -> bool {
+        match self {
+            Material::Classic(c) => c.gloss > 0.0 || c.translucency > 0.0,
+            Material::Conductor { roughness, .. } | Material::RoughDielectric { roughness, .. } => {
+                *roughness >= SMOOTH_ALPHA
+            }
+            _ => false,
+        }
+    }
 }

@@ -1,21 +1,30 @@
-//! The renderer: a Whitted ray tracer whose samples are pure functions of
-//! (scene, seed, pixel, sample index), so that the farm can split, repeat and reorder work
-//! freely.
+//! The renderer: Cook's distributed ray tracing on a Whitted core. Every sample is a pure
+//! function of (scene, seed, pixel, sample index), so that the farm can split, repeat and
+//! reorder work freely.
 
+pub mod bsdf;
+pub mod bvh;
 pub mod camera;
 pub mod geometry;
 pub mod integrator;
 pub mod light;
 pub mod material;
 pub mod sampler;
+pub mod shape;
+pub mod texture;
+pub mod transform;
 
-use glam::{UVec2, Vec3};
+use glam::{UVec2, Vec2, Vec3};
 
+use bvh::Bvh;
 use camera::Camera;
-use geometry::{Hit, Plane, Ray, Sphere};
-use light::PointLight;
+use geometry::{Hit, Plane, Ray};
+use light::Light;
 use material::Material;
 pub use sampler::Sampler;
+use shape::{Mesh, Primitive};
+use texture::Texture;
+use transform::Motion;
 
 /// A scene ready to render.
 #[derive(Debug, Clone)]
@@ -28,7 +37,7 @@ pub struct Scene {
     pub spp: u32,
     /// Seed of every random choice; the same seed gives the same image.
     pub seed: u64,
-    /// Deepest recursion of reflection and refraction.
+    /// Most path segments (camera ray included) and depth of the classic ray tree.
     pub max_depth: u32,
     /// Radiance of rays that escape.
     pub background: Vec3,
@@ -38,60 +47,112 @@ pub struct Scene {
     pub camera: Camera,
     /// Materials, referenced by index.
     pub materials: Vec<Material>,
-    /// Spheres.
-    pub spheres: Vec<Sphere>,
-    /// Infinite planes.
-    pub planes: Vec<Plane>,
-    /// Point lights.
-    pub lights: Vec<PointLight>,
+    /// Textures, referenced by index.
+    pub textures: Vec<Texture>,
+    /// Bounded primitives, in the BVH.
+    pub prims: Vec<Primitive>,
+    /// The BVH over `prims`.
+    pub bvh: Bvh,
+    /// Infinite planes with their material (not in the BVH: they have no bounds).
+    pub planes: Vec<(Plane, u32)>,
+    /// Triangle meshes.
+    pub meshes: Vec<Mesh>,
+    /// Motions of moving primitives.
+    pub motions: Vec<Motion>,
+    /// Lights.
+    pub lights: Vec<Light>,
+}
+
+/// A hit with what lies at it.
+#[derive(Debug, Clone, Copy)]
+pub struct SurfaceHit {
+    /// The geometry.
+    pub hit: Hit,
+    /// Material index.
+    pub material: u32,
+    /// Area light index, when the surface emits.
+    pub light: Option<u32>,
 }
 
 impl Scene {
-    /// The nearest surface the ray hits before `t_max`.
-    pub fn intersect(&self, ray: &Ray, t_max: f32) -> Option<Hit> {
-        let mut best: Option<Hit> = None;
+    /// Whether the time dimension is sampled: only with motion and an open shutter.
+    pub fn has_motion_blur(&self) -> bool {
+        !self.motions.is_empty() && self.camera.shutter.1 > self.camera.shutter.0
+    }
+
+    /// The nearest surface the ray hits before `t_max`, at shutter fraction `time`.
+    pub fn intersect(&self, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceHit> {
+        let mut best: Option<SurfaceHit> = None;
+        let t_max = self.bvh.traverse(ray, t_max, |i, t_max| {
+            let prim = &self.prims[i as usize];
+            let mut hit = prim.intersect(ray, t_max, time, &self.meshes, &self.motions)?;
+            hit.prim = i;
+            best = Some(SurfaceHit { hit, material: prim.material, light: prim.light });
+            Some(hit.t)
+        });
         let mut t_max = t_max;
-        for s in &self.spheres {
-            if let Some(h) = s.intersect(ray, t_max) {
-                t_max = h.t;
-                best = Some(h);
-            }
-        }
-        for p in &self.planes {
-            if let Some(h) = p.intersect(ray, t_max) {
-                t_max = h.t;
-                best = Some(h);
+        for (plane, material) in &self.planes {
+            if let Some(hit) = plane.intersect(ray, t_max) {
+                t_max = hit.t;
+                best = Some(SurfaceHit { hit, material: *material, light: None });
             }
         }
         best
     }
 
-    /// Calls `f` with every surface the ray crosses before `t_max`, in no particular
-    /// order, until `f` returns false.
-    pub fn for_each_hit(&self, ray: &Ray, t_max: f32, mut f: impl FnMut(&Hit) -> bool) {
-        for s in &self.spheres {
-            for h in s.intersect_all(ray, t_max).into_iter().flatten() {
-                if !f(&h) {
-                    return;
+    /// The fraction of light that passes from `ray.origin` along `ray.dir` for `dist`:
+    /// zero if an opaque surface is in the way, else the product of the transmissions of
+    /// the classic-model surfaces crossed (coloured shadows).
+    pub fn transmittance(&self, ray: &Ray, dist: f32, time: f32) -> Vec3 {
+        let mut tr = Vec3::ONE;
+        let mut pass = |material: u32, emitter: bool| {
+            // An emitter's own surface does not shadow the light it sends.
+            tr *= if emitter { Vec3::ZERO } else { self.materials[material as usize].shadow_transmission() };
+            tr != Vec3::ZERO
+        };
+        let mut open = true;
+        self.bvh.visit(ray, dist, |i| {
+            let prim = &self.prims[i as usize];
+            let Some(hit) = prim.intersect(ray, dist, time, &self.meshes, &self.motions) else { return true };
+            // A sphere may be crossed twice.
+            let crossings = match &prim.shape {
+                shape::Shape::Sphere(_) => {
+                    let beyond = Ray::new(ray.at(hit.t), ray.dir);
+                    1 + u32::from(prim.intersect(&beyond, dist - hit.t, time, &self.meshes, &self.motions).is_some())
                 }
+                _ => 1,
+            };
+            for _ in 0..crossings {
+                open = pass(prim.material, prim.light.is_some());
+            }
+            open
+        });
+        if !open {
+            return Vec3::ZERO;
+        }
+        for (plane, material) in &self.planes {
+            if plane.intersect(ray, dist).is_some() && !pass(*material, false) {
+                return Vec3::ZERO;
             }
         }
-        for p in &self.planes {
-            if let Some(h) = p.intersect(ray, t_max) {
-                if !f(&h) {
-                    return;
-                }
-            }
-        }
+        tr
     }
 
     /// Renders sample `index` of `pixel` (paper coordinates: y grows upward) and returns
-    /// its radiance.
+    /// its radiance. Dimensions are drawn only for what the scene uses: the lens only with
+    /// an aperture, time only with motion and an open shutter.
     pub fn render_sample(&self, sampler: &mut Sampler, pixel: UVec2, index: u32) -> Vec3 {
         sampler.start_pixel_sample(pixel, index);
         let p_film = pixel.as_vec2() + sampler.get_2d();
-        let ray = self.camera.generate_ray(p_film);
-        integrator::radiance(self, &ray, 0)
+        let p_lens = if self.camera.has_lens() { sampler.get_2d() } else { Vec2::ZERO };
+        let time = if self.has_motion_blur() {
+            let (open, close) = self.camera.shutter;
+            open + sampler.get_1d() * (close - open)
+        } else {
+            self.camera.shutter.0
+        };
+        let ray = self.camera.generate_ray(p_film, p_lens);
+        integrator::radiance(self, sampler, &ray, 0, time)
     }
 
     /// A sampler for this scene's pattern.
