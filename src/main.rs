@@ -2,6 +2,7 @@
 #![forbid(unsafe_code)]
 
 mod bench;
+mod compare;
 mod local;
 mod remote;
 
@@ -62,6 +63,17 @@ enum Command {
         width: u32,
         /// Image height in pixels.
         height: u32,
+    },
+    /// Compare an image with a reference: RMSE, relative MSE and PSNR over all pixels and
+    /// the three linear RGB channels (EXR is read as linear, PNG is decoded from sRGB).
+    Compare {
+        /// The image to judge.
+        image: PathBuf,
+        /// The reference image.
+        reference: PathBuf,
+        /// Also list the N pixels that differ most.
+        #[arg(long, default_value_t = 0)]
+        worst: usize,
     },
     /// Benchmarks that print figures.
     #[command(subcommand)]
@@ -193,6 +205,21 @@ async fn run(command: Command) -> Result<ExitCode> {
             }
         }
         Command::Bench(cmd) => bench::run(cmd).await,
+        Command::Compare { image, reference, worst } => {
+            let e = compare::compare_files(&image, &reference)?;
+            println!(
+                "rmse {:.6}  relmse {:.6}  psnr {:.2} dB  ({} x {})",
+                e.rmse, e.relmse, e.psnr, e.width, e.height
+            );
+            if worst > 0 {
+                let (w, _, a) = compare::read_linear(&image)?;
+                let (_, _, b) = compare::read_linear(&reference)?;
+                for (x, y, got, want) in compare::worst_pixels(w, &a, &b, worst) {
+                    println!("  pixel {x},{y} (from top-left): {got:?} vs reference {want:?}");
+                }
+            }
+            Ok(ExitCode::SUCCESS)
+        }
     }
 }
 

@@ -34,12 +34,26 @@ pub enum BundleError {
 }
 
 impl Bundle {
-    /// Reads a scene file (and, once the format references assets, those assets).
+    /// Reads a scene file and the assets it references (meshes, image textures), by paths
+    /// relative to the scene's folder. A reference that escapes the folder or names no
+    /// readable file is left out here; parsing then reports it with its location.
     pub fn read(path: &Path) -> Result<Bundle, BundleError> {
         let bytes =
             std::fs::read(path).map_err(|source| BundleError::Read { path: path.to_owned(), source })?;
         let text = String::from_utf8(bytes).map_err(|_| BundleError::NotText { path: path.to_owned() })?;
-        Ok(Bundle { name: path.display().to_string(), text, assets: Vec::new() })
+        let dir = path.parent().unwrap_or(Path::new("."));
+        let mut assets: Vec<(String, Vec<u8>)> = Vec::new();
+        for reference in asset_references(&text) {
+            let Ok(rel) = crate::scene::check_asset_path(&reference) else { continue };
+            if assets.iter().any(|(p, _)| *p == rel) {
+                continue;
+            }
+            if let Ok(data) = std::fs::read(dir.join(&rel)) {
+                assets.push((rel, data));
+            }
+        }
+        assets.sort();
+        Ok(Bundle { name: path.display().to_string(), text, assets })
     }
 
     /// The content hash: blake3 over the text and every asset, each length-prefixed so
@@ -61,8 +75,30 @@ impl Bundle {
 
     /// Parses the scene.
     pub fn parse(&self) -> Result<crate::render::Scene, crate::scene::SceneError> {
-        crate::scene::parse_scene(&self.name, &self.text)
+        crate::scene::parse_scene_with_assets(&self.name, &self.text, self)
     }
+}
+
+impl crate::scene::Assets for Bundle {
+    fn get(&self, path: &str) -> Option<&[u8]> {
+        let rel = crate::scene::check_asset_path(path).ok()?;
+        self.assets.binary_search_by(|(p, _)| p.as_str().cmp(&rel)).ok().map(|i| self.assets[i].1.as_slice())
+    }
+}
+
+/// The asset paths a scene text names: `file` of every mesh and texture. A text that is
+/// not valid TOML names none (parsing reports the syntax error).
+fn asset_references(text: &str) -> Vec<String> {
+    let Ok(table) = text.parse::<toml::Table>() else { return Vec::new() };
+    let mut out = Vec::new();
+    let file_of = |v: &toml::Value| v.get("file").and_then(|f| f.as_str()).map(str::to_string);
+    if let Some(meshes) = table.get("mesh").and_then(|m| m.as_array()) {
+        out.extend(meshes.iter().filter_map(file_of));
+    }
+    if let Some(textures) = table.get("textures").and_then(|t| t.as_table()) {
+        out.extend(textures.values().filter_map(file_of));
+    }
+    out
 }
 
 #[cfg(test)]

@@ -2,11 +2,14 @@
 //! coordinator and returns per-pixel sample sums.
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
+// `!(x > 0.0)` is how this crate rejects NaN along with the values out of range.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod batch;
 pub mod bundle;
 pub mod client;
 pub mod fixed;
+pub mod obj;
 pub mod render;
 pub mod scene;
 

@@ -104,7 +104,8 @@ const TRAVERSAL_COST: f32 = 1.0;
 impl Bvh {
     /// Builds the hierarchy over primitives with the given boxes.
     pub fn build(bounds: &[Aabb]) -> Bvh {
-        let mut bvh = Bvh { nodes: Vec::with_capacity(bounds.len() * 2), indices: (0..bounds.len() as u32).collect() };
+        let mut bvh =
+            Bvh { nodes: Vec::with_capacity(bounds.len() * 2), indices: (0..bounds.len() as u32).collect() };
         if bounds.is_empty() {
             return bvh;
         }
@@ -119,7 +120,12 @@ impl Bvh {
             let node_bounds = idx.iter().fold(Aabb::EMPTY, |b, &i| b.union(bounds[i as usize]));
             let split = split(idx, bounds, &centroids, &node_bounds);
             match split {
-                None => bvh.nodes.push(Node { bounds: node_bounds, offset: start as u32, count: (end - start) as u32, axis: 0 }),
+                None => bvh.nodes.push(Node {
+                    bounds: node_bounds,
+                    offset: start as u32,
+                    count: (end - start) as u32,
+                    axis: 0,
+                }),
                 Some((mid, axis)) => {
                     bvh.nodes.push(Node { bounds: node_bounds, offset: 0, count: 0, axis: axis as u8 });
                     // Second child first onto the stack, so that the first child is built
@@ -266,7 +272,7 @@ fn split(idx: &mut [u32], bounds: &[Aabb], centroids: &[Vec3], node_bounds: &Aab
     };
     if !(extent[axis] > 0.0) {
         // All centroids coincide: no split can separate them.
-        return (n > MAX_LEAF).then(|| (n / 2, axis));
+        return (n > MAX_LEAF).then_some((n / 2, axis));
     }
     let bin_of = |i: u32| {
         let b = ((centroids[i as usize][axis] - cb.min[axis]) / extent[axis] * BINS as f32) as usize;
@@ -314,7 +320,9 @@ fn split(idx: &mut [u32], bounds: &[Aabb], centroids: &[Vec3], node_bounds: &Aab
 
 fn median_split(idx: &mut [u32], centroids: &[Vec3], axis: usize) -> (usize, usize) {
     let mid = idx.len() / 2;
-    idx.select_nth_unstable_by(mid, |&a, &b| centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis]));
+    idx.select_nth_unstable_by(mid, |&a, &b| {
+        centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis])
+    });
     (mid, axis)
 }
 

@@ -37,7 +37,15 @@ pub enum FovAxis {
 impl Camera {
     /// A camera with full field of view `fov` (radians) along `axis`, for a
     /// `width × height` image.
-    pub fn new(position: Vec3, look_at: Vec3, up: Vec3, fov: f32, axis: FovAxis, width: u32, height: u32) -> Self {
+    pub fn new(
+        position: Vec3,
+        look_at: Vec3,
+        up: Vec3,
+        fov: f32,
+        axis: FovAxis,
+        width: u32,
+        height: u32,
+    ) -> Self {
         let forward = (look_at - position).normalize();
         let right = forward.cross(up).normalize();
         let true_up = right.cross(forward);

@@ -135,9 +135,9 @@ impl Sphere {
         let n = local.try_normalize().unwrap_or(-ray.dir);
         let p = self.center + n * self.radius;
         let p_error = (self.center.abs() + (n * self.radius).abs()) * gamma(6);
-        let u = 0.5 + n.z.atan2(n.x) * (0.5 / std::f32::consts::PI);
-        let v = n.y.clamp(-1.0, 1.0).acos() * std::f32::consts::FRAC_1_PI;
-        Hit { t, p, p_error, n, ns: n, uv: glam::Vec2::new(u, 1.0 - v), prim: 0 }
+        // UVs cost two transcendental functions: computed for the nearest hit only
+        // (`sphere_uv`), not for every candidate and shadow ray.
+        Hit { t, p, p_error, n, ns: n, uv: glam::Vec2::ZERO, prim: 0 }
     }
 
     /// The nearest hit in (0, t_max).
@@ -157,6 +157,14 @@ impl Sphere {
             None => [None, None],
         }
     }
+}
+
+/// The texture coordinates of a point of a sphere with outward normal `n`: longitude
+/// and latitude, v = 1 at the top.
+pub fn sphere_uv(n: Vec3) -> glam::Vec2 {
+    let u = 0.5 + n.z.atan2(n.x) * (0.5 / std::f32::consts::PI);
+    let v = n.y.clamp(-1.0, 1.0).acos() * std::f32::consts::FRAC_1_PI;
+    glam::Vec2::new(u, 1.0 - v)
 }
 
 /// An infinite plane.

@@ -66,7 +66,11 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
             let light = &scene.lights[li as usize];
             let le = light.emitted(hit.n, ray.dir);
             if le != Vec3::ZERO {
-                let w = if from_dirac { 1.0 } else { power_heuristic(prev_pdf, light.pdf(prev_p, ray.dir, hit.t)) };
+                let w = if from_dirac {
+                    1.0
+                } else {
+                    power_heuristic(prev_pdf, light.pdf(prev_p, ray.dir, hit.t))
+                };
                 l += beta * le * w;
             }
             // Light surfaces reflect nothing.
@@ -84,7 +88,8 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
         let wo_world = -ray.dir;
         // Dielectrics need to know inside from outside; opaque surfaces shade both sides.
         let mut ns = hit.ns;
-        if !matches!(material, Material::Dielectric { .. } | Material::RoughDielectric { .. }) && ns.dot(wo_world) < 0.0
+        if !matches!(material, Material::Dielectric { .. } | Material::RoughDielectric { .. })
+            && ns.dot(wo_world) < 0.0
         {
             ns = -ns;
         }
@@ -103,7 +108,11 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
                 if tr == Vec3::ZERO {
                     continue;
                 }
-                let w = if light.is_delta() { 1.0 } else { power_heuristic(ls.pdf, bsdf.pdf(wo, frame.to_local(ls.wi))) };
+                let w = if light.is_delta() {
+                    1.0
+                } else {
+                    power_heuristic(ls.pdf, bsdf.pdf(wo, frame.to_local(ls.wi)))
+                };
                 l += beta * f * ls.weighted * tr * w;
             }
         }
@@ -146,7 +155,15 @@ fn blur(w: Vec3, n: Vec3, alpha: f32, u: Vec2, side: f32) -> Vec3 {
 /// The classic model at a hit: ambient, diffuse and Phong highlight from every light
 /// (with coloured shadows through transmissive surfaces), then the reflected and
 /// refracted rays, blurred by `gloss` and `translucency`.
-fn classic(scene: &Scene, sampler: &mut Sampler, ray: &Ray, hit: &Hit, m: &Classic, depth: u32, time: f32) -> Vec3 {
+fn classic(
+    scene: &Scene,
+    sampler: &mut Sampler,
+    ray: &Ray,
+    hit: &Hit,
+    m: &Classic,
+    depth: u32,
+    time: f32,
+) -> Vec3 {
     let wo = -ray.dir;
     let entering = hit.n.dot(wo) >= 0.0;
     // The normals on the side the ray comes from.

@@ -90,9 +90,15 @@ impl Material {
             Material::Conductor { eta, k, roughness } if *roughness < SMOOTH_ALPHA => {
                 Bsdf::SmoothConductor { eta: *eta, k: *k }
             }
-            Material::Conductor { eta, k, roughness } => Bsdf::RoughConductor { eta: *eta, k: *k, alpha: *roughness },
-            Material::RoughDielectric { ior, roughness } if *roughness < SMOOTH_ALPHA => Bsdf::Dielectric { eta: *ior },
-            Material::RoughDielectric { ior, roughness } => Bsdf::RoughDielectric { eta: *ior, alpha: *roughness },
+            Material::Conductor { eta, k, roughness } => {
+                Bsdf::RoughConductor { eta: *eta, k: *k, alpha: *roughness }
+            }
+            Material::RoughDielectric { ior, roughness } if *roughness < SMOOTH_ALPHA => {
+                Bsdf::Dielectric { eta: *ior }
+            }
+            Material::RoughDielectric { ior, roughness } => {
+                Bsdf::RoughDielectric { eta: *ior, alpha: *roughness }
+            }
             Material::Plastic { diffuse, ior } => Bsdf::Plastic {
                 diffuse: diffuse.eval(textures, p, uv),
                 eta: *ior,

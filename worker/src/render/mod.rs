@@ -90,6 +90,11 @@ impl Scene {
             best = Some(SurfaceHit { hit, material: prim.material, light: prim.light });
             Some(hit.t)
         });
+        if let Some(sh) = &mut best {
+            if let shape::Shape::Sphere(_) = self.prims[sh.hit.prim as usize].shape {
+                sh.hit.uv = geometry::sphere_uv(sh.hit.n);
+            }
+        }
         let mut t_max = t_max;
         for (plane, material) in &self.planes {
             if let Some(hit) = plane.intersect(ray, t_max) {
@@ -113,17 +118,11 @@ impl Scene {
         let mut open = true;
         self.bvh.visit(ray, dist, |i| {
             let prim = &self.prims[i as usize];
-            let Some(hit) = prim.intersect(ray, dist, time, &self.meshes, &self.motions) else { return true };
-            // A sphere may be crossed twice.
-            let crossings = match &prim.shape {
-                shape::Shape::Sphere(_) => {
-                    let beyond = Ray::new(ray.at(hit.t), ray.dir);
-                    1 + u32::from(prim.intersect(&beyond, dist - hit.t, time, &self.meshes, &self.motions).is_some())
-                }
-                _ => 1,
-            };
-            for _ in 0..crossings {
+            for _ in 0..prim.crossings(ray, dist, time, &self.meshes, &self.motions) {
                 open = pass(prim.material, prim.light.is_some());
+                if !open {
+                    break;
+                }
             }
             open
         });

@@ -48,7 +48,12 @@ impl Rect {
     }
 
     fn bounds(&self) -> Aabb {
-        Aabb::from_points([self.point(-1.0, -1.0), self.point(1.0, -1.0), self.point(-1.0, 1.0), self.point(1.0, 1.0)])
+        Aabb::from_points([
+            self.point(-1.0, -1.0),
+            self.point(1.0, -1.0),
+            self.point(-1.0, 1.0),
+            self.point(1.0, 1.0),
+        ])
     }
 
     /// The hit in (0, t_max).
@@ -129,7 +134,8 @@ impl Mesh {
         let p_error = ((p0 * b0).abs() + (p1 * b1).abs() + (p2 * b2).abs()) * gamma(7);
         let c = &self.tris[tri as usize];
         let ns = if c[0][1] != u32::MAX {
-            let s = self.n[c[0][1] as usize] * b0 + self.n[c[1][1] as usize] * b1 + self.n[c[2][1] as usize] * b2;
+            let s =
+                self.n[c[0][1] as usize] * b0 + self.n[c[1][1] as usize] * b1 + self.n[c[2][1] as usize] * b2;
             let s = s.try_normalize().unwrap_or(n);
             // The geometric normal follows the winding; keep the shading normal's side.
             if s.dot(n) < 0.0 {
@@ -181,7 +187,9 @@ pub struct Primitive {
 impl Primitive {
     fn object_bounds(&self, meshes: &[Mesh]) -> Aabb {
         match &self.shape {
-            Shape::Sphere(s) => Aabb { min: s.center - Vec3::splat(s.radius), max: s.center + Vec3::splat(s.radius) },
+            Shape::Sphere(s) => {
+                Aabb { min: s.center - Vec3::splat(s.radius), max: s.center + Vec3::splat(s.radius) }
+            }
             Shape::Rect(r) => r.bounds(),
             Shape::Triangle { mesh, tri } => Aabb::from_points(meshes[*mesh as usize].corners(*tri)),
         }
@@ -204,7 +212,14 @@ impl Primitive {
     }
 
     /// The hit in (0, t_max) at shutter fraction `time`.
-    pub fn intersect(&self, ray: &Ray, t_max: f32, time: f32, meshes: &[Mesh], motions: &[Motion]) -> Option<Hit> {
+    pub fn intersect(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        time: f32,
+        meshes: &[Mesh],
+        motions: &[Motion],
+    ) -> Option<Hit> {
         match self.motion {
             None => self.intersect_local(ray, t_max, meshes),
             Some(m) => {
@@ -219,6 +234,22 @@ impl Primitive {
                 let hit = self.intersect_local(&local, t_max, meshes)?;
                 Some(to_world(&hit, &world_from_object))
             }
+        }
+    }
+
+    /// How many times the ray's segment (0, t_max) crosses the surface: for shadow rays,
+    /// which multiply the transmission of every crossing.
+    pub fn crossings(&self, ray: &Ray, t_max: f32, time: f32, meshes: &[Mesh], motions: &[Motion]) -> u32 {
+        match (&self.shape, self.motion) {
+            (Shape::Sphere(s), None) => {
+                s.intersect_all(ray, t_max).iter().filter(|h| h.is_some()).count() as u32
+            }
+            (Shape::Sphere(_), Some(_)) => {
+                let Some(first) = self.intersect(ray, t_max, time, meshes, motions) else { return 0 };
+                let beyond = Ray::new(ray.at(first.t), ray.dir);
+                1 + u32::from(self.intersect(&beyond, t_max - first.t, time, meshes, motions).is_some())
+            }
+            _ => u32::from(self.intersect(ray, t_max, time, meshes, motions).is_some()),
         }
     }
 

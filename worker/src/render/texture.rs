@@ -92,7 +92,8 @@ mod tests {
 
     #[test]
     fn checker_alternates_in_world_xz() {
-        let t = Texture::Checker { even: Vec3::ONE, odd: Vec3::ZERO, size: 1.0, space: CheckerSpace::WorldXz };
+        let t =
+            Texture::Checker { even: Vec3::ONE, odd: Vec3::ZERO, size: 1.0, space: CheckerSpace::WorldXz };
         assert_eq!(t.eval(Vec3::new(0.5, 9.0, 0.5), Vec2::ZERO), Vec3::ONE);
         assert_eq!(t.eval(Vec3::new(1.5, 0.0, 0.5), Vec2::ZERO), Vec3::ZERO);
         assert_eq!(t.eval(Vec3::new(-0.5, 0.0, 0.5), Vec2::ZERO), Vec3::ZERO);

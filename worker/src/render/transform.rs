@@ -73,7 +73,10 @@ mod tests {
         // Scale, rotate 90° about y (x → -z), translate.
         let p = t.matrix().transform_point3(Vec3::X);
         assert!((p - Vec3::new(1.0, 0.0, -2.0)).length() < 1e-5, "{p}");
-        let m = Motion { start: Trs::default(), end: Trs { translate: Vec3::new(4.0, 0.0, 0.0), ..Trs::default() } };
+        let m = Motion {
+            start: Trs::default(),
+            end: Trs { translate: Vec3::new(4.0, 0.0, 0.0), ..Trs::default() },
+        };
         assert!((m.at(0.25).transform_point3(Vec3::ZERO) - Vec3::new(1.0, 0.0, 0.0)).length() < 1e-6);
     }
 }
