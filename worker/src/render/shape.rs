@@ -133,18 +133,14 @@ impl Mesh {
         let p = p0 * b0 + p1 * b1 + p2 * b2;
         let p_error = ((p0 * b0).abs() + (p1 * b1).abs() + (p2 * b2).abs()) * gamma(7);
         let c = &self.tris[tri as usize];
-        let ns = if c[0][1] != u32::MAX {
+        let (n, ns) = if c[0][1] != u32::MAX {
             let s =
                 self.n[c[0][1] as usize] * b0 + self.n[c[1][1] as usize] * b1 + self.n[c[2][1] as usize] * b2;
             let s = s.try_normalize().unwrap_or(n);
-            // The geometric normal follows the winding; keep the shading normal's side.
-            if s.dot(n) < 0.0 {
-                -s
-            } else {
-                s
-            }
+            // The file's normals say where outside is, whatever the winding (pbrt's rule).
+            (if s.dot(n) < 0.0 { -n } else { n }, s)
         } else {
-            n
+            (n, n)
         };
         let uv = if c[0][2] != u32::MAX {
             self.uv[c[0][2] as usize] * b0 + self.uv[c[1][2] as usize] * b1 + self.uv[c[2][2] as usize] * b2
