@@ -75,8 +75,11 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
                 });
                 std::hint::black_box(rows);
                 single.push(t.elapsed());
-                let r =
-                    render_local(&scene, LocalOptions { workers, threads, spp, progress_bar: false }).await?;
+                let r = render_local(
+                    &scene,
+                    LocalOptions { workers, threads, spp, size: None, progress_bar: false },
+                )
+                .await?;
                 farm.push(r.wall);
                 preview.push(r.first_preview.unwrap_or(r.wall));
                 println!(

@@ -33,6 +33,10 @@ pub struct RenderArgs {
     /// Render threads per worker [default: cores / workers, at least 1].
     #[arg(long)]
     pub threads: Option<usize>,
+    /// Image size WIDTHxHEIGHT [default: the scene's], e.g. a quick 160x90 preview; the
+    /// field of view is kept along the camera's axis.
+    #[arg(long, value_parser = crate::parse_size)]
+    pub size: Option<(u32, u32)>,
 }
 
 /// How a local render ended.
@@ -70,6 +74,8 @@ pub struct LocalOptions {
     pub threads: usize,
     /// spp override.
     pub spp: Option<u32>,
+    /// Size override.
+    pub size: Option<(u32, u32)>,
     /// Show a progress bar.
     pub progress_bar: bool,
 }
@@ -117,7 +123,8 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
     let start = Instant::now();
     let bundle = Bundle::read(scene)?;
     let service = CoordinatorService::new(Timing::default());
-    let job = service.submit(bundle, JobSettings { spp: opts.spp }).map_err(|e| anyhow!(e))?;
+    let job =
+        service.submit(bundle, JobSettings { spp: opts.spp, size: opts.size }).map_err(|e| anyhow!(e))?;
     let listener =
         TcpListener::bind("127.0.0.1:0").await.context("binding a loopback port for the coordinator")?;
     let addr = listener.local_addr()?;
@@ -224,7 +231,7 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
     if threads == 0 {
         anyhow::bail!("--threads must be at least 1");
     }
-    let opts = LocalOptions { workers, threads, spp: args.spp, progress_bar: true };
+    let opts = LocalOptions { workers, threads, spp: args.spp, size: args.size, progress_bar: true };
     let r = render_local(&args.scene, opts).await?;
     tessera_coordinator::output::write_image(&args.output, r.width, r.height, &r.rgb)?;
     let p = &r.progress;

@@ -234,6 +234,16 @@ pub fn check_output(path: &std::path::Path) -> Result<()> {
     Ok(())
 }
 
+/// Parses `WIDTHxHEIGHT`.
+pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("expected WIDTHxHEIGHT, got {s:?}"))?;
+    let parse = |v: &str| v.trim().parse::<u32>().ok().filter(|&n| n > 0);
+    match (parse(w), parse(h)) {
+        (Some(w), Some(h)) => Ok((w, h)),
+        _ => Err(format!("expected WIDTHxHEIGHT with positive whole numbers, got {s:?}")),
+    }
+}
+
 /// A path given on the command line.
 pub type PathArg = PathBuf;
 

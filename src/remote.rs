@@ -32,6 +32,9 @@ pub struct SubmitArgs {
     /// Wait until the job is over, showing progress.
     #[arg(long)]
     pub wait: bool,
+    /// Image size WIDTHxHEIGHT [default: the scene's].
+    #[arg(long, value_parser = crate::parse_size)]
+    pub size: Option<(u32, u32)>,
 }
 
 /// Runs a coordinator until Ctrl-C.
@@ -81,7 +84,9 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
         .submit(pb::SubmitRequest {
             protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
             bundle: Some(bundle_to_wire(&bundle)),
-            settings: Some(pb::RenderSettings { spp: args.spp.unwrap_or(0) }),
+            settings: Some(tessera_coordinator::service::settings_to_wire(
+                &tessera_coordinator::farm::JobSettings { spp: args.spp, size: args.size },
+            )),
         })
         .await
         .map_err(status_error)?

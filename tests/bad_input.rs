@@ -39,12 +39,32 @@ fn bad_scene_files_name_file_line_and_column() {
         (good.replace("radius = 0.4", "radius = nan"), "positive"),
         (good.replace("center = [1.8, 0.4, -0.8]", "center = [1.8, nan, -0.8]"), "finite"),
         (good.replace("fov = 40", "fov = 40\nzoom = 2"), "zoom"),
+        (
+            format!("{good}\n[[mesh]]\nfile = \"../../etc/passwd\"\nmaterial = \"red\"\n"),
+            "escapes the scene's folder",
+        ),
+        (
+            format!("{good}\n[[mesh]]\nfile = \"missing.obj\"\nmaterial = \"red\"\n"),
+            "cannot read \"missing.obj\"",
+        ),
+        (
+            good.replace("[materials.red]", "[materials.red]\ntype = \"velvet\""),
+            "unknown material \"velvet\"",
+        ),
     ];
     for (text, want) in cases {
         let scene = write_scene(dir.path(), &text);
         let e = stderr_of(&["render", &scene, "-o", out]);
         assert!(e.contains(want) && e.contains("bad.toml:"), "expected {want:?} in: {e}");
     }
+    // An OBJ with broken indices: the error names the scene, the mesh and the OBJ line.
+    std::fs::write(dir.path().join("broken.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 9\n").unwrap();
+    let scene =
+        write_scene(dir.path(), &format!("{good}\n[[mesh]]\nfile = \"broken.obj\"\nmaterial = \"red\"\n"));
+    let e = stderr_of(&["render", &scene, "-o", out]);
+    assert!(e.contains("bad.toml:") && e.contains("broken.obj") && e.contains("line 4"), "{e}");
+    let e = stderr_of(&["render", &small_scene().to_string_lossy(), "-o", out, "--size", "0x5"]);
+    assert!(e.contains("WIDTHxHEIGHT"), "{e}");
     assert!(!std::path::Path::new(out).exists(), "no image for a bad scene");
 }
 

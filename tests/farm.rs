@@ -150,3 +150,25 @@ fn order_prints_every_pixel_once_starting_with_root() {
         .collect();
     assert_eq!(pixels.len(), 15);
 }
+
+/// Every scene in `scenes/` renders through the farm byte-identically with 1 and 3
+/// workers (tiny and with few samples, to stay quick; assets travel in the bundle).
+#[test]
+fn every_scene_is_byte_identical_with_1_and_3_workers() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut scenes: Vec<std::path::PathBuf> = std::fs::read_dir(root().join("scenes"))
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    scenes.sort();
+    assert!(scenes.len() >= 10);
+    for scene in scenes {
+        let name = scene.file_stem().unwrap().to_string_lossy().to_string();
+        let one = dir.path().join(format!("{name}-1.png"));
+        let three = dir.path().join(format!("{name}-3.png"));
+        render_local(&scene, &one, 1, &["--size", "48x30", "--spp", "4"]);
+        render_local(&scene, &three, 3, &["--size", "48x30", "--spp", "4"]);
+        assert_eq!(read(&one), read(&three), "{name}: 1 and 3 workers differ");
+    }
+}

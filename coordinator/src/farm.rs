@@ -21,6 +21,8 @@ const RATE_WINDOW: Duration = Duration::from_secs(5);
 pub struct JobSettings {
     /// Samples per pixel; `None` keeps the scene's.
     pub spp: Option<u32>,
+    /// Image size; `None` keeps the scene's.
+    pub size: Option<(u32, u32)>,
 }
 
 /// Where a job stands.
@@ -162,7 +164,7 @@ pub struct Assignment {
     /// The job.
     pub job: JobId,
     /// The scene, when this worker has not had it.
-    pub scene: Option<(Arc<Bundle>, String, u32)>,
+    pub scene: Option<(Arc<Bundle>, String, JobSettings)>,
     /// The scene hash the batch needs.
     pub scene_hash: String,
     /// The batch.
@@ -184,6 +186,18 @@ pub enum SubmitError {
         got: u32,
         /// Limit.
         max: u32,
+    },
+    /// Size override out of range.
+    #[error("image size must be 1..={max_side} on each side and at most {max_pixels} pixels, got {width}x{height}")]
+    Size {
+        /// Requested width.
+        width: u32,
+        /// Requested height.
+        height: u32,
+        /// Limit per side.
+        max_side: u32,
+        /// Limit of pixels.
+        max_pixels: u64,
     },
 }
 
@@ -225,13 +239,25 @@ impl Farm {
 
     /// Validates and queues a job.
     pub fn submit(&mut self, bundle: Bundle, settings: JobSettings) -> Result<JobId, SubmitError> {
-        let scene = bundle.parse()?;
-        let max = tessera_worker::scene::limits::MAX_SPP;
-        let spp = match settings.spp {
-            Some(s) if s == 0 || s > max => return Err(SubmitError::Spp { got: s, max }),
-            Some(s) => s,
-            None => scene.spp,
-        };
+        let mut scene = bundle.parse()?;
+        use tessera_worker::scene::limits;
+        if let Some(s) = settings.spp.filter(|&s| s == 0 || s > limits::MAX_SPP) {
+            return Err(SubmitError::Spp { got: s, max: limits::MAX_SPP });
+        }
+        if let Some((width, height)) = settings.size {
+            let pixels = u64::from(width) * u64::from(height);
+            if width == 0
+                || height == 0
+                || width > limits::MAX_SIDE
+                || height > limits::MAX_SIDE
+                || pixels > limits::MAX_PIXELS
+            {
+                let (max_side, max_pixels) = (limits::MAX_SIDE, limits::MAX_PIXELS);
+                return Err(SubmitError::Size { width, height, max_side, max_pixels });
+            }
+        }
+        scene.apply(settings.spp, settings.size);
+        let spp = scene.spp;
         self.next_job += 1;
         let id = JobId(self.next_job);
         let scene_hash = bundle.hash();
@@ -331,8 +357,10 @@ impl Farm {
                 job.started = Some(now);
                 job.rate.push_back((now, 0));
             }
-            let scene =
-                info.scenes.insert(job.id).then(|| (job.bundle.clone(), job.scene_hash.clone(), job.spp));
+            let scene = info
+                .scenes
+                .insert(job.id)
+                .then(|| (job.bundle.clone(), job.scene_hash.clone(), job.settings.clone()));
             return Some(Assignment {
                 job: job.id,
                 scene,

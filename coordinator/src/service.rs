@@ -167,12 +167,12 @@ impl CoordinatorService {
             while credit > 0 {
                 let Some(a) = self.farm().assign(id, Instant::now()) else { break };
                 credit -= 1;
-                if let Some((bundle, hash, spp)) = a.scene {
+                if let Some((bundle, hash, settings)) = a.scene {
                     let scene = pb::JobScene {
                         job_id: a.job.0,
                         scene_hash: hash,
                         bundle: Some(bundle_to_wire(&bundle)),
-                        settings: Some(pb::RenderSettings { spp }),
+                        settings: Some(settings_to_wire(&settings)),
                     };
                     if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Scene(scene)) })).await.is_err() {
                         break;
@@ -278,6 +278,22 @@ pub fn bundle_from_wire(b: pb::SceneBundle) -> Bundle {
     Bundle { name: b.name, text: b.text, assets }
 }
 
+/// Job settings as they travel.
+pub fn settings_to_wire(s: &JobSettings) -> pb::RenderSettings {
+    let (width, height) = s.size.unwrap_or((0, 0));
+    pb::RenderSettings { spp: s.spp.unwrap_or(0), width, height }
+}
+
+/// Job settings from the wire; 0 means "keep the scene's".
+pub fn settings_from_wire(s: pb::RenderSettings) -> Result<JobSettings, String> {
+    let size = match (s.width, s.height) {
+        (0, 0) => None,
+        (0, _) | (_, 0) => return Err(format!("give both width and height, got {}x{}", s.width, s.height)),
+        (w, h) => Some((w, h)),
+    };
+    Ok(JobSettings { spp: (s.spp != 0).then_some(s.spp), size })
+}
+
 fn state_to_wire(s: &JobState) -> pb::JobState {
     match s {
         JobState::Queued => pb::JobState::Queued,
@@ -320,7 +336,8 @@ impl Coordinator for CoordinatorService {
             )));
         }
         let bundle = req.bundle.ok_or_else(|| Status::invalid_argument("submit without a scene bundle"))?;
-        let settings = JobSettings { spp: req.settings.and_then(|s| (s.spp != 0).then_some(s.spp)) };
+        let settings =
+            settings_from_wire(req.settings.unwrap_or_default()).map_err(Status::invalid_argument)?;
         let id = self
             .submit(bundle_from_wire(bundle), settings)
             .map_err(|e| Status::invalid_argument(e.to_string()))?;

@@ -278,7 +278,9 @@ impl SceneCache {
     async fn load(&mut self, js: pb::JobScene) {
         let job = js.job_id;
         let claimed = js.scene_hash.clone();
-        let spp = js.settings.map_or(0, |s| s.spp);
+        let settings = js.settings.unwrap_or_default();
+        let spp = (settings.spp != 0).then_some(settings.spp);
+        let size = (settings.width != 0 && settings.height != 0).then_some((settings.width, settings.height));
         let parsed = match js.bundle {
             None => Err("the coordinator sent a job without its scene".to_string()),
             Some(b) => {
@@ -295,9 +297,7 @@ impl SceneCache {
                         ));
                     }
                     let mut scene = bundle.parse().map_err(|e| e.to_string())?;
-                    if spp > 0 {
-                        scene.spp = spp;
-                    }
+                    scene.apply(spp, size);
                     Ok(Arc::new(scene))
                 })
                 .await

@@ -15,6 +15,7 @@ pub struct Camera {
     up: Vec3,
     tan_half_w: f32,
     tan_half_h: f32,
+    axis: FovAxis,
     width: f32,
     height: f32,
     /// Lens radius; 0 is a pinhole (and the lens dimension is never sampled).
@@ -62,12 +63,24 @@ impl Camera {
             up: true_up,
             tan_half_w,
             tan_half_h,
+            axis,
             width: width as f32,
             height: height as f32,
             lens_radius: 0.0,
             focus_distance: 1.0,
             shutter: (0.0, 0.0),
         }
+    }
+
+    /// Renders at another resolution, keeping the field of view along the scene's axis.
+    pub fn set_resolution(&mut self, width: u32, height: u32) {
+        let aspect = width as f32 / height as f32;
+        match self.axis {
+            FovAxis::Vertical => self.tan_half_w = self.tan_half_h * aspect,
+            FovAxis::Horizontal => self.tan_half_h = self.tan_half_w / aspect,
+        }
+        self.width = width as f32;
+        self.height = height as f32;
     }
 
     /// Whether the lens dimension is sampled.

@@ -75,6 +75,19 @@ pub struct SurfaceHit {
 }
 
 impl Scene {
+    /// Applies a job's overrides: samples per pixel, image size (the field of view is kept
+    /// along the camera's axis).
+    pub fn apply(&mut self, spp: Option<u32>, size: Option<(u32, u32)>) {
+        if let Some(spp) = spp {
+            self.spp = spp;
+        }
+        if let Some((w, h)) = size {
+            self.width = w;
+            self.height = h;
+            self.camera.set_resolution(w, h);
+        }
+    }
+
     /// Whether the time dimension is sampled: only with motion and an open shutter.
     pub fn has_motion_blur(&self) -> bool {
         !self.motions.is_empty() && self.camera.shutter.1 > self.camera.shutter.0

@@ -1,0 +1,79 @@
+//! Golden-image regression tests: every scene in `scenes/`, rendered tiny, against a stored
+//! PNG with a tolerance. Regenerate with `UPDATE_GOLDEN=1 cargo test -p tessera-worker
+//! --test golden` and review the diff of the images before committing them.
+
+use std::path::{Path, PathBuf};
+
+use glam::UVec2;
+use tessera_worker::batch::render_batch;
+use tessera_worker::bundle::Bundle;
+use tessera_worker::fixed;
+
+const SIZE: (u32, u32) = (64, 40);
+const SPP: u32 = 8;
+
+fn srgb8(v: f32) -> u8 {
+    let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
+    let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+    (s * 255.0 + 0.5) as u8
+}
+
+fn render_tiny(path: &Path) -> Vec<u8> {
+    let bundle = Bundle::read(path).unwrap();
+    let mut scene = bundle.parse().unwrap_or_else(|e| panic!("{e}"));
+    scene.apply(Some(SPP), Some(SIZE));
+    let (w, h) = SIZE;
+    let mut out = Vec::with_capacity((w * h * 3) as usize);
+    for row in 0..h {
+        let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, h - 1 - row)).collect();
+        let sums = render_batch(&scene, &pixels, 0..SPP);
+        out.extend(sums.sums.iter().map(|&s| srgb8(fixed::mean(s, SPP))));
+    }
+    out
+}
+
+fn scenes() -> Vec<PathBuf> {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    let mut v: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn every_scene_matches_its_golden_image() {
+    let update = std::env::var_os("UPDATE_GOLDEN").is_some();
+    let golden_dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/golden");
+    let mut failures = Vec::new();
+    let all = scenes();
+    assert!(all.len() >= 10, "expected the scenes of scenes/, found {all:?}");
+    for scene in all {
+        let name = scene.file_stem().unwrap().to_string_lossy().to_string();
+        let got = render_tiny(&scene);
+        let golden = golden_dir.join(format!("{name}.png"));
+        if update {
+            image::RgbImage::from_raw(SIZE.0, SIZE.1, got).unwrap().save(&golden).unwrap();
+            continue;
+        }
+        let want = image::open(&golden)
+            .unwrap_or_else(|e| panic!("{}: {e} (run with UPDATE_GOLDEN=1 to create it)", golden.display()))
+            .to_rgb8()
+            .into_raw();
+        // Tolerance for floating-point differences between machines: the mean error stays
+        // under half a level, and few values move by more than 8 levels.
+        let diffs: Vec<i32> =
+            got.iter().zip(&want).map(|(a, b)| (i32::from(*a) - i32::from(*b)).abs()).collect();
+        let mean = diffs.iter().sum::<i32>() as f64 / diffs.len() as f64;
+        let large = diffs.iter().filter(|&&d| d > 8).count() as f64 / diffs.len() as f64;
+        if mean > 0.5 || large > 0.01 {
+            failures.push(format!(
+                "{name}: mean error {mean:.3} levels, {:.2}% values off by > 8",
+                large * 100.0
+            ));
+        }
+    }
+    assert!(failures.is_empty(), "golden images differ:\n{}", failures.join("\n"));
+}
