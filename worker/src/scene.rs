@@ -1218,6 +1218,26 @@ material = "red"
         assert_eq!(ok.prims.len(), 2);
     }
 
+    /// Contract 6: a sample draws only the dimensions the scene uses.
+    #[test]
+    fn samples_pay_only_for_the_dimensions_used() {
+        let used = |text: &str| {
+            let s = parse_scene("t.toml", text).unwrap();
+            let mut sampler = s.sampler();
+            s.render_sample(&mut sampler, glam::UVec2::new(4, 3), 0);
+            sampler.dimensions_used()
+        };
+        // A classic scene with no light at all: the pixel position only.
+        assert_eq!(used(MINIMAL), 1);
+        let lens = MINIMAL.replace("look_at = [0, 0, 0]", "look_at = [0, 0, 0]\naperture = 0.1");
+        assert_eq!(used(&lens), 2);
+        let moving =
+            MINIMAL.replace("material = \"red\"", "material = \"red\"\nmotion = { translate = [1, 0, 0] }");
+        assert_eq!(used(&moving), 2);
+        let closed = moving.replace("look_at = [0, 0, 0]", "look_at = [0, 0, 0]\nshutter = [0, 0]");
+        assert_eq!(used(&closed), 1);
+    }
+
     #[test]
     fn emitters_and_motion_are_validated() {
         let e = err(&MINIMAL.replace("material = \"red\"", "material = \"red\"\nemission = 5"));

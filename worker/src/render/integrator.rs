@@ -57,19 +57,18 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
     let mut prev_p = ray.origin;
     let mut last = false;
     for depth in depth..scene.max_depth {
-        let Some(sh) = scene.intersect(&ray, f32::INFINITY, time) else {
+        let Some(mut sh) = scene.intersect(&ray, f32::INFINITY, time) else {
             l += beta * scene.background;
             break;
         };
-        let hit = sh.hit;
         if let Some(li) = sh.light {
             let light = &scene.lights[li as usize];
-            let le = light.emitted(hit.n, ray.dir);
+            let le = light.emitted(sh.hit.n, ray.dir);
             if le != Vec3::ZERO {
                 let w = if from_dirac {
                     1.0
                 } else {
-                    power_heuristic(prev_pdf, light.pdf(prev_p, ray.dir, hit.t))
+                    power_heuristic(prev_pdf, light.pdf(prev_p, ray.dir, sh.hit.t))
                 };
                 l += beta * le * w;
             }
@@ -80,6 +79,10 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
             break;
         }
         let material = &scene.materials[sh.material as usize];
+        if material.is_textured() {
+            scene.complete_uv(&mut sh);
+        }
+        let hit = sh.hit;
         if let Material::Classic(c) = material {
             l += beta * classic(scene, sampler, &ray, &hit, c, depth, time);
             break;

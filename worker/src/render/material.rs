@@ -117,6 +117,16 @@ impl Material {
         }
     }
 
+    /// Whether the material looks anything up in a texture (and so needs UVs).
+    pub fn is_textured(&self) -> bool {
+        match self {
+            Material::Classic(c) => matches!(c.color, Tex::Map(_)),
+            Material::Lambert { albedo } => matches!(albedo, Tex::Map(_)),
+            Material::Plastic { diffuse, .. } => matches!(diffuse, Tex::Map(_)),
+            _ => false,
+        }
+    }
+
     /// Whether the material scatters into glossy lobes (for "pay for what you use").
     pub fn is_glossy(&self) -> bool {
         match self {

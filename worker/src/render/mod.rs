@@ -103,11 +103,6 @@ impl Scene {
             best = Some(SurfaceHit { hit, material: prim.material, light: prim.light });
             Some(hit.t)
         });
-        if let Some(sh) = &mut best {
-            if let shape::Shape::Sphere(_) = self.prims[sh.hit.prim as usize].shape {
-                sh.hit.uv = geometry::sphere_uv(sh.hit.n);
-            }
-        }
         let mut t_max = t_max;
         for (plane, material) in &self.planes {
             if let Some(hit) = plane.intersect(ray, t_max) {
@@ -116,6 +111,16 @@ impl Scene {
             }
         }
         best
+    }
+
+    /// Fills in the texture coordinates of a hit where the shape computes them lazily
+    /// (spheres: two transcendental functions, paid only by textured materials).
+    pub fn complete_uv(&self, sh: &mut SurfaceHit) {
+        if let Some(shape::Shape::Sphere(_)) = self.prims.get(sh.hit.prim as usize).map(|p| &p.shape) {
+            if sh.light.is_none() && (sh.hit.prim as usize) < self.prims.len() {
+                sh.hit.uv = geometry::sphere_uv(sh.hit.n);
+            }
+        }
     }
 
     /// The fraction of light that passes from `ray.origin` along `ray.dir` for `dist`:

@@ -114,6 +114,12 @@ impl Sampler {
         ])
     }
 
+    /// Dimensions drawn since `start_pixel_sample` (a 2-D draw counts once): what a sample
+    /// paid for.
+    pub fn dimensions_used(&self) -> u32 {
+        self.dimension
+    }
+
     /// The next 2-D dimension, stratified over the pixel's samples.
     pub fn get_2d(&mut self) -> Vec2 {
         let key = self.dimension_key();

@@ -1,0 +1,264 @@
+//! `tessera bench`: benchmarks that print figures, compared as ratios measured in one run.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::{Duration, Instant};
+
+use anyhow::{anyhow, Result};
+use glam::UVec2;
+use rayon::prelude::*;
+use tessera_worker::batch::render_batch;
+use tessera_worker::bundle::Bundle;
+
+use crate::local::{render_local, LocalOptions};
+
+mod reference;
+
+/// The benchmarks.
+#[derive(Debug, clap::Subcommand)]
+#[deny(missing_docs)]
+pub enum BenchCommand {
+    /// Pay for what you use: a scene with none of Cook's effects (classic spheres, planes,
+    /// point lights) through the full renderer against a minimal Whitted tracer, one
+    /// thread each, same rays; prints the throughput ratio and the images' difference.
+    Whitted {
+        /// A Whitted scene [default: scenes/whitted.toml].
+        #[arg(default_value = "scenes/whitted.toml")]
+        scene: PathBuf,
+        /// Runs of each, alternating (the fastest is reported) [default: 3].
+        #[arg(long, default_value_t = 3)]
+        runs: usize,
+    },
+    /// The BVH at scale: build time and traversal speed for meshes of 10k to 1M triangles.
+    Bvh {
+        /// The largest triangle count [default: 1000000].
+        #[arg(long, default_value_t = 1_000_000)]
+        triangles: usize,
+    },
+    /// The farm's overhead: `tessera render` with local workers against the same image
+    /// traced in one process on the same cores, as a ratio, and the time to the first
+    /// full-frame preview.
+    Overhead {
+        /// The scene file.
+        scene: PathBuf,
+        /// Runs of each (the median is reported) [default: 3].
+        #[arg(long, default_value_t = 3)]
+        runs: usize,
+        /// Samples per pixel [default: the scene's].
+        #[arg(long)]
+        spp: Option<u32>,
+        /// Local worker processes [default: one per core].
+        #[arg(long)]
+        workers: Option<usize>,
+    },
+}
+
+fn median(mut v: Vec<Duration>) -> Duration {
+    v.sort();
+    v[v.len() / 2]
+}
+
+/// Runs a benchmark.
+pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
+    match cmd {
+        BenchCommand::Whitted { scene, runs } => whitted(&scene, runs.max(1)),
+        BenchCommand::Bvh { triangles } => bvh(triangles),
+        BenchCommand::Overhead { scene, runs, spp, workers } => {
+            if runs == 0 {
+                anyhow::bail!("--runs must be at least 1");
+            }
+            let cores = crate::cores();
+            let workers = workers.unwrap_or(cores).max(1);
+            let threads = (cores / workers).max(1);
+            let bundle = Bundle::read(&scene)?;
+            let mut parsed = bundle.parse()?;
+            if let Some(s) = spp {
+                parsed.spp = s;
+            }
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(cores).build().map_err(|e| anyhow!(e))?;
+            let (w, h, n) = (parsed.width, parsed.height, parsed.spp);
+            println!(
+                "scene {} ({w}x{h}, {n} spp), {cores} cores; farm: {workers} workers x {threads} threads",
+                scene.display()
+            );
+            let (mut single, mut farm, mut preview) = (Vec::new(), Vec::new(), Vec::new());
+            for run in 0..runs {
+                // Alternate, so that drifting machine load hits both alike.
+                let t = Instant::now();
+                let rows: Vec<u64> = pool.install(|| {
+                    (0..h)
+                        .into_par_iter()
+                        .map(|y| {
+                            let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, y)).collect();
+                            render_batch(&parsed, &pixels, 0..n).sums.iter().sum::<u64>()
+                        })
+                        .collect()
+                });
+                std::hint::black_box(rows);
+                single.push(t.elapsed());
+                let r = render_local(
+                    &scene,
+                    LocalOptions { workers, threads, spp, size: None, progress_bar: false },
+                )
+                .await?;
+                farm.push(r.wall);
+                preview.push(r.first_preview.unwrap_or(r.wall));
+                println!(
+                    "run {}: one process {:.3} s, farm {:.3} s, first preview {:.1} ms",
+                    run + 1,
+                    single[run].as_secs_f64(),
+                    farm[run].as_secs_f64(),
+                    preview[run].as_secs_f64() * 1e3
+                );
+            }
+            // The minimum is the run least disturbed by other load on a shared machine; the
+            // median shows what a typical run costs.
+            let min_ratio =
+                farm.iter().min().unwrap().as_secs_f64() / single.iter().min().unwrap().as_secs_f64();
+            let (s, f, p) = (median(single), median(farm), median(preview));
+            let samples = u64::from(w) * u64::from(h) * u64::from(n);
+            println!(
+                "median one process:   {:.3} s ({})",
+                s.as_secs_f64(),
+                crate::local::rate(samples as f64 / s.as_secs_f64())
+            );
+            println!(
+                "median farm:          {:.3} s ({})",
+                f.as_secs_f64(),
+                crate::local::rate(samples as f64 / f.as_secs_f64())
+            );
+            println!(
+                "farm overhead:        {:+.1} % (medians), {:+.1} % (fastest runs)",
+                (f.as_secs_f64() / s.as_secs_f64() - 1.0) * 100.0,
+                (min_ratio - 1.0) * 100.0
+            );
+            println!("first full-frame preview: {:.1} ms after start (workers spawned, scene sent, first batch back)", p.as_secs_f64() * 1e3);
+            Ok(ExitCode::SUCCESS)
+        }
+    }
+}
+
+fn whitted(path: &std::path::Path, runs: usize) -> Result<ExitCode> {
+    let scene = Bundle::read(path)?.parse()?;
+    let reference = reference::Whitted::new(&scene).ok_or_else(|| {
+        anyhow!(
+            "{} is not a plain Whitted scene (classic spheres and planes, point lights only)",
+            path.display()
+        )
+    })?;
+    let (w, h, n) = (scene.width, scene.height, scene.spp);
+    let pixels: Vec<UVec2> = (0..h).flat_map(|y| (0..w).map(move |x| UVec2::new(x, y))).collect();
+    let (mut full, mut plain) = (Duration::MAX, Duration::MAX);
+    let (mut a, mut b) = (Vec::new(), Vec::new());
+    for _ in 0..runs {
+        let t = Instant::now();
+        a = render_batch(&scene, &pixels, 0..n).sums;
+        full = full.min(t.elapsed());
+        let t = Instant::now();
+        let mut sampler = scene.sampler();
+        b = pixels
+            .iter()
+            .flat_map(|&p| {
+                let mut acc = [0u64; 3];
+                for i in 0..n {
+                    let l = reference.sample(&mut sampler, p, i);
+                    for (c, v) in acc.iter_mut().zip([l.x, l.y, l.z]) {
+                        *c += tessera_worker::fixed::to_fixed(v).unwrap_or(0);
+                    }
+                }
+                acc
+            })
+            .collect();
+        plain = plain.min(t.elapsed());
+    }
+    let samples = (pixels.len() as u64 * u64::from(n)) as f64;
+    let max_diff = a
+        .iter()
+        .zip(&b)
+        .map(|(x, y)| (tessera_worker::fixed::mean(*x, n) - tessera_worker::fixed::mean(*y, n)).abs())
+        .fold(0.0f32, f32::max);
+    println!("scene {} ({w}x{h}, {n} spp), one thread, fastest of {runs}", path.display());
+    println!(
+        "full renderer (BVH, Cook's integrator): {:.3} s ({})",
+        full.as_secs_f64(),
+        crate::local::rate(samples / full.as_secs_f64())
+    );
+    println!(
+        "minimal Whitted tracer:                 {:.3} s ({})",
+        plain.as_secs_f64(),
+        crate::local::rate(samples / plain.as_secs_f64())
+    );
+    println!("time ratio full / minimal: {:.3}", full.as_secs_f64() / plain.as_secs_f64());
+    println!("largest pixel difference: {max_diff:.2e} (same rays, same shading)");
+    Ok(ExitCode::SUCCESS)
+}
+
+fn bvh(max: usize) -> Result<ExitCode> {
+    use tessera_worker::render::bvh::Bvh;
+    use tessera_worker::render::geometry::Ray;
+    use tessera_worker::render::shape::Mesh;
+    println!("{:>10} {:>10} {:>12} {:>14}", "triangles", "build s", "Mrays/s", "tris/ray");
+    let mut n = 10_000usize;
+    loop {
+        let n_now = n.min(max);
+        // A bumpy sphere: triangles of every orientation and size, like a scanned model.
+        let rings = ((n_now / 2) as f64).sqrt().ceil() as u32;
+        let mut mesh = Mesh::default();
+        for i in 0..=rings {
+            for j in 0..=rings {
+                let (th, ph) = (
+                    std::f32::consts::PI * i as f32 / rings as f32,
+                    2.0 * std::f32::consts::PI * j as f32 / rings as f32,
+                );
+                let r = 1.0 + 0.05 * (7.0 * th).sin() * (5.0 * ph).cos();
+                mesh.p.push(glam::Vec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin()) * r);
+            }
+        }
+        let idx = |i: u32, j: u32| [i * (rings + 1) + j, u32::MAX, u32::MAX];
+        for i in 0..rings {
+            for j in 0..rings {
+                mesh.tris.push([idx(i, j), idx(i + 1, j), idx(i + 1, j + 1)]);
+                mesh.tris.push([idx(i, j), idx(i + 1, j + 1), idx(i, j + 1)]);
+            }
+        }
+        let bounds: Vec<_> = (0..mesh.tris.len() as u32)
+            .map(|t| {
+                let c = mesh.tris[t as usize];
+                tessera_worker::render::bvh::Aabb::from_points(c.iter().map(|k| mesh.p[k[0] as usize]))
+            })
+            .collect();
+        let t = Instant::now();
+        let bvh = Bvh::build(&bounds);
+        let build = t.elapsed();
+        let rays = 200_000u32;
+        let t = Instant::now();
+        let mut hits = 0u32;
+        let mut visits = 0u64;
+        for k in 0..rays {
+            let h = tessera_worker::render::sampler::hash_words(&[u64::from(k)]);
+            let (a, b) = ((h >> 40) as f32 / 16_777_216.0, ((h >> 16) & 0xff_ffff) as f32 / 16_777_216.0);
+            let dir = glam::Vec3::new(a - 0.5, b - 0.5, -1.0).normalize();
+            let ray = Ray::new(glam::Vec3::new(0.0, 0.0, 3.0), dir);
+            let t_hit = bvh.traverse(&ray, f32::INFINITY, |i, t_max| {
+                visits += 1;
+                mesh.intersect(i, &ray, t_max).map(|h| h.t)
+            });
+            hits += u32::from(t_hit.is_finite());
+        }
+        let secs = t.elapsed().as_secs_f64();
+        println!(
+            "{:>10} {:>10.3} {:>12.2} {:>14.1}",
+            mesh.tris.len(),
+            build.as_secs_f64(),
+            f64::from(rays) / secs / 1e6,
+            visits as f64 / f64::from(rays)
+        );
+        std::hint::black_box(hits);
+        if n_now >= max {
+            break;
+        }
+        n *= 10;
+    }
+    println!("(tris/ray counts triangle tests per ray: it stays flat as N grows, as a BVH's should)");
+    Ok(ExitCode::SUCCESS)
+}
