@@ -78,10 +78,16 @@ pub fn worst_pixels(
         .collect()
 }
 
-/// Compares two image files.
-pub fn compare_files(image: &Path, reference: &Path) -> Result<ImageError> {
-    let (w, h, a) = read_linear(image)?;
-    let (rw, rh, b) = read_linear(reference)?;
+/// Compares two image files; with `clamp`, both are first clamped to [0, clamp] (so that
+/// a few pixels that see a light directly do not drown the rest).
+pub fn compare_files(image: &Path, reference: &Path, clamp: Option<f32>) -> Result<ImageError> {
+    let (w, h, mut a) = read_linear(image)?;
+    let (rw, rh, mut b) = read_linear(reference)?;
+    if let Some(c) = clamp {
+        for v in a.iter_mut().chain(b.iter_mut()) {
+            *v = v.clamp(0.0, c);
+        }
+    }
     if (w, h) != (rw, rh) {
         bail!("{} is {w}x{h} but the reference {} is {rw}x{rh}", image.display(), reference.display());
     }

@@ -74,6 +74,9 @@ enum Command {
         /// Also list the N pixels that differ most.
         #[arg(long, default_value_t = 0)]
         worst: usize,
+        /// Clamp both images to [0, C] first, e.g. 1 for what a display shows.
+        #[arg(long)]
+        clamp: Option<f32>,
     },
     /// Benchmarks that print figures.
     #[command(subcommand)]
@@ -205,8 +208,11 @@ async fn run(command: Command) -> Result<ExitCode> {
             }
         }
         Command::Bench(cmd) => bench::run(cmd).await,
-        Command::Compare { image, reference, worst } => {
-            let e = compare::compare_files(&image, &reference)?;
+        Command::Compare { image, reference, worst, clamp } => {
+            if clamp.is_some_and(|c| !(c.is_finite() && c > 0.0)) {
+                anyhow::bail!("--clamp must be a positive number");
+            }
+            let e = compare::compare_files(&image, &reference, clamp)?;
             println!(
                 "rmse {:.6}  relmse {:.6}  psnr {:.2} dB  ({} x {})",
                 e.rmse, e.relmse, e.psnr, e.width, e.height

@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Renders the two benchmark scenes of ../shared/benchmarks (scenes/spheres.toml and
+# scenes/cornell.toml) at SPP samples per pixel with two seeds, compares each with
+# Mitsuba 3's converged `cook` reference, and prints:
+#   rmse      error of our image against the reference (linear RGB, all pixels/channels)
+#   noise     our own noise: rmse between our two seeds / sqrt(2)
+#   ref noise the reference's own noise, from RESULTS.md
+#   bias      sqrt(max(0, rmse^2 - noise^2 - ref_noise^2)): what noise does not explain
+#   rmse[0,1] the rmse with both images clamped to [0, 1], as a display shows them (a few
+#             pixels seeing the light, at radiance 200, otherwise dominate the rmse)
+# Usage: scripts/compare-references.sh [SPP] (default 256). Needs ../shared beside the
+# repository (or REFS=path/to/refs).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+spp=${1:-256}
+refs=${REFS:-../shared/benchmarks/refs}
+cargo build --release --quiet
+bin=target/release/tessera
+tmp=$(mktemp -d)
+trap 'rm -rf "$tmp"' EXIT
+printf '%-8s %5s %10s %10s %10s %10s %10s\n' scene spp rmse noise "ref noise" bias "rmse[0,1]"
+for scene in spheres cornell; do
+  case $scene in spheres) ref_noise=0.00976 ;; cornell) ref_noise=0.00086 ;; esac
+  for seed in 1 2; do
+    sed "s/^\[render\]\$/[render]\nseed = $seed/" "scenes/$scene.toml" > "$tmp/$scene-$seed.toml"
+    "$bin" render "$tmp/$scene-$seed.toml" -o "$tmp/$scene-$seed.exr" --spp "$spp" 2>/dev/null
+  done
+  rmse=$("$bin" compare "$tmp/$scene-1.exr" "$refs/${scene}_cook.exr" | awk '{print $2}')
+  between=$("$bin" compare "$tmp/$scene-1.exr" "$tmp/$scene-2.exr" | awk '{print $2}')
+  clamped=$("$bin" compare "$tmp/$scene-1.exr" "$refs/${scene}_cook.exr" --clamp 1 | awk '{print $2}')
+  awk -v s="$scene" -v n="$spp" -v r="$rmse" -v b="$between" -v rn="$ref_noise" -v c="$clamped" 'BEGIN {
+    noise = b / sqrt(2); bias2 = r * r - noise * noise - rn * rn; if (bias2 < 0) bias2 = 0;
+    printf "%-8s %5d %10.5f %10.5f %10.5f %10.5f %10.5f\n", s, n, r, noise, rn, sqrt(bias2), c }'
+done
