@@ -218,8 +218,11 @@ async fn run(command: Command) -> Result<ExitCode> {
                 e.rmse, e.relmse, e.psnr, e.width, e.height
             );
             if worst > 0 {
-                let (w, _, a) = compare::read_linear(&image)?;
-                let (_, _, b) = compare::read_linear(&reference)?;
+                let (w, _, mut a) = compare::read_linear(&image)?;
+                let (_, _, mut b) = compare::read_linear(&reference)?;
+                if let Some(c) = clamp {
+                    a.iter_mut().chain(b.iter_mut()).for_each(|v| *v = v.clamp(0.0, c));
+                }
                 for (x, y, got, want) in compare::worst_pixels(w, &a, &b, worst) {
                     println!("  pixel {x},{y} (from top-left): {got:?} vs reference {want:?}");
                 }

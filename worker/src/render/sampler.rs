@@ -70,7 +70,7 @@ pub fn permute(i: u32, len: u32, key: u64) -> u32 {
 /// removes.
 pub fn grid(n: u32) -> (u32, u32) {
     let mut m = (n as f64).sqrt() as u32;
-    while m > 1 && n % m != 0 {
+    while m > 1 && !n.is_multiple_of(m) {
         m -= 1;
     }
     let m = m.max(1);
