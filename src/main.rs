@@ -55,6 +55,8 @@ enum Command {
         #[arg(long, env = "TESSERA_COORDINATOR")]
         coordinator: String,
     },
+    /// Watch a job refine: headless snapshots with --save (the desktop window is to come).
+    View(ViewArgs),
     /// Print the pass-one visit order of a WIDTH × HEIGHT image: one computed pixel per
     /// line as `x y w h` (origin at the lower-left corner, y upward; w × h is the block the
     /// pixel paints).
@@ -99,6 +101,27 @@ pub struct WorkerArgs {
     /// Exit when the coordinator goes away instead of reconnecting.
     #[arg(long)]
     exit_on_disconnect: bool,
+}
+
+/// Arguments of `tessera view`.
+#[derive(Debug, clap::Args)]
+#[deny(missing_docs)]
+pub struct ViewArgs {
+    /// The coordinator's URL, e.g. http://render-host:7878.
+    #[arg(long, env = "TESSERA_COORDINATOR")]
+    coordinator: String,
+    /// The job [default: the running job, else the newest].
+    #[arg(long)]
+    job: Option<u64>,
+    /// Write the image here (.png or .exr) instead of opening a window.
+    #[arg(long)]
+    save: Option<PathBuf>,
+    /// With --save: write a snapshot every SECONDS while the job runs, and at its end.
+    #[arg(long, requires = "save", conflicts_with = "at")]
+    every: Option<f64>,
+    /// With --save: write one snapshot once PERCENT of the samples are done, then exit.
+    #[arg(long, requires = "save")]
+    at: Option<f64>,
 }
 
 fn init_tracing(default: &str) {
@@ -208,6 +231,7 @@ async fn run(command: Command) -> Result<ExitCode> {
             }
         }
         Command::Bench(cmd) => bench::run(cmd).await,
+        Command::View(args) => view(args).await,
         Command::Compare { image, reference, worst, clamp } => {
             if clamp.is_some_and(|c| !(c.is_finite() && c > 0.0)) {
                 anyhow::bail!("--clamp must be a positive number");
@@ -230,6 +254,35 @@ async fn run(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
     }
+}
+
+async fn view(args: ViewArgs) -> Result<ExitCode> {
+    use tessera_viewer::headless::{run, Headless, When};
+    let Some(save) = args.save else {
+        anyhow::bail!("the desktop window is not built yet; use --save OUT to write snapshots headless");
+    };
+    check_output(&save)?;
+    let when = match (args.every, args.at) {
+        (Some(s), _) if !(s.is_finite() && s > 0.0) => {
+            anyhow::bail!("--every must be a positive number of seconds")
+        }
+        (Some(s), _) => When::Every(std::time::Duration::from_secs_f64(s)),
+        (_, Some(p)) if !(p.is_finite() && (0.0..=100.0).contains(&p)) => {
+            anyhow::bail!("--at must be a percentage in 0..=100")
+        }
+        (_, Some(p)) => When::At(p),
+        (None, None) => When::End,
+    };
+    let outcome =
+        run(Headless { coordinator: args.coordinator, job: args.job.unwrap_or(0), save: save.clone(), when })
+            .await?;
+    eprintln!(
+        "wrote {} at {:.1}%{}",
+        save.display(),
+        outcome.percent,
+        if outcome.finished { " (job over)" } else { "" }
+    );
+    Ok(ExitCode::SUCCESS)
 }
 
 /// Checks an output path before any work is done: a known extension and a directory

@@ -38,13 +38,35 @@ pub struct Framebuffer {
     height: u32,
     sums: Vec<[u64; 3]>,
     counts: Vec<u32>,
+    /// Per pixel, the version of the merge that last changed it (for viewers' deltas).
+    versions: Vec<u64>,
+    /// Merges so far.
+    version: u64,
+}
+
+/// The state of one pixel as it travels to viewers.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct PixelState {
+    /// Pixel index, y · width + x.
+    pub index: u32,
+    /// Fixed-point sums.
+    pub sums: [u64; 3],
+    /// Samples.
+    pub count: u32,
 }
 
 impl Framebuffer {
     /// An empty framebuffer.
     pub fn new(width: u32, height: u32) -> Self {
         let n = width as usize * height as usize;
-        Framebuffer { width, height, sums: vec![[0; 3]; n], counts: vec![0; n] }
+        Framebuffer {
+            width,
+            height,
+            sums: vec![[0; 3]; n],
+            counts: vec![0; n],
+            versions: vec![0; n],
+            version: 0,
+        }
     }
 
     /// Width in pixels.
@@ -66,8 +88,10 @@ impl Framebuffer {
     /// addition makes the result independent of merge order (DESIGN contract 1).
     pub fn merge(&mut self, quads: &[Quad], samples: u32, sums: &[u64]) -> Result<(), MergeError> {
         Self::check(quads, samples, sums)?;
+        self.version += 1;
         for (q, s) in quads.iter().zip(sums.chunks_exact(3)) {
             let i = self.index(q.x, q.y);
+            self.versions[i] = self.version;
             for (acc, v) in self.sums[i].iter_mut().zip(s) {
                 // Saturating: only a scene far beyond the documented limits can get here.
                 *acc = acc.saturating_add(*v);
@@ -89,6 +113,50 @@ impl Framebuffer {
             }
         }
         Ok(())
+    }
+
+    /// Merges so far: the framebuffer's version.
+    pub fn version(&self) -> u64 {
+        self.version
+    }
+
+    /// Up to `limit` pixels changed after version `since` and not after `until`, from
+    /// pixel index `from` on; returns them and the index to continue from (`None` at the
+    /// end). Bounded, so that a viewer's update never holds more than `limit` pixels.
+    pub fn changes(
+        &self,
+        since: u64,
+        until: u64,
+        from: usize,
+        limit: usize,
+    ) -> (Vec<PixelState>, Option<usize>) {
+        let mut out = Vec::new();
+        for i in from..self.versions.len() {
+            let v = self.versions[i];
+            if v > since && v <= until {
+                if out.len() == limit {
+                    return (out, Some(i));
+                }
+                out.push(PixelState { index: i as u32, sums: self.sums[i], count: self.counts[i] });
+            }
+        }
+        (out, None)
+    }
+
+    /// Sets a pixel's state (a viewer's replica applying an update).
+    pub fn set(&mut self, p: &PixelState) -> bool {
+        let i = p.index as usize;
+        if i >= self.counts.len() {
+            return false;
+        }
+        self.sums[i] = p.sums;
+        self.counts[i] = p.count;
+        true
+    }
+
+    /// Samples merged in all.
+    pub fn total_samples(&self) -> u64 {
+        self.counts.iter().map(|&c| u64::from(c)).sum()
     }
 
     /// The mean radiance of pixel `(x, y)`, or `None` before its first sample.
@@ -139,6 +207,31 @@ mod tests {
         ba.merge(&quads, 1, &sums_a).unwrap();
         let bits = |f: &Framebuffer| f.resolve().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&ab), bits(&ba));
+    }
+
+    /// A replica fed the changes of every version resolves to the same bits.
+    #[test]
+    fn replica_from_changes_resolves_identically() {
+        let quads: Vec<Quad> = Walk::new(9, 7).collect();
+        let mut fb = Framebuffer::new(9, 7);
+        let mut replica = Framebuffer::new(9, 7);
+        let mut sent = 0;
+        for (k, chunk) in quads.chunks(5).enumerate() {
+            let sums: Vec<u64> = (0..chunk.len() * 3).map(|i| one((i + k) as f32 * 0.01)).collect();
+            fb.merge(chunk, 1, &sums).unwrap();
+            if k % 3 == 0 {
+                let until = fb.version();
+                let mut from = Some(0);
+                while let Some(f) = from {
+                    let (px, next) = fb.changes(sent, until, f, 4);
+                    px.iter().for_each(|p| assert!(replica.set(p)));
+                    from = next;
+                }
+                sent = until;
+                let bits = |f: &Framebuffer| f.resolve().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&replica), bits(&fb));
+            }
+        }
     }
 
     #[test]

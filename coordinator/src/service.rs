@@ -304,12 +304,144 @@ fn state_to_wire(s: &JobState) -> pb::JobState {
     }
 }
 
+/// Pixels per watch update: about 1.8 MB, far below gRPC's message limit, and all a slow
+/// viewer's task holds.
+pub const WATCH_CHUNK_PIXELS: usize = 1 << 16;
+/// Updates per second a viewer gets unless it asks for fewer.
+pub const WATCH_DEFAULT_RATE: f64 = 10.0;
+
+/// A job's progress as it travels.
+fn status_to_wire(p: &crate::farm::JobProgress) -> pb::JobStatus {
+    pb::JobStatus {
+        job_id: p.id.0,
+        scene: p.scene.clone(),
+        state: state_to_wire(&p.state) as i32,
+        width: p.width,
+        height: p.height,
+        spp: p.spp,
+        pass: p.pass,
+        samples_done: p.samples_done,
+        samples_total: p.samples_total,
+        samples_per_second: p.samples_per_second,
+        elapsed_seconds: p.elapsed.as_secs_f64(),
+        error: match &p.state {
+            JobState::Failed(e) => e.clone(),
+            _ => String::new(),
+        },
+        pass_one_done: p.pass_one_done,
+    }
+}
+
+/// Consecutive pixels grouped into runs.
+fn runs(pixels: &[crate::framebuffer::PixelState]) -> Vec<pb::PixelRun> {
+    let mut out: Vec<pb::PixelRun> = Vec::new();
+    for p in pixels {
+        match out.last_mut() {
+            Some(r) if r.start as usize + r.counts.len() == p.index as usize => {
+                r.sums.extend_from_slice(&p.sums);
+                r.counts.push(p.count);
+            }
+            _ => out.push(pb::PixelRun { start: p.index, sums: p.sums.to_vec(), counts: vec![p.count] }),
+        }
+    }
+    out
+}
+
+impl CoordinatorService {
+    /// The job a viewer asks for: by id, or (0) the running job, else the newest.
+    fn pick_job(&self, id: u64) -> Result<JobId, Status> {
+        let farm = self.farm();
+        if id != 0 {
+            return farm
+                .job(JobId(id))
+                .map(|j| j.id)
+                .ok_or_else(|| Status::not_found(format!("no job {id} on this coordinator")));
+        }
+        let running = farm.jobs().find(|j| j.state == JobState::Running).map(|j| j.id);
+        running
+            .or_else(|| farm.jobs().last().map(|j| j.id))
+            .ok_or_else(|| Status::not_found("this coordinator has no jobs yet"))
+    }
+
+    /// Feeds one viewer: the changes since what it has, in bounded chunks, at most
+    /// `1 / interval` rounds a second. It waits on its own channel only: a stalled viewer
+    /// stalls this task alone, and when it reads again it gets the newest state.
+    async fn feed_viewer(
+        self,
+        job: JobId,
+        interval: Duration,
+        tx: mpsc::Sender<Result<pb::FramebufferUpdate, Status>>,
+    ) {
+        let mut changed = self.subscribe();
+        let mut sent = 0u64;
+        loop {
+            let round = Instant::now();
+            let until = match self.farm().job(job) {
+                Some(j) => j.framebuffer().version(),
+                None => return,
+            };
+            let mut from = Some(0);
+            let mut over = false;
+            while let Some(f) = from {
+                let update = {
+                    let farm = self.farm();
+                    let Some(j) = farm.job(job) else { return };
+                    let fb = j.framebuffer();
+                    let (pixels, next) = fb.changes(sent, until, f, WATCH_CHUNK_PIXELS);
+                    from = next;
+                    // Over, and everything up to the final version sent: the last update.
+                    over = j.is_over() && fb.version() == until;
+                    pb::FramebufferUpdate {
+                        job_id: job.0,
+                        width: fb.width(),
+                        height: fb.height(),
+                        version: until,
+                        chunk_end: next.is_none(),
+                        runs: runs(&pixels),
+                        status: Some(status_to_wire(&j.progress(Instant::now()))),
+                        workers: farm.workers().count() as u32,
+                        r#final: over && next.is_none(),
+                    }
+                };
+                if tx.send(Ok(update)).await.is_err() {
+                    return;
+                }
+            }
+            sent = until;
+            if over {
+                return;
+            }
+            tokio::select! {
+                r = changed.changed() => if r.is_err() { return },
+                _ = tx.closed() => return,
+            }
+            tokio::time::sleep(interval.saturating_sub(round.elapsed())).await;
+        }
+    }
+}
+
 type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send + 'static>>;
 
 #[tonic::async_trait]
 impl Coordinator for CoordinatorService {
     type WorkStream = BoxStream<pb::CoordinatorMessage>;
     type FetchImageStream = BoxStream<pb::ImageChunk>;
+    type WatchStream = BoxStream<pb::FramebufferUpdate>;
+
+    async fn watch(&self, request: Request<pb::WatchRequest>) -> Result<Response<Self::WatchStream>, Status> {
+        let req = request.into_inner();
+        let job = self.pick_job(req.job_id)?;
+        let rate =
+            if req.max_rate > 0.0 { req.max_rate.min(WATCH_DEFAULT_RATE * 10.0) } else { WATCH_DEFAULT_RATE };
+        if !rate.is_finite() {
+            return Err(Status::invalid_argument("max_rate must be a finite number"));
+        }
+        let interval = Duration::from_secs_f64(1.0 / rate.max(1.0 / 60.0));
+        // One update in flight: a viewer that does not read holds one chunk, no backlog.
+        let (tx, rx) = mpsc::channel(1);
+        tokio::spawn(self.clone().feed_viewer(job, interval, tx));
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
 
     async fn work(
         &self,
@@ -365,27 +497,7 @@ impl Coordinator for CoordinatorService {
         let jobs = farm
             .jobs()
             .filter(|j| want == 0 || j.id.0 == want)
-            .map(|j| {
-                let p = j.progress(now);
-                pb::JobStatus {
-                    job_id: p.id.0,
-                    scene: p.scene,
-                    state: state_to_wire(&p.state) as i32,
-                    width: p.width,
-                    height: p.height,
-                    spp: p.spp,
-                    pass: p.pass,
-                    samples_done: p.samples_done,
-                    samples_total: p.samples_total,
-                    samples_per_second: p.samples_per_second,
-                    elapsed_seconds: p.elapsed.as_secs_f64(),
-                    error: match &p.state {
-                        JobState::Failed(e) => e.clone(),
-                        _ => String::new(),
-                    },
-                    pass_one_done: p.pass_one_done,
-                }
-            })
+            .map(|j| status_to_wire(&j.progress(now)))
             .collect();
         let workers = farm
             .workers()

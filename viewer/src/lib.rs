@@ -1,3 +1,9 @@
 //! Tessera's viewer: keeps a replica of a job's framebuffer from the coordinator's watch
-//! stream and shows it (a window, or headless snapshots). Not built yet: issue 4.
+//! stream (`state.rs`) and shows it: headless snapshots written to files (`headless.rs`).
+//! The network code (`conn.rs`) never draws and the drawing code never touches the network.
 #![forbid(unsafe_code)]
+#![deny(missing_docs)]
+
+pub mod conn;
+pub mod headless;
+pub mod state;

@@ -1,0 +1,113 @@
+//! End-to-end: viewers attached at any moment end with the coordinator's bytes, and an
+//! early snapshot shows the mosaic.
+
+mod common;
+
+use common::*;
+use std::time::Duration;
+
+fn percent_done(status: &str) -> f64 {
+    status
+        .lines()
+        .find(|l| l.split_whitespace().next() == Some("1"))
+        .and_then(|l| l.split_whitespace().find(|w| w.ends_with('%')))
+        .map_or(0.0, |w| w.trim_end_matches('%').parse().unwrap())
+}
+
+/// A viewer attached at about 30 % and one attached after the end both end with an image
+/// byte-identical to the one `submit` fetches from the coordinator.
+#[test]
+fn viewers_end_byte_identical_to_the_coordinators_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let coord = Coordinator::start(&[]);
+    let _worker = coord.worker(1);
+    let out = dir.path().join("farm.png");
+    let mut submit = Proc::spawn(&[
+        "submit",
+        small_scene().to_str().unwrap(),
+        "--coordinator",
+        &coord.url,
+        "-o",
+        out.to_str().unwrap(),
+        "--spp",
+        "2048",
+    ]);
+    let start = std::time::Instant::now();
+    let mut at = 0.0;
+    while at < 25.0 {
+        assert!(start.elapsed() < Duration::from_secs(60), "no progress");
+        std::thread::sleep(Duration::from_millis(20));
+        at = percent_done(&coord.status());
+    }
+    assert!(at < 90.0, "the render went too fast to attach mid-way ({at}%)");
+    let during = dir.path().join("during.png");
+    let viewer = run(&["view", "--coordinator", &coord.url, "--save", during.to_str().unwrap()]);
+    assert!(viewer.status.success(), "{}", String::from_utf8_lossy(&viewer.stderr));
+    assert!(submit.wait(Duration::from_secs(120)).success(), "{}", submit.stderr.lock().unwrap());
+    assert_eq!(read(&during), read(&out), "viewer attached at {at:.0}% differs from the coordinator's image");
+
+    // A second job exists now; the viewer asks for the first by id, after its end.
+    let o = run(&[
+        "submit",
+        small_scene().to_str().unwrap(),
+        "--coordinator",
+        &coord.url,
+        "--spp",
+        "2",
+        "--wait",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let after_png = dir.path().join("after.png");
+    let o = run(&["view", "--coordinator", &coord.url, "--job", "1", "--save", after_png.to_str().unwrap()]);
+    assert!(o.status.success());
+    assert_eq!(read(&after_png), read(&out), "viewer attached after the end differs");
+}
+
+/// An early snapshot (a fraction of pass one) is the mosaic: every pixel painted by the
+/// block of the finest computed pixel, not a black image with a few dots.
+#[test]
+fn early_snapshot_shows_the_mosaic() {
+    let dir = tempfile::tempdir().unwrap();
+    let coord = Coordinator::start(&[]);
+    // Queue the job with no worker yet, so that the viewer sees it from its first pixel.
+    let o = run(&["submit", small_scene().to_str().unwrap(), "--coordinator", &coord.url, "--spp", "64"]);
+    assert!(o.status.success());
+    let early = dir.path().join("early.png");
+    let mut viewer = Proc::spawn(&[
+        "view",
+        "--coordinator",
+        &coord.url,
+        "--save",
+        early.to_str().unwrap(),
+        "--at",
+        "0.05",
+    ]);
+    std::thread::sleep(Duration::from_millis(300));
+    let _worker = coord.worker(1);
+    assert!(viewer.wait(Duration::from_secs(60)).success(), "{}", viewer.stderr.lock().unwrap());
+    let img = image::open(&early).unwrap().to_rgb8();
+    assert!(img.pixels().all(|p| p.0 != [0, 0, 0]), "the early snapshot has unpainted (black) pixels");
+    let distinct: std::collections::HashSet<_> = img.pixels().map(|p| p.0).collect();
+    let n = (img.width() * img.height()) as usize;
+    assert!(distinct.len() < n / 4, "{} distinct colours in {n} pixels: not a mosaic", distinct.len());
+    assert!(distinct.len() > 4, "only {} colours: not refined at all", distinct.len());
+}
+
+/// Bad requests: a job that does not exist, a coordinator that is not there.
+#[test]
+fn viewing_a_missing_job_or_coordinator_is_a_clear_error() {
+    let coord = Coordinator::start(&[]);
+    let o = run(&["view", "--coordinator", &coord.url, "--job", "7", "--save", "/tmp/never.png"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("no job 7"), "{err}");
+    let o = run(&["view", "--coordinator", &coord.url, "--save", "/tmp/never.png"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("no jobs yet"), "{err}");
+    let port = std::net::TcpListener::bind("127.0.0.1:0").unwrap().local_addr().unwrap().port();
+    let o = run(&["view", "--coordinator", &format!("http://127.0.0.1:{port}"), "--save", "/tmp/never.png"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("cannot reach coordinator"), "{err}");
+    let o = run(&["view", "--coordinator", &coord.url]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("--save"), "{err}");
+}
