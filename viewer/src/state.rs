@@ -26,7 +26,7 @@ pub enum UpdateError {
 }
 
 /// A job as the viewer sees it.
-#[derive(Debug)]
+#[derive(Debug, Default)]
 pub struct Replica {
     fb: Option<Framebuffer>,
     /// The job.
@@ -39,12 +39,6 @@ pub struct Replica {
     pub workers: u32,
     /// The job is over and the replica holds its final image.
     pub finished: bool,
-}
-
-impl Default for Replica {
-    fn default() -> Self {
-        Replica { fb: None, job: 0, version: 0, status: None, workers: 0, finished: false }
-    }
 }
 
 impl Replica {
