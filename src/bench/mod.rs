@@ -13,6 +13,7 @@ use tessera_worker::bundle::Bundle;
 use crate::local::{render_local, LocalOptions};
 
 mod reference;
+mod viewers;
 
 /// The benchmarks.
 #[derive(Debug, clap::Subcommand)]
@@ -27,6 +28,19 @@ pub enum BenchCommand {
         scene: PathBuf,
         /// Runs of each, alternating (the fastest is reported) [default: 3].
         #[arg(long, default_value_t = 3)]
+        runs: usize,
+    },
+    /// What viewers cost: wall time with 0, 8, and 8 viewers of which one never reads, as
+    /// ratios, and the coordinator's peak memory in each case.
+    Viewers {
+        /// The scene [default: scenes/whitted.toml].
+        #[arg(default_value = "scenes/whitted.toml")]
+        scene: PathBuf,
+        /// Samples per pixel [default: the scene's].
+        #[arg(long)]
+        spp: Option<u32>,
+        /// Runs of each case (the fastest is reported) [default: 2].
+        #[arg(long, default_value_t = 2)]
         runs: usize,
     },
     /// The BVH at scale: build time and traversal speed for meshes of 10k to 1M triangles.
@@ -63,6 +77,10 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
     match cmd {
         BenchCommand::Whitted { scene, runs } => whitted(&scene, runs.max(1)),
         BenchCommand::Bvh { triangles } => bvh(triangles),
+        BenchCommand::Viewers { scene, spp, runs } => {
+            viewers::run(&scene, spp, runs.max(1)).await?;
+            Ok(ExitCode::SUCCESS)
+        }
         BenchCommand::Overhead { scene, runs, spp, workers } => {
             if runs == 0 {
                 anyhow::bail!("--runs must be at least 1");
