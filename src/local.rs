@@ -37,6 +37,9 @@ pub struct RenderArgs {
     /// field of view is kept along the camera's axis.
     #[arg(long, value_parser = crate::parse_size)]
     pub size: Option<(u32, u32)>,
+    /// Open the viewer window on the render (it stays open until closed).
+    #[arg(long)]
+    pub view: bool,
 }
 
 /// How a local render ended.
@@ -58,12 +61,10 @@ pub struct LocalRender {
     pub wall: Duration,
     /// From start to the first pass-one result: the first full-frame mosaic.
     pub first_preview: Option<Duration>,
-    /// Image size and linear RGB, top row first.
+    /// Image size.
     pub width: u32,
     /// Height.
     pub height: u32,
-    /// Pixels.
-    pub rgb: Vec<f32>,
 }
 
 /// Options of a local render.
@@ -78,6 +79,10 @@ pub struct LocalOptions {
     pub size: Option<(u32, u32)>,
     /// Show a progress bar.
     pub progress_bar: bool,
+    /// Open the viewer window.
+    pub view: bool,
+    /// Write the image here at the end (before waiting for the viewer window).
+    pub output: Option<PathBuf>,
 }
 
 /// Kills the local workers when dropped, so that no process outlives the render, whatever
@@ -134,7 +139,16 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
             .serve_with_incoming(TcpListenerStream::new(listener)),
     );
     let reaper = service.spawn_reaper();
-    let mut workers = Workers::spawn(&format!("http://{addr}"), opts.workers, opts.threads)?;
+    let url = format!("http://{addr}");
+    let mut workers = Workers::spawn(&url, opts.workers, opts.threads)?;
+    let window = opts.view.then(|| {
+        let (url, job) = (url.clone(), job.0);
+        std::thread::spawn(move || {
+            if let Err(e) = tessera_viewer::window::run(&url, job) {
+                eprintln!("warning: {e}");
+            }
+        })
+    });
 
     let bar = opts.progress_bar.then(progress_bar);
     let mut changed = service.subscribe();
@@ -185,9 +199,20 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         (fb.width(), fb.height(), fb.resolve())
     };
     workers.shutdown().await;
+    if let Some(out) = &opts.output {
+        tessera_coordinator::output::write_image(out, width, height, &rgb)?;
+    }
+    if let Some(window) = window {
+        // The window needs the coordinator to show the final image: keep serving until the
+        // person closes it.
+        if !window.is_finished() {
+            eprintln!("render over; close the viewer window to exit");
+        }
+        let _ = tokio::task::spawn_blocking(move || window.join()).await;
+    }
     server.abort();
     reaper.abort();
-    Ok(LocalRender { ending, progress, wall: start.elapsed(), first_preview, width, height, rgb })
+    Ok(LocalRender { ending, progress, wall: start.elapsed(), first_preview, width, height })
 }
 
 fn progress(service: &CoordinatorService, job: JobId) -> JobProgress {
@@ -231,9 +256,16 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
     if threads == 0 {
         anyhow::bail!("--threads must be at least 1");
     }
-    let opts = LocalOptions { workers, threads, spp: args.spp, size: args.size, progress_bar: true };
+    let opts = LocalOptions {
+        workers,
+        threads,
+        spp: args.spp,
+        size: args.size,
+        progress_bar: true,
+        view: args.view,
+        output: Some(args.output.clone()),
+    };
     let r = render_local(&args.scene, opts).await?;
-    tessera_coordinator::output::write_image(&args.output, r.width, r.height, &r.rgb)?;
     let p = &r.progress;
     if p.nonfinite_samples > 0 {
         eprintln!("warning: {} samples were NaN or infinite and counted as black", p.nonfinite_samples);

@@ -55,8 +55,25 @@ enum Command {
         #[arg(long, env = "TESSERA_COORDINATOR")]
         coordinator: String,
     },
-    /// Watch a job refine: headless snapshots with --save (the desktop window is to come).
+    /// Watch a job refine in a window (S save, P pause/resume, +/- exposure, Q quit), or
+    /// headless with --save.
     View(ViewArgs),
+    /// Pause a job: no new batches until it is resumed.
+    Pause {
+        /// The job id.
+        job: u64,
+        /// The coordinator's URL.
+        #[arg(long, env = "TESSERA_COORDINATOR")]
+        coordinator: String,
+    },
+    /// Resume a paused job.
+    Resume {
+        /// The job id.
+        job: u64,
+        /// The coordinator's URL.
+        #[arg(long, env = "TESSERA_COORDINATOR")]
+        coordinator: String,
+    },
     /// Print the pass-one visit order of a WIDTH × HEIGHT image: one computed pixel per
     /// line as `x y w h` (origin at the lower-left corner, y upward; w × h is the block the
     /// pixel paints).
@@ -212,6 +229,8 @@ async fn run(command: Command) -> Result<ExitCode> {
         Command::Submit(args) => remote::submit(args).await,
         Command::Status { coordinator } => remote::status(&coordinator).await,
         Command::Cancel { job, coordinator } => remote::cancel(&coordinator, job).await,
+        Command::Pause { job, coordinator } => remote::pause(&coordinator, job, true).await,
+        Command::Resume { job, coordinator } => remote::pause(&coordinator, job, false).await,
         Command::Order { width, height } => {
             use std::io::Write;
             let stdout = std::io::stdout();
@@ -259,7 +278,9 @@ async fn run(command: Command) -> Result<ExitCode> {
 async fn view(args: ViewArgs) -> Result<ExitCode> {
     use tessera_viewer::headless::{run, Headless, When};
     let Some(save) = args.save else {
-        anyhow::bail!("the desktop window is not built yet; use --save OUT to write snapshots headless");
+        let (url, job) = (args.coordinator, args.job.unwrap_or(0));
+        tokio::task::spawn_blocking(move || tessera_viewer::window::run(&url, job)).await??;
+        return Ok(ExitCode::SUCCESS);
     };
     check_output(&save)?;
     let when = match (args.every, args.at) {

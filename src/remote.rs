@@ -137,7 +137,7 @@ async fn wait(client: &mut CoordinatorClient<Channel>, job: u64) -> Result<pb::J
         let waiting = if response.workers.is_empty() { ", waiting for workers" } else { "" };
         bar.set_message(format!("{}{waiting}", crate::local::rate(s.samples_per_second)));
         match pb::JobState::try_from(s.state) {
-            Ok(pb::JobState::Queued | pb::JobState::Running) => {}
+            Ok(pb::JobState::Queued | pb::JobState::Running | pb::JobState::Paused) => {}
             _ => {
                 bar.finish_and_clear();
                 return Ok(s);
@@ -174,12 +174,29 @@ pub async fn fetch_image(client: &mut CoordinatorClient<Channel>, job: u64) -> R
 pub async fn status(url: &str) -> Result<ExitCode> {
     let mut client = connect(url).await?;
     let s = client.status(pb::StatusRequest { job_id: 0 }).await.map_err(status_error)?.into_inner();
-    println!("{:>5}  {:<10} {:>5} {:>7}  {:>4} {:>12}  scene", "job", "state", "pass", "done", "spp", "rate");
+    let mut out = String::new();
+    macro_rules! outln {
+        ($o:ident, $($arg:tt)*) => {{
+            use std::fmt::Write as _;
+            let _ = writeln!($o, $($arg)*);
+        }};
+    }
+    outln!(
+        out,
+        "{:>5}  {:<10} {:>5} {:>7}  {:>4} {:>12}  scene",
+        "job",
+        "state",
+        "pass",
+        "done",
+        "spp",
+        "rate"
+    );
     for j in &s.jobs {
         let state = pb::JobState::try_from(j.state).map_or("?", |s| s.as_str_name());
         let state = state.trim_start_matches("JOB_STATE_").to_lowercase();
         let done = j.samples_done as f64 / j.samples_total.max(1) as f64 * 100.0;
-        println!(
+        outln!(
+            out,
             "{:>5}  {:<10} {:>5} {:>6.1}%  {:>4} {:>12}  {} ({}x{}){}",
             j.job_id,
             state,
@@ -193,17 +210,35 @@ pub async fn status(url: &str) -> Result<ExitCode> {
             if j.error.is_empty() { String::new() } else { format!(": {}", j.error) }
         );
     }
-    println!();
-    println!("{:>6}  {:<24} {:>7} {:>9} {:>12}", "worker", "name", "threads", "in flight", "batches done");
+    outln!(out, "");
+    outln!(out, "{:>6}  {:<24} {:>7} {:>9} {:>12}", "worker", "name", "threads", "in flight", "batches done");
     for w in &s.workers {
-        println!(
+        outln!(
+            out,
             "{:>6}  {:<24} {:>7} {:>9} {:>12}",
-            w.worker_id, w.name, w.threads, w.batches_in_flight, w.batches_done
+            w.worker_id,
+            w.name,
+            w.threads,
+            w.batches_in_flight,
+            w.batches_done
         );
     }
     if s.workers.is_empty() {
-        println!("(no workers connected)");
+        outln!(out, "(no workers connected)");
     }
+    // A reader that stops early (`| head`, `grep -q`) is not an error.
+    use std::io::Write as _;
+    match std::io::stdout().lock().write_all(out.as_bytes()) {
+        Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e).context("writing the status"),
+        _ => Ok(ExitCode::SUCCESS),
+    }
+}
+
+/// `tessera pause` and `tessera resume`.
+pub async fn pause(url: &str, job: u64, paused: bool) -> Result<ExitCode> {
+    let mut client = connect(url).await?;
+    client.pause(pb::PauseRequest { job_id: job, paused }).await.map_err(status_error)?;
+    eprintln!("{} job {job}", if paused { "paused" } else { "resumed" });
     Ok(ExitCode::SUCCESS)
 }
 

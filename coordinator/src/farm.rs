@@ -38,6 +38,8 @@ pub enum JobState {
     Cancelled,
     /// Stopped by an error.
     Failed(String),
+    /// Paused by a client: no new batches until resumed.
+    Paused,
 }
 
 /// A job: its scene, its batches and its framebuffer.
@@ -347,7 +349,7 @@ impl Farm {
     pub fn assign(&mut self, worker: WorkerId, now: Instant) -> Option<Assignment> {
         let info = self.workers.get_mut(&worker)?;
         for job in self.jobs.values_mut() {
-            if job.is_over() {
+            if job.is_over() || job.state == JobState::Paused {
                 continue;
             }
             let Some(lease) = job.queue.lease_next(worker, now) else { continue };
@@ -417,6 +419,20 @@ impl Farm {
             job.state = JobState::Failed(format!("{batch} failed {n} times; last error: {error}"));
             job.finished = Some(Instant::now());
         }
+    }
+
+    /// Pauses or resumes a job; `false` if there is no such job. A job that is over stays
+    /// as it is.
+    pub fn set_paused(&mut self, job_id: JobId, paused: bool) -> bool {
+        let Some(job) = self.jobs.get_mut(&job_id) else { return false };
+        match (&job.state, paused) {
+            (JobState::Queued | JobState::Running, true) => job.state = JobState::Paused,
+            (JobState::Paused, false) => {
+                job.state = if job.started.is_some() { JobState::Running } else { JobState::Queued }
+            }
+            _ => {}
+        }
+        true
     }
 
     /// Stops a job; its image stays.

@@ -301,6 +301,7 @@ fn state_to_wire(s: &JobState) -> pb::JobState {
         JobState::Done => pb::JobState::Done,
         JobState::Cancelled => pb::JobState::Cancelled,
         JobState::Failed(_) => pb::JobState::Failed,
+        JobState::Paused => pb::JobState::Paused,
     }
 }
 
@@ -541,6 +542,17 @@ impl Coordinator for CoordinatorService {
             })
             .collect();
         Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
+    }
+
+    async fn pause(&self, request: Request<pb::PauseRequest>) -> Result<Response<pb::PauseResponse>, Status> {
+        let req = request.into_inner();
+        let id = JobId(req.job_id);
+        if !self.farm().set_paused(id, req.paused) {
+            return Err(Status::not_found(format!("no {id} on this coordinator")));
+        }
+        info!(%id, paused = req.paused, "job paused or resumed");
+        self.notify();
+        Ok(Response::new(pb::PauseResponse {}))
     }
 
     async fn cancel(

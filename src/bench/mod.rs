@@ -116,7 +116,15 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
                 single.push(t.elapsed());
                 let r = render_local(
                     &scene,
-                    LocalOptions { workers, threads, spp, size: None, progress_bar: false },
+                    LocalOptions {
+                        workers,
+                        threads,
+                        spp,
+                        size: None,
+                        progress_bar: false,
+                        view: false,
+                        output: None,
+                    },
                 )
                 .await?;
                 farm.push(r.wall);
