@@ -70,7 +70,11 @@ fn early_snapshot_shows_the_mosaic() {
     let dir = tempfile::tempdir().unwrap();
     let coord = Coordinator::start(&[]);
     // Queue the job with no worker yet, so that the viewer sees it from its first pixel.
-    let o = run(&["submit", small_scene().to_str().unwrap(), "--coordinator", &coord.url, "--spp", "64"]);
+    // Large enough that pass one takes a while on one thread.
+    let scene = small_scene();
+    let args =
+        ["submit", scene.to_str().unwrap(), "--coordinator", &coord.url, "--spp", "64", "--size", "320x240"];
+    let o = run(&args);
     assert!(o.status.success());
     let early = dir.path().join("early.png");
     let mut viewer = Proc::spawn(&[
@@ -80,7 +84,7 @@ fn early_snapshot_shows_the_mosaic() {
         "--save",
         early.to_str().unwrap(),
         "--at",
-        "0.05",
+        "0.02",
     ]);
     std::thread::sleep(Duration::from_millis(300));
     let _worker = coord.worker(1);

@@ -91,8 +91,10 @@ pub struct PassQueue {
     height: u32,
     spp: u32,
     pass: Pass,
-    walk: Walk,
-    /// Whether the walk of the last pass is exhausted.
+    walk: std::iter::Peekable<Walk>,
+    /// Whether the walk of the last pass is exhausted. Known as soon as the last batch is
+    /// cut (the walk is peeked), so that the merge of the last result finishes the job
+    /// whether or not anyone asks for more work afterwards.
     cut_all: bool,
     next_id: u64,
     next_pass_one_size: usize,
@@ -111,7 +113,7 @@ impl PassQueue {
             height,
             spp: spp.max(1),
             pass: Pass::One,
-            walk: Walk::new(width, height),
+            walk: Walk::new(width, height).peekable(),
             cut_all: width == 0 || height == 0,
             next_id: 0,
             next_pass_one_size: PASS_ONE_FIRST,
@@ -158,6 +160,7 @@ impl PassQueue {
             if self.cut_all {
                 return None;
             }
+            let pass = self.pass;
             let (size, samples) = match self.pass {
                 Pass::One => {
                     let size = self.next_pass_one_size;
@@ -171,18 +174,20 @@ impl PassQueue {
                 }
             };
             let quads: Vec<Quad> = self.walk.by_ref().take(size).collect();
-            if quads.is_empty() {
+            if self.walk.peek().is_none() {
                 if self.pass == Pass::One && self.spp > 1 {
                     self.pass = Pass::Two;
-                    self.walk = Walk::new(self.width, self.height);
+                    self.walk = Walk::new(self.width, self.height).peekable();
                 } else {
                     self.cut_all = true;
                 }
+            }
+            if quads.is_empty() {
                 continue;
             }
             let id = BatchId(self.next_id);
             self.next_id += 1;
-            return Some(BatchSpec { id, pass: self.pass, quads, samples });
+            return Some(BatchSpec { id, pass, quads, samples });
         }
     }
 
@@ -309,6 +314,24 @@ mod tests {
             let passes: Vec<Pass> = batches.iter().map(|b| b.pass).collect();
             assert!(passes.windows(2).all(|p| p[0] <= p[1]));
             assert!(batches.windows(2).all(|b| b[0].id < b[1].id));
+        }
+    }
+
+    /// The merge of the last batch finishes the job even when nobody asks for more work
+    /// after the last lease (a hang found with one worker on a tiny image).
+    #[test]
+    fn last_result_finishes_without_another_lease() {
+        let now = Instant::now();
+        for (w, h, spp) in [(1, 1, 1), (48, 30, 4), (7, 5, 1), (16, 16, 2)] {
+            let mut counting = PassQueue::new(w, h, spp);
+            let n = drain(&mut counting, now).len();
+            let mut q = PassQueue::new(w, h, spp);
+            let ids: Vec<BatchId> = (0..n).map(|_| q.lease_next(WorkerId(1), now).unwrap().spec.id).collect();
+            for id in ids {
+                assert!(!q.is_finished());
+                q.complete(id).unwrap();
+            }
+            assert!(q.is_finished(), "{w}x{h}@{spp}: all batches merged but not finished");
         }
     }
 

@@ -70,7 +70,9 @@ fn write(r: &Replica, save: &std::path::Path) -> Result<(), HeadlessError> {
 /// Runs until the job ends (or the `At` percentage is reached). A coordinator that goes
 /// away mid-stream is an error, after the last complete image has been written.
 pub async fn run(h: Headless) -> Result<Outcome, HeadlessError> {
-    let mut watch = Watch::open(&h.coordinator, h.job, 10.0).await?;
+    // A snapshot at a given percentage wants fine-grained updates to land close to it.
+    let rate = if matches!(h.when, When::At(_)) { 50.0 } else { 10.0 };
+    let mut watch = Watch::open(&h.coordinator, h.job, rate).await?;
     let mut replica = Replica::new();
     let mut snapshots = 0;
     let mut last = Instant::now();
