@@ -123,15 +123,6 @@ fn job_waits_for_workers_and_says_so() {
     assert_eq!(read(&out), read(&reference));
 }
 
-/// Percent done of job `id` in `tessera status` output.
-fn job_percent(status: &str, id: u64) -> f64 {
-    status
-        .lines()
-        .find(|l| l.split_whitespace().next() == Some(&id.to_string()))
-        .and_then(|l| l.split_whitespace().find(|w| w.ends_with('%')))
-        .map_or(0.0, |w| w.trim_end_matches('%').parse().unwrap())
-}
-
 /// `tessera order` prints the appendix's order, starting with the whole image.
 #[test]
 fn order_prints_every_pixel_once_starting_with_root() {

@@ -6,14 +6,6 @@ mod common;
 use common::*;
 use std::time::Duration;
 
-fn percent_done(status: &str) -> f64 {
-    status
-        .lines()
-        .find(|l| l.split_whitespace().next() == Some("1"))
-        .and_then(|l| l.split_whitespace().find(|w| w.ends_with('%')))
-        .map_or(0.0, |w| w.trim_end_matches('%').parse().unwrap())
-}
-
 /// A viewer attached at about 30 % and one attached after the end both end with an image
 /// byte-identical to the one `submit` fetches from the coordinator.
 #[test]
@@ -37,7 +29,7 @@ fn viewers_end_byte_identical_to_the_coordinators_image() {
     while at < 25.0 {
         assert!(start.elapsed() < Duration::from_secs(60), "no progress");
         std::thread::sleep(Duration::from_millis(20));
-        at = percent_done(&coord.status());
+        at = job_percent(&coord.status(), 1);
     }
     assert!(at < 90.0, "the render went too fast to attach mid-way ({at}%)");
     let during = dir.path().join("during.png");

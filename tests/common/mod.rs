@@ -159,3 +159,12 @@ pub fn render_local(scene: &Path, out: &Path, workers: u32, extra: &[&str]) {
     let o = run(&args);
     assert!(o.status.success(), "render failed: {}", String::from_utf8_lossy(&o.stderr));
 }
+
+/// Percent done of job `id` in `tessera status` output (0 when not listed yet).
+pub fn job_percent(status: &str, id: u64) -> f64 {
+    status
+        .lines()
+        .find(|l| l.split_whitespace().next() == Some(&id.to_string()))
+        .and_then(|l| l.split_whitespace().find(|w| w.ends_with('%')))
+        .map_or(0.0, |w| w.trim_end_matches('%').parse().unwrap())
+}

@@ -48,17 +48,9 @@ impl Watch {
         let endpoint = Endpoint::from_shared(url.to_string())
             .map_err(|e| ConnError::BadAddress { url: url.into(), reason: e.to_string() })?
             .connect_timeout(Duration::from_secs(5));
-        let channel: Channel = endpoint.connect().await.map_err(|e| {
-            let mut reason = e.to_string();
-            let mut source = std::error::Error::source(&e);
-            while let Some(s) = source {
-                let t = s.to_string();
-                if !reason.contains(&t) {
-                    reason = format!("{reason}: {t}");
-                }
-                source = s.source();
-            }
-            ConnError::Unreachable { url: url.into(), reason }
+        let channel: Channel = endpoint.connect().await.map_err(|e| ConnError::Unreachable {
+            url: url.into(),
+            reason: tessera_worker::client::error_chain(&e),
         })?;
         let mut client = CoordinatorClient::new(channel).max_decoding_message_size(MAX_MESSAGE_BYTES);
         let stream = client
