@@ -105,7 +105,9 @@ impl Scene {
         });
         let mut t_max = t_max;
         for (plane, material) in &self.planes {
-            if let Some(hit) = plane.intersect(ray, t_max) {
+            if let Some(mut hit) = plane.intersect(ray, t_max) {
+                // Planes are not in `prims`: no index may point there.
+                hit.prim = u32::MAX;
                 t_max = hit.t;
                 best = Some(SurfaceHit { hit, material: *material, light: None });
             }
@@ -117,9 +119,7 @@ impl Scene {
     /// (spheres: two transcendental functions, paid only by textured materials).
     pub fn complete_uv(&self, sh: &mut SurfaceHit) {
         if let Some(shape::Shape::Sphere(_)) = self.prims.get(sh.hit.prim as usize).map(|p| &p.shape) {
-            if sh.light.is_none() && (sh.hit.prim as usize) < self.prims.len() {
-                sh.hit.uv = geometry::sphere_uv(sh.hit.n);
-            }
+            sh.hit.uv = geometry::sphere_uv(sh.hit.n);
         }
     }
 
