@@ -139,6 +139,10 @@ pub struct ViewArgs {
     /// With --save: write one snapshot once PERCENT of the samples are done, then exit.
     #[arg(long, requires = "save")]
     at: Option<f64>,
+    /// Forward the image, as HDR float tiles, to a running tev viewer at HOST:PORT (tev
+    /// listens on 127.0.0.1:14158 by default).
+    #[arg(long, conflicts_with = "save")]
+    tev: Option<String>,
 }
 
 fn init_tracing(default: &str) {
@@ -277,6 +281,11 @@ async fn run(command: Command) -> Result<ExitCode> {
 
 async fn view(args: ViewArgs) -> Result<ExitCode> {
     use tessera_viewer::headless::{run, Headless, When};
+    if let Some(tev) = &args.tev {
+        tessera_viewer::tev::run(&args.coordinator, args.job.unwrap_or(0), tev).await?;
+        eprintln!("forwarded the job to tev at {tev}");
+        return Ok(ExitCode::SUCCESS);
+    }
     let Some(save) = args.save else {
         let (url, job) = (args.coordinator, args.job.unwrap_or(0));
         tokio::task::spawn_blocking(move || tessera_viewer::window::run(&url, job)).await??;

@@ -113,3 +113,80 @@ fn viewing_a_missing_job_or_coordinator_is_a_clear_error() {
     let err = String::from_utf8_lossy(&o.stderr);
     assert!(!o.status.success() && err.contains("cannot open a window") && err.contains("--save"), "{err}");
 }
+
+/// The tev bridge speaks tev's protocol: a fake tev on loopback parses `CreateImage` and
+/// `UpdateImage` v3 packets and ends with the coordinator's exact floats.
+#[test]
+fn tev_bridge_sends_the_exact_image() {
+    use std::io::Read;
+    let dir = tempfile::tempdir().unwrap();
+    let coord = Coordinator::start(&[]);
+    let _worker = coord.worker(2);
+    let exr = dir.path().join("out.exr");
+    let o = run(&[
+        "submit",
+        small_scene().to_str().unwrap(),
+        "--coordinator",
+        &coord.url,
+        "-o",
+        exr.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap().to_string();
+    let fake_tev = std::thread::spawn(move || {
+        let (mut s, _) = listener.accept().unwrap();
+        let mut bytes = Vec::new();
+        s.read_to_end(&mut bytes).unwrap();
+        let (mut size, mut image, mut creates) = ((0usize, 0usize), Vec::<f32>::new(), 0);
+        let mut at = 0;
+        while at < bytes.len() {
+            let len = u32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()) as usize;
+            let p = &bytes[at + 4..at + len];
+            at += len;
+            let mut i = 2; // type, grab focus
+            let string = |i: &mut usize| {
+                let end = p[*i..].iter().position(|&b| b == 0).unwrap();
+                let s = String::from_utf8(p[*i..*i + end].to_vec()).unwrap();
+                *i += end + 1;
+                s
+            };
+            let int = |i: &mut usize| {
+                *i += 4;
+                i32::from_le_bytes(p[*i - 4..*i].try_into().unwrap()) as usize
+            };
+            assert!(string(&mut i).starts_with("tessera job 1"));
+            match p[0] {
+                4 => {
+                    size = (int(&mut i), int(&mut i));
+                    assert_eq!(int(&mut i), 3);
+                    image = vec![f32::NAN; size.0 * size.1 * 3];
+                    creates += 1;
+                }
+                6 => {
+                    assert_eq!(int(&mut i), 3);
+                    let names: Vec<String> = (0..3).map(|_| string(&mut i)).collect();
+                    assert_eq!(names, ["R", "G", "B"]);
+                    let (x, y, w, h) = (int(&mut i), int(&mut i), int(&mut i), int(&mut i));
+                    assert_eq!((x, w), (0, size.0));
+                    i += 48; // offsets 0, 1, 2 and strides 3, 3, 3 (i64)
+                    let floats = &p[i..];
+                    assert_eq!(floats.len(), w * h * 3 * 4);
+                    for (k, v) in floats.chunks_exact(4).enumerate() {
+                        image[y * w * 3 + k] = f32::from_le_bytes(v.try_into().unwrap());
+                    }
+                }
+                t => panic!("unexpected packet type {t}"),
+            }
+        }
+        assert_eq!(creates, 1);
+        (size, image)
+    });
+    let o = run(&["view", "--coordinator", &coord.url, "--job", "1", "--tev", &addr]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let ((w, h), got) = fake_tev.join().unwrap();
+    let want = image::open(&exr).unwrap().to_rgb32f();
+    assert_eq!((w as u32, h as u32), want.dimensions());
+    assert_eq!(got, want.into_raw(), "tev received other floats than the coordinator's image");
+}

@@ -47,6 +47,9 @@ pub enum HeadlessError {
     /// The stream ended before anything arrived.
     #[error("the coordinator closed the stream before sending an image")]
     Empty,
+    /// The tev bridge failed.
+    #[error("{0}")]
+    Tev(String),
 }
 
 /// What a headless run ended with.

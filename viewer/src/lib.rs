@@ -8,4 +8,5 @@
 pub mod conn;
 pub mod headless;
 pub mod state;
+pub mod tev;
 pub mod window;
