@@ -190,3 +190,38 @@ fn tev_bridge_sends_the_exact_image() {
     assert_eq!((w as u32, h as u32), want.dimensions());
     assert_eq!(got, want.into_raw(), "tev received other floats than the coordinator's image");
 }
+
+/// With no job running, a viewer without --job lists the jobs to choose from; a
+/// coordinator that goes away mid-stream is a clear error, after the last image is saved.
+#[test]
+fn viewer_lists_jobs_and_survives_a_lost_coordinator() {
+    let dir = tempfile::tempdir().unwrap();
+    let coord = Coordinator::start(&[]);
+    let _worker = coord.worker(1);
+    for _ in 0..2 {
+        let o = run(&[
+            "submit",
+            small_scene().to_str().unwrap(),
+            "--coordinator",
+            &coord.url,
+            "--spp",
+            "2",
+            "--wait",
+        ]);
+        assert!(o.status.success());
+    }
+    let o = run(&["view", "--coordinator", &coord.url, "--save", "/tmp/never.png"]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && err.contains("choose one with --job: 1 (done"), "{err}");
+
+    let o = run(&["submit", small_scene().to_str().unwrap(), "--coordinator", &coord.url, "--spp", "8192"]);
+    assert!(o.status.success());
+    let out = dir.path().join("last.png");
+    let mut viewer = Proc::spawn(&["view", "--coordinator", &coord.url, "--save", out.to_str().unwrap()]);
+    std::thread::sleep(Duration::from_millis(800));
+    coord.proc.signal(9);
+    let status = viewer.wait(Duration::from_secs(30));
+    let err = viewer.stderr.lock().unwrap().clone();
+    assert!(!status.success() && err.contains("lost the coordinator"), "{err}");
+    assert!(out.exists(), "the last image was not saved: {err}");
+}

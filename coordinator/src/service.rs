@@ -349,7 +349,8 @@ fn runs(pixels: &[crate::framebuffer::PixelState]) -> Vec<pb::PixelRun> {
 }
 
 impl CoordinatorService {
-    /// The job a viewer asks for: by id, or (0) the running job, else the newest.
+    /// The job a viewer asks for: by id; or (0) the active job (running, else paused, else
+    /// queued, oldest first), or the only job; otherwise the jobs to choose from.
     fn pick_job(&self, id: u64) -> Result<JobId, Status> {
         let farm = self.farm();
         if id != 0 {
@@ -358,10 +359,36 @@ impl CoordinatorService {
                 .map(|j| j.id)
                 .ok_or_else(|| Status::not_found(format!("no job {id} on this coordinator")));
         }
-        let running = farm.jobs().find(|j| j.state == JobState::Running).map(|j| j.id);
-        running
-            .or_else(|| farm.jobs().last().map(|j| j.id))
-            .ok_or_else(|| Status::not_found("this coordinator has no jobs yet"))
+        for state in [JobState::Running, JobState::Paused, JobState::Queued] {
+            if let Some(j) = farm.jobs().find(|j| j.state == state) {
+                return Ok(j.id);
+            }
+        }
+        let jobs: Vec<_> = farm.jobs().collect();
+        match jobs.as_slice() {
+            [] => Err(Status::not_found("this coordinator has no jobs yet")),
+            [only] => Ok(only.id),
+            all => {
+                let list: Vec<String> = all
+                    .iter()
+                    .map(|j| {
+                        format!(
+                            "{} ({}, {})",
+                            j.id.0,
+                            state_to_wire(&j.state)
+                                .as_str_name()
+                                .trim_start_matches("JOB_STATE_")
+                                .to_lowercase(),
+                            j.bundle.name
+                        )
+                    })
+                    .collect();
+                Err(Status::failed_precondition(format!(
+                    "no job is running; choose one with --job: {}",
+                    list.join(", ")
+                )))
+            }
+        }
     }
 
     /// Feeds one viewer: the changes since what it has, in bounded chunks, at most
