@@ -58,6 +58,18 @@ enum Command {
     /// Watch a job refine in a window (S save, P pause/resume, +/- exposure, Q quit), or
     /// headless with --save.
     View(ViewArgs),
+    /// Write a job's current image, finished or not (the mosaic where pass one has not
+    /// reached yet).
+    Fetch {
+        /// The job id.
+        job: u64,
+        /// The image to write (.png or .exr).
+        #[arg(short, long)]
+        output: PathBuf,
+        /// The coordinator's URL.
+        #[arg(long, env = "TESSERA_COORDINATOR")]
+        coordinator: String,
+    },
     /// Pause a job: no new batches until it is resumed.
     Pause {
         /// The job id.
@@ -233,6 +245,14 @@ async fn run(command: Command) -> Result<ExitCode> {
         Command::Submit(args) => remote::submit(args).await,
         Command::Status { coordinator } => remote::status(&coordinator).await,
         Command::Cancel { job, coordinator } => remote::cancel(&coordinator, job).await,
+        Command::Fetch { job, output, coordinator } => {
+            check_output(&output)?;
+            let mut client = remote::connect(&coordinator).await?;
+            let (w, h, rgb) = remote::fetch_image(&mut client, job).await?;
+            tessera_coordinator::output::write_image(&output, w, h, &rgb)?;
+            eprintln!("wrote {} ({w}x{h}) of job {job}", output.display());
+            Ok(ExitCode::SUCCESS)
+        }
         Command::Pause { job, coordinator } => remote::pause(&coordinator, job, true).await,
         Command::Resume { job, coordinator } => remote::pause(&coordinator, job, false).await,
         Command::Order { width, height } => {

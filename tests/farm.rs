@@ -51,7 +51,7 @@ fn standalone_farm_matches_local_render() {
         assert_eq!(read(&out), read(reference), "{name} differs from the local render");
     }
     let status = coord.status();
-    assert!(status.contains("done"), "{status}");
+    assert!(job_state(&status, 1) == "done" && job_state(&status, 2) == "done", "{status}");
     assert!(status.lines().filter(|l| l.contains("local") || l.contains(':')).count() >= 2, "{status}");
 }
 
@@ -162,4 +162,34 @@ fn every_scene_is_byte_identical_with_1_and_3_workers() {
         render_local(&scene, &three, 3, &["--size", "48x30", "--spp", "4"]);
         assert_eq!(read(&one), read(&three), "{name}: 1 and 3 workers differ");
     }
+}
+
+/// `tessera fetch` writes a job's image mid-render (the mosaic fills what is not done) and
+/// after the end (the same bytes as `submit -o`); pause holds the job, resume finishes it.
+#[test]
+fn fetch_pause_and_resume() {
+    let dir = tempfile::tempdir().unwrap();
+    let coord = Coordinator::start(&[]);
+    let o = run(&["submit", small_scene().to_str().unwrap(), "--coordinator", &coord.url, "--spp", "64"]);
+    assert!(o.status.success());
+    let o = run(&["pause", "1", "--coordinator", &coord.url]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let _worker = coord.worker(2);
+    std::thread::sleep(Duration::from_millis(500));
+    assert_eq!(job_state(&coord.status(), 1), "paused", "{}", coord.status());
+    let o = run(&["resume", "1", "--coordinator", &coord.url]);
+    assert!(o.status.success());
+    let start = std::time::Instant::now();
+    while job_state(&coord.status(), 1) != "done" {
+        assert!(start.elapsed() < Duration::from_secs(60), "resumed job never finished");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let fetched = dir.path().join("fetched.png");
+    let o = run(&["fetch", "1", "-o", fetched.to_str().unwrap(), "--coordinator", &coord.url]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let reference = dir.path().join("reference.png");
+    render_local(&small_scene(), &reference, 1, &["--spp", "64"]);
+    assert_eq!(read(&fetched), read(&reference));
+    let o = run(&["fetch", "9", "-o", fetched.to_str().unwrap(), "--coordinator", &coord.url]);
+    assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("no job 9"));
 }

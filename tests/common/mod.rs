@@ -168,3 +168,13 @@ pub fn job_percent(status: &str, id: u64) -> f64 {
         .and_then(|l| l.split_whitespace().find(|w| w.ends_with('%')))
         .map_or(0.0, |w| w.trim_end_matches('%').parse().unwrap())
 }
+
+/// The state word of job `id` in `tessera status` output ("" when not listed).
+pub fn job_state(status: &str, id: u64) -> String {
+    status
+        .lines()
+        .find(|l| l.split_whitespace().next() == Some(&id.to_string()))
+        .and_then(|l| l.split_whitespace().nth(1))
+        .unwrap_or("")
+        .to_string()
+}
