@@ -22,18 +22,7 @@ pub struct ImageError {
 /// Linear RGB pixels of an image file (EXR as stored; 8-bit formats decoded from sRGB).
 pub fn read_linear(path: &Path) -> Result<(u32, u32, Vec<f32>)> {
     let img = image::open(path).with_context(|| format!("cannot read image {}", path.display()))?;
-    let float = matches!(img.color(), image::ColorType::Rgb32F | image::ColorType::Rgba32F);
-    let rgb = img.to_rgb32f();
-    let decode = |v: f32| {
-        if float {
-            v
-        } else if v <= 0.04045 {
-            v / 12.92
-        } else {
-            ((v + 0.055) / 1.055).powf(2.4)
-        }
-    };
-    Ok((rgb.width(), rgb.height(), rgb.into_raw().into_iter().map(decode).collect()))
+    Ok(tessera_worker::render::texture::linear_rgb(&img))
 }
 
 /// The errors of `image` against `reference`, which must have the same size.
@@ -78,20 +67,25 @@ pub fn worst_pixels(
         .collect()
 }
 
-/// Compares two image files; with `clamp`, both are first clamped to [0, clamp] (so that
-/// a few pixels that see a light directly do not drown the rest).
-pub fn compare_files(image: &Path, reference: &Path, clamp: Option<f32>) -> Result<ImageError> {
+/// An image and its reference, read once, of the same size; with `clamp`, both clamped to
+/// [0, clamp] (so that a few pixels that see a light directly do not drown the rest).
+/// Returns width, height, image and reference.
+pub fn load_pair(
+    image: &Path,
+    reference: &Path,
+    clamp: Option<f32>,
+) -> Result<(u32, u32, Vec<f32>, Vec<f32>)> {
     let (w, h, mut a) = read_linear(image)?;
     let (rw, rh, mut b) = read_linear(reference)?;
+    if (w, h) != (rw, rh) {
+        bail!("{} is {w}x{h} but the reference {} is {rw}x{rh}", image.display(), reference.display());
+    }
     if let Some(c) = clamp {
         for v in a.iter_mut().chain(b.iter_mut()) {
             *v = v.clamp(0.0, c);
         }
     }
-    if (w, h) != (rw, rh) {
-        bail!("{} is {w}x{h} but the reference {} is {rw}x{rh}", image.display(), reference.display());
-    }
-    Ok(errors(w, h, &a, &b))
+    Ok((w, h, a, b))
 }
 
 #[cfg(test)]

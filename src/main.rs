@@ -279,20 +279,14 @@ async fn run(command: Command) -> Result<ExitCode> {
             if clamp.is_some_and(|c| !(c.is_finite() && c > 0.0)) {
                 anyhow::bail!("--clamp must be a positive number");
             }
-            let e = compare::compare_files(&image, &reference, clamp)?;
+            let (w, h, a, b) = compare::load_pair(&image, &reference, clamp)?;
+            let e = compare::errors(w, h, &a, &b);
             println!(
                 "rmse {:.6}  relmse {:.6}  psnr {:.2} dB  ({} x {})",
                 e.rmse, e.relmse, e.psnr, e.width, e.height
             );
-            if worst > 0 {
-                let (w, _, mut a) = compare::read_linear(&image)?;
-                let (_, _, mut b) = compare::read_linear(&reference)?;
-                if let Some(c) = clamp {
-                    a.iter_mut().chain(b.iter_mut()).for_each(|v| *v = v.clamp(0.0, c));
-                }
-                for (x, y, got, want) in compare::worst_pixels(w, &a, &b, worst) {
-                    println!("  pixel {x},{y} (from top-left): {got:?} vs reference {want:?}");
-                }
+            for (x, y, got, want) in compare::worst_pixels(w, &a, &b, worst) {
+                println!("  pixel {x},{y} (from top-left): {got:?} vs reference {want:?}");
             }
             Ok(ExitCode::SUCCESS)
         }

@@ -154,11 +154,6 @@ impl Framebuffer {
         true
     }
 
-    /// Samples merged in all.
-    pub fn total_samples(&self) -> u64 {
-        self.counts.iter().map(|&c| u64::from(c)).sum()
-    }
-
     /// The mean radiance of pixel `(x, y)`, or `None` before its first sample.
     pub fn mean(&self, x: u32, y: u32) -> Option<[f32; 3]> {
         let i = self.index(x, y);

@@ -530,13 +530,9 @@ impl Builder<'_> {
                 let img = image::load_from_memory(bytes).map_err(|e| {
                     ctx.err(span, format!("{}: {file:?} is not a readable image: {e}", what("file")))
                 })?;
-                // 8-bit images are sRGB-encoded; float images (EXR) are linear.
-                let is_float = matches!(img.color(), image::ColorType::Rgb32F | image::ColorType::Rgba32F);
-                let rgb = img.to_rgb32f();
-                let decode = |v: f32| if is_float { v } else { srgb_to_linear(v) };
-                let texels =
-                    rgb.pixels().map(|p| Vec3::new(decode(p.0[0]), decode(p.0[1]), decode(p.0[2]))).collect();
-                Texture::Image { width: rgb.width(), height: rgb.height(), texels }
+                let (width, height, values) = crate::render::texture::linear_rgb(&img);
+                let texels = values.chunks_exact(3).map(Vec3::from_slice).collect();
+                Texture::Image { width, height, texels }
             }
             other => {
                 return Err(ctx.err(
@@ -859,14 +855,6 @@ impl Builder<'_> {
         }
         self.meshes.push(mesh);
         Ok(())
-    }
-}
-
-fn srgb_to_linear(v: f32) -> f32 {
-    if v <= 0.04045 {
-        v / 12.92
-    } else {
-        ((v + 0.055) / 1.055).powf(2.4)
     }
 }
 

@@ -126,15 +126,4 @@ impl Material {
             _ => false,
         }
     }
-
-    /// Whether the material scatters into glossy lobes (for "pay for what you use").
-    pub fn is_glossy(&self) -> bool {
-        match self {
-            Material::Classic(c) => c.gloss > 0.0 || c.translucency > 0.0,
-            Material::Conductor { roughness, .. } | Material::RoughDielectric { roughness, .. } => {
-                *roughness >= SMOOTH_ALPHA
-            }
-            _ => false,
-        }
-    }
 }

@@ -76,6 +76,25 @@ impl Texture {
     }
 }
 
+/// The sRGB transfer function inverted: an encoded value in [0, 1] to linear.
+pub fn srgb_to_linear(v: f32) -> f32 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// An image as linear RGB, top row first: float images (EXR) as stored, 8-bit ones
+/// decoded from sRGB. Returns width, height and 3 floats a pixel.
+pub fn linear_rgb(img: &image::DynamicImage) -> (u32, u32, Vec<f32>) {
+    let is_float = matches!(img.color(), image::ColorType::Rgb32F | image::ColorType::Rgba32F);
+    let rgb = img.to_rgb32f();
+    let (w, h) = rgb.dimensions();
+    let values = rgb.into_raw().into_iter().map(|v| if is_float { v } else { srgb_to_linear(v) }).collect();
+    (w, h, values)
+}
+
 impl Tex {
     /// The colour at a surface point.
     pub fn eval(&self, textures: &[Texture], p: Vec3, uv: Vec2) -> Vec3 {
