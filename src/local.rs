@@ -5,7 +5,7 @@ use std::path::{Path, PathBuf};
 use std::process::{ExitCode, Stdio};
 use std::time::{Duration, Instant};
 
-use anyhow::{anyhow, Context, Result};
+use anyhow::{anyhow, bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use tessera_coordinator::farm::{JobProgress, JobSettings, JobState};
 use tessera_coordinator::ids::JobId;
@@ -40,6 +40,16 @@ pub struct RenderArgs {
     /// Open the viewer window on the render (it stays open until closed).
     #[arg(long)]
     pub view: bool,
+    /// Continue an interrupted render of the same scene and settings from its checkpoint.
+    #[arg(long)]
+    pub resume: bool,
+    /// Where checkpoints are kept while rendering [default: the output path + ".tessera"];
+    /// removed once the image is written.
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Seconds between checkpoints [default: 30]; also at the end of pass one and at Ctrl-C.
+    #[arg(long, default_value_t = 30.0)]
+    pub checkpoint_interval: f64,
 }
 
 /// How a local render ended.
@@ -83,6 +93,75 @@ pub struct LocalOptions {
     pub view: bool,
     /// Write the image here at the end (before waiting for the viewer window).
     pub output: Option<PathBuf>,
+    /// Keep checkpoints in this directory; removed when the image is written.
+    pub checkpoints: Option<Checkpoints>,
+}
+
+/// Where and how often a local render checkpoints.
+pub struct Checkpoints {
+    /// The data directory.
+    pub dir: PathBuf,
+    /// Between checkpoints.
+    pub interval: Duration,
+    /// Take up the job found there instead of starting afresh.
+    pub resume: bool,
+}
+
+/// The in-process coordinator with its job: a new one, or with `--resume` the one in the
+/// data directory, which must be of the same scene and settings.
+async fn start_job(
+    bundle: Bundle,
+    settings: JobSettings,
+    checkpoints: Option<&Checkpoints>,
+) -> Result<(CoordinatorService, JobId)> {
+    let Some(c) = checkpoints else {
+        let service = CoordinatorService::new(Timing::default());
+        let job = service.submit(bundle, settings, 0).await.map_err(|e| anyhow!(e))?;
+        return Ok((service, job));
+    };
+    let had = c.dir.join(tessera_coordinator::store::DB_FILE).exists();
+    if c.resume && !had {
+        bail!("nothing to resume: no checkpoint in {}", c.dir.display());
+    }
+    let (service, recovery) = CoordinatorService::open(Timing::default(), &c.dir, c.interval)
+        .with_context(|| format!("checkpoint directory {}", c.dir.display()))?;
+    let found: Vec<_> =
+        service.farm().jobs().map(|j| (j.id, j.scene_hash.clone(), j.settings.clone())).collect();
+    match (found.as_slice(), c.resume) {
+        ([], _) => {
+            if c.resume {
+                crate::remote::report_recovery(&c.dir, &recovery);
+                bail!(
+                    "nothing to resume: the checkpoint in {} holds no job that reads back",
+                    c.dir.display()
+                );
+            }
+            let job = service.submit(bundle, settings, 0).await.map_err(|e| anyhow!(e))?;
+            Ok((service, job))
+        }
+        ([(id, hash, stored)], true) => {
+            if *hash != bundle.hash() || *stored != settings {
+                bail!(
+                    "the checkpoint in {} is of a different scene or settings (the scene file, its assets, --spp or --size changed); render without --resume after deleting it",
+                    c.dir.display()
+                );
+            }
+            crate::remote::report_recovery(&c.dir, &recovery);
+            Ok((service, *id))
+        }
+        (_, true) => bail!(
+            "{} holds several jobs; it is a coordinator's data directory, not a render's",
+            c.dir.display()
+        ),
+        (_, false) => {
+            let p = service.farm().job(found[0].0).expect("listed").progress(Instant::now());
+            bail!(
+                "{} holds an interrupted render ({:.1}% done); continue it with --resume, or delete the directory to start over",
+                c.dir.display(),
+                p.fraction() * 100.0
+            )
+        }
+    }
 }
 
 /// Kills the local workers when dropped, so that no process outlives the render, whatever
@@ -127,9 +206,9 @@ impl Workers {
 pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRender> {
     let start = Instant::now();
     let bundle = Bundle::read(scene)?;
-    let service = CoordinatorService::new(Timing::default());
-    let job =
-        service.submit(bundle, JobSettings { spp: opts.spp, size: opts.size }).map_err(|e| anyhow!(e))?;
+    let settings = JobSettings { spp: opts.spp, size: opts.size };
+    let (service, job) = start_job(bundle, settings, opts.checkpoints.as_ref()).await?;
+    let checkpointer = service.spawn_checkpointer();
     let listener =
         TcpListener::bind("127.0.0.1:0").await.context("binding a loopback port for the coordinator")?;
     let addr = listener.local_addr()?;
@@ -199,8 +278,18 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         (fb.width(), fb.height(), fb.resolve())
     };
     workers.shutdown().await;
+    if let Some(c) = checkpointer {
+        c.abort();
+    }
+    if matches!(ending, Ending::Interrupted) {
+        service.checkpoint(true).await.context("writing the checkpoint")?;
+    }
     if let Some(out) = &opts.output {
         tessera_coordinator::output::write_image(out, width, height, &rgb)?;
+    }
+    if let (Ending::Done, Some(c)) = (&ending, &opts.checkpoints) {
+        // The image is written: the checkpoint has served its purpose.
+        std::fs::remove_dir_all(&c.dir).with_context(|| format!("removing {}", c.dir.display()))?;
     }
     if let Some(window) = window {
         // The window needs the coordinator to show the final image: keep serving until the
@@ -256,6 +345,16 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
     if threads == 0 {
         anyhow::bail!("--threads must be at least 1");
     }
+    let dir = args.data.clone().unwrap_or_else(|| {
+        let mut name = args.output.as_os_str().to_owned();
+        name.push(".tessera");
+        PathBuf::from(name)
+    });
+    let checkpoints = Checkpoints {
+        dir: dir.clone(),
+        interval: crate::seconds("--checkpoint-interval", args.checkpoint_interval)?,
+        resume: args.resume,
+    };
     let opts = LocalOptions {
         workers,
         threads,
@@ -264,6 +363,7 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
         progress_bar: true,
         view: args.view,
         output: Some(args.output.clone()),
+        checkpoints: Some(checkpoints),
     };
     let r = render_local(&args.scene, opts).await?;
     let p = &r.progress;
@@ -285,9 +385,15 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
         }
         Ending::Interrupted => {
             eprintln!(
-                "interrupted at {:.1}% (pass {}): wrote the unfinished image to {}",
+                "interrupted at {:.1}% (pass {}): wrote the unfinished image to {} and a checkpoint to {}",
                 p.fraction() * 100.0,
                 p.pass,
+                args.output.display(),
+                dir.display()
+            );
+            eprintln!(
+                "continue with: tessera render {} -o {} --resume",
+                args.scene.display(),
                 args.output.display()
             );
             Ok(ExitCode::from(130))

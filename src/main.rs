@@ -36,6 +36,14 @@ enum Command {
         /// Seconds of silence after which a worker's batches go to others [default: 10].
         #[arg(long, default_value_t = 10.0)]
         worker_timeout: f64,
+        /// Keep jobs and their checkpoints in this directory, and take up every unfinished
+        /// job found there at start. Without it, jobs live in memory only.
+        #[arg(long, env = "TESSERA_DATA")]
+        data: Option<PathBuf>,
+        /// With --data: seconds between checkpoints of a running job (also at the end of
+        /// pass one and when a job ends) [default: 30].
+        #[arg(long, default_value_t = 30.0, requires = "data")]
+        checkpoint_interval: f64,
     },
     /// Run a worker that renders batches for a coordinator.
     Worker(WorkerArgs),
@@ -217,15 +225,16 @@ fn one_line(e: &anyhow::Error) -> String {
 async fn run(command: Command) -> Result<ExitCode> {
     match command {
         Command::Render(args) => local::render(args).await,
-        Command::Coordinator { listen, worker_timeout } => {
-            if !(worker_timeout.is_finite() && worker_timeout > 0.0) {
-                anyhow::bail!("--worker-timeout must be a positive number of seconds");
-            }
+        Command::Coordinator { listen, worker_timeout, data, checkpoint_interval } => {
             let timing = tessera_coordinator::Timing {
-                silence_timeout: std::time::Duration::from_secs_f64(worker_timeout),
+                silence_timeout: seconds("--worker-timeout", worker_timeout)?,
                 ..Default::default()
             };
-            remote::serve_coordinator(listen, timing).await?;
+            let data = match data {
+                Some(dir) => Some((dir, seconds("--checkpoint-interval", checkpoint_interval)?)),
+                None => None,
+            };
+            remote::serve_coordinator(listen, timing, data).await?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Worker(args) => {
@@ -341,6 +350,35 @@ pub fn check_output(path: &std::path::Path) -> Result<()> {
 }
 
 /// Parses `WIDTHxHEIGHT`.
+/// A positive number of seconds from the command line.
+pub fn seconds(flag: &str, value: f64) -> Result<std::time::Duration> {
+    if !(value.is_finite() && value > 0.0 && value < 1e9) {
+        anyhow::bail!("{flag} must be a positive number of seconds, got {value}");
+    }
+    Ok(std::time::Duration::from_secs_f64(value))
+}
+
+/// Waits for Ctrl-C or SIGTERM (what `kill` and service managers send).
+pub async fn shutdown_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{signal, SignalKind};
+        match signal(SignalKind::terminate()) {
+            Ok(mut term) => {
+                tokio::select! {
+                    _ = tokio::signal::ctrl_c() => {}
+                    _ = term.recv() => {}
+                }
+            }
+            Err(_) => {
+                let _ = tokio::signal::ctrl_c().await;
+            }
+        }
+    }
+    #[cfg(not(unix))]
+    let _ = tokio::signal::ctrl_c().await;
+}
+
 pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("expected WIDTHxHEIGHT, got {s:?}"))?;
     let parse = |v: &str| v.trim().parse::<u32>().ok().filter(|&n| n > 0);

@@ -2,13 +2,13 @@
 //! watch, fetch and cancel jobs over gRPC.
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{anyhow, bail, Context, Result};
 use tessera_coordinator::service::{bundle_to_wire, MAX_MESSAGE_BYTES};
-use tessera_coordinator::{CoordinatorService, Timing};
+use tessera_coordinator::{CoordinatorService, Recovery, Timing};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_client::CoordinatorClient;
 use tessera_worker::bundle::Bundle;
@@ -35,23 +35,63 @@ pub struct SubmitArgs {
     /// Image size WIDTHxHEIGHT [default: the scene's].
     #[arg(long, value_parser = crate::parse_size)]
     pub size: Option<(u32, u32)>,
+    /// Priority: jobs with a higher one are served first, equal ones oldest first.
+    #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
+    pub priority: i32,
 }
 
-/// Runs a coordinator until Ctrl-C.
-pub async fn serve_coordinator(listen: SocketAddr, timing: Timing) -> Result<()> {
-    let service = CoordinatorService::new(timing);
+/// Says what was found in a data directory: jobs taken up again, and any damage.
+pub fn report_recovery(dir: &Path, recovery: &Recovery) {
+    for p in &recovery.problems {
+        eprintln!("warning: {}: {p}", dir.display());
+    }
+    for r in &recovery.resumed {
+        let pct = r.samples_kept as f64 / r.samples_total.max(1) as f64 * 100.0;
+        eprintln!(
+            "resumed job {} ({}) from {}: {pct:.1}% done, {} of {} samples kept",
+            r.id.0,
+            format!("{:?}", r.state).to_lowercase(),
+            dir.display(),
+            r.samples_kept,
+            r.samples_total
+        );
+    }
+}
+
+/// Runs a coordinator until Ctrl-C or SIGTERM; with a data directory, its jobs survive.
+pub async fn serve_coordinator(
+    listen: SocketAddr,
+    timing: Timing,
+    data: Option<(PathBuf, Duration)>,
+) -> Result<()> {
+    let service = match &data {
+        Some((dir, interval)) => {
+            let (service, recovery) = CoordinatorService::open(timing, dir, *interval)
+                .with_context(|| format!("data directory {}", dir.display()))?;
+            report_recovery(dir, &recovery);
+            service
+        }
+        None => CoordinatorService::new(timing),
+    };
     let listener =
         tokio::net::TcpListener::bind(listen).await.with_context(|| format!("cannot listen on {listen}"))?;
     tracing::info!("coordinator listening on {}", listener.local_addr()?);
     let _reaper = service.spawn_reaper();
+    let _checkpointer = service.spawn_checkpointer();
     tonic::transport::Server::builder()
-        .add_service(service.into_server())
-        .serve_with_incoming_shutdown(tokio_stream::wrappers::TcpListenerStream::new(listener), async {
-            let _ = tokio::signal::ctrl_c().await;
-            tracing::info!("shutting down");
-        })
+        .add_service(service.clone().into_server())
+        .serve_with_incoming_shutdown(
+            tokio_stream::wrappers::TcpListenerStream::new(listener),
+            crate::shutdown_signal(),
+        )
         .await
-        .context("coordinator server failed")
+        .context("coordinator server failed")?;
+    tracing::info!("shutting down");
+    let n = service.checkpoint(true).await.context("writing the last checkpoints")?;
+    if n > 0 {
+        tracing::info!(jobs = n, "checkpointed");
+    }
+    Ok(())
 }
 
 /// A client of the coordinator at `url`.
@@ -87,6 +127,7 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
             settings: Some(tessera_coordinator::service::settings_to_wire(
                 &tessera_coordinator::farm::JobSettings { spp: args.spp, size: args.size },
             )),
+            priority: args.priority,
         })
         .await
         .map_err(status_error)?
@@ -183,12 +224,13 @@ pub async fn status(url: &str) -> Result<ExitCode> {
     }
     outln!(
         out,
-        "{:>5}  {:<10} {:>5} {:>7}  {:>4} {:>12}  scene",
+        "{:>5}  {:<10} {:>5} {:>7}  {:>6} {:>4} {:>16}  scene",
         "job",
         "state",
         "pass",
         "done",
         "spp",
+        "prio",
         "rate"
     );
     for j in &s.jobs {
@@ -197,12 +239,13 @@ pub async fn status(url: &str) -> Result<ExitCode> {
         let done = j.samples_done as f64 / j.samples_total.max(1) as f64 * 100.0;
         outln!(
             out,
-            "{:>5}  {:<10} {:>5} {:>6.1}%  {:>4} {:>12}  {} ({}x{}){}",
+            "{:>5}  {:<10} {:>5} {:>6.1}%  {:>6} {:>4} {:>16}  {} ({}x{}){}",
             j.job_id,
             state,
             j.pass,
             done,
             j.spp,
+            j.priority,
             crate::local::rate(j.samples_per_second),
             j.scene,
             j.width,

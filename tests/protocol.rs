@@ -155,19 +155,29 @@ async fn bad_submissions_are_refused_by_the_coordinator() {
     let bundle =
         pb::SceneBundle { name: "remote.toml".into(), text: "[render]\nwidth = -3\n".into(), assets: vec![] };
     let err = client
-        .submit(pb::SubmitRequest { protocol_version: 0, bundle: Some(bundle.clone()), settings: None })
+        .submit(pb::SubmitRequest {
+            protocol_version: 0,
+            bundle: Some(bundle.clone()),
+            settings: None,
+            priority: 0,
+        })
         .await
         .unwrap_err();
     assert_eq!(err.code(), tonic::Code::FailedPrecondition);
     let current = pb::ProtocolVersion::Current as i32;
     let err = client
-        .submit(pb::SubmitRequest { protocol_version: current, bundle: Some(bundle), settings: None })
+        .submit(pb::SubmitRequest {
+            protocol_version: current,
+            bundle: Some(bundle),
+            settings: None,
+            priority: 0,
+        })
         .await
         .unwrap_err();
     assert_eq!(err.code(), tonic::Code::InvalidArgument);
     assert!(err.message().starts_with("remote.toml:2:"), "{}", err.message());
     let err = client
-        .submit(pb::SubmitRequest { protocol_version: current, bundle: None, settings: None })
+        .submit(pb::SubmitRequest { protocol_version: current, bundle: None, settings: None, priority: 0 })
         .await
         .unwrap_err();
     assert_eq!(err.code(), tonic::Code::InvalidArgument);

@@ -7,14 +7,21 @@ use std::time::{Duration, Instant};
 
 use tessera_worker::bundle::Bundle;
 
+use crate::checkpoint::Checkpoint;
 use crate::framebuffer::{Framebuffer, MergeError};
 use crate::ids::{BatchId, JobId, WorkerId};
-use crate::scheduler::{BatchSpec, CompleteError, PassQueue};
+use crate::scheduler::{BatchSpec, CompleteError, PassQueue, RestoreError};
+use crate::store::{JobRecord, LoadedJob};
 
 /// A batch failing this many times fails its job: the problem is not the worker.
 pub const MAX_BATCH_FAILURES: u32 = 3;
 /// The window over which samples per second are measured.
 const RATE_WINDOW: Duration = Duration::from_secs(5);
+/// A lease becomes a straggler, worth a speculative duplicate, after this many mean batch
+/// times...
+const SPECULATE_PATIENCE: u32 = 3;
+/// ...and never sooner than this: duplicating work costs a worker's time too.
+const SPECULATE_MIN_AGE: Duration = Duration::from_secs(1);
 
 /// Settings a submission may override.
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
@@ -53,6 +60,8 @@ pub struct Job {
     pub scene_hash: String,
     /// The settings.
     pub settings: JobSettings,
+    /// Higher priorities are served first; equal ones oldest first.
+    pub priority: i32,
     /// Samples per pixel in effect.
     pub spp: u32,
     /// State.
@@ -99,6 +108,41 @@ impl Job {
             elapsed: self.started.map_or(Duration::ZERO, |s| end.saturating_duration_since(s)),
             pass_one_done: self.queue.pass_one_pixels_done(),
             nonfinite_samples: self.nonfinite_samples,
+            priority: self.priority,
+        }
+    }
+
+    /// Whether every pixel has its pass-one sample.
+    pub fn pass_one_complete(&self) -> bool {
+        let fb = &self.framebuffer;
+        self.queue.pass_one_pixels_done() == u64::from(fb.width()) * u64::from(fb.height())
+    }
+
+    /// The job's state now, for a checkpoint: merged batches and accumulators. Leased
+    /// batches are not in it; a restart renders them again.
+    pub fn checkpoint(&self) -> Checkpoint {
+        let (sums, counts) = self.framebuffer.accumulators();
+        Checkpoint {
+            job: self.id,
+            width: self.framebuffer.width(),
+            height: self.framebuffer.height(),
+            spp: self.spp,
+            completed: self.queue.completed(),
+            nonfinite_samples: self.nonfinite_samples,
+            samples_done: self.queue.samples_done(),
+            sums: sums.to_vec(),
+            counts: counts.to_vec(),
+        }
+    }
+
+    /// The job as stored.
+    pub fn record(&self) -> JobRecord {
+        JobRecord {
+            id: self.id,
+            bundle: (*self.bundle).clone(),
+            settings: self.settings.clone(),
+            priority: self.priority,
+            state: self.state.clone(),
         }
     }
 }
@@ -132,6 +176,8 @@ pub struct JobProgress {
     pub pass_one_done: u64,
     /// Samples that came back NaN or infinite (counted as black).
     pub nonfinite_samples: u64,
+    /// The job's priority.
+    pub priority: i32,
 }
 
 impl JobProgress {
@@ -203,6 +249,25 @@ pub enum SubmitError {
     },
 }
 
+/// Why a stored job could not be taken up again.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RestoreJobError {
+    /// The stored scene no longer parses (a different tessera version?).
+    #[error(transparent)]
+    Scene(#[from] SubmitError),
+    /// The checkpoint does not fit the job.
+    #[error("its checkpoint is {got}, the job is {expected}")]
+    Mismatch {
+        /// What the job's scene and settings give, `WxH@spp`.
+        expected: String,
+        /// What the checkpoint holds.
+        got: String,
+    },
+    /// The checkpoint's batches are not the job's.
+    #[error(transparent)]
+    Batches(#[from] RestoreError),
+}
+
 /// Why a worker's result was refused.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ResultError {
@@ -240,7 +305,77 @@ impl Farm {
     }
 
     /// Validates and queues a job.
-    pub fn submit(&mut self, bundle: Bundle, settings: JobSettings) -> Result<JobId, SubmitError> {
+    pub fn submit(
+        &mut self,
+        bundle: Bundle,
+        settings: JobSettings,
+        priority: i32,
+    ) -> Result<JobId, SubmitError> {
+        let job = Self::prepare(JobId(self.next_job + 1), bundle, settings, priority)?;
+        self.next_job += 1;
+        let id = job.id;
+        self.jobs.insert(id, job);
+        Ok(id)
+    }
+
+    /// Takes up a stored job again: from its checkpoint if it has one, else from the start.
+    /// Its id is kept, and later jobs get higher ones.
+    pub fn restore(&mut self, stored: LoadedJob, now: Instant) -> Result<JobId, RestoreJobError> {
+        let LoadedJob { record, checkpoint } = stored;
+        let id = record.id;
+        self.next_job = self.next_job.max(id.0);
+        let mut job = Self::prepare(id, record.bundle, record.settings, record.priority)?;
+        if let Some(c) = checkpoint {
+            let (w, h) = (job.framebuffer.width(), job.framebuffer.height());
+            if (c.width, c.height, c.spp) != (w, h, job.spp) {
+                return Err(RestoreJobError::Mismatch {
+                    expected: format!("{w}x{h}@{}", job.spp),
+                    got: format!("{}x{}@{}", c.width, c.height, c.spp),
+                });
+            }
+            job.queue = PassQueue::restore(w, h, job.spp, &c.completed)?;
+            if job.queue.samples_done() != c.samples_done {
+                return Err(RestoreJobError::Mismatch {
+                    expected: format!("{} samples for its merged batches", job.queue.samples_done()),
+                    got: format!("{} samples", c.samples_done),
+                });
+            }
+            job.framebuffer =
+                Framebuffer::from_accumulators(w, h, c.sums, c.counts).expect("decode checked lengths");
+            job.nonfinite_samples = c.nonfinite_samples;
+        }
+        job.state = match record.state {
+            JobState::Cancelled | JobState::Failed(_) => {
+                job.queue.abandon();
+                job.finished = Some(now);
+                record.state
+            }
+            JobState::Paused => JobState::Paused,
+            // A job recorded as done whose final checkpoint did not survive renders the rest.
+            _ if job.queue.is_finished() => {
+                job.finished = Some(now);
+                JobState::Done
+            }
+            _ => JobState::Queued,
+        };
+        self.jobs.insert(id, job);
+        Ok(id)
+    }
+
+    /// Drops a job that could not be stored (its submission failed).
+    pub fn remove_job(&mut self, id: JobId) {
+        self.jobs.remove(&id);
+        for w in self.workers.values_mut() {
+            w.scenes.remove(&id);
+        }
+    }
+
+    /// Makes sure ids stay above `id` (one that was used, even if its job is lost).
+    pub fn reserve_ids_through(&mut self, id: u64) {
+        self.next_job = self.next_job.max(id);
+    }
+
+    fn prepare(id: JobId, bundle: Bundle, settings: JobSettings, priority: i32) -> Result<Job, SubmitError> {
         let mut scene = bundle.parse()?;
         use tessera_worker::scene::limits;
         if let Some(s) = settings.spp.filter(|&s| s == 0 || s > limits::MAX_SPP) {
@@ -260,28 +395,22 @@ impl Farm {
         }
         scene.apply(settings.spp, settings.size);
         let spp = scene.spp;
-        self.next_job += 1;
-        let id = JobId(self.next_job);
-        let scene_hash = bundle.hash();
-        self.jobs.insert(
+        Ok(Job {
             id,
-            Job {
-                id,
-                scene_hash,
-                bundle: Arc::new(bundle),
-                settings,
-                spp,
-                state: JobState::Queued,
-                queue: PassQueue::new(scene.width, scene.height, spp),
-                framebuffer: Framebuffer::new(scene.width, scene.height),
-                started: None,
-                finished: None,
-                rate: VecDeque::new(),
-                failures: HashMap::new(),
-                nonfinite_samples: 0,
-            },
-        );
-        Ok(id)
+            scene_hash: bundle.hash(),
+            bundle: Arc::new(bundle),
+            settings,
+            priority,
+            spp,
+            state: JobState::Queued,
+            queue: PassQueue::new(scene.width, scene.height, spp),
+            framebuffer: Framebuffer::new(scene.width, scene.height),
+            started: None,
+            finished: None,
+            rate: VecDeque::new(),
+            failures: HashMap::new(),
+            nonfinite_samples: 0,
+        })
     }
 
     /// A job.
@@ -292,6 +421,18 @@ impl Farm {
     /// Every job, oldest first.
     pub fn jobs(&self) -> impl Iterator<Item = &Job> {
         self.jobs.values()
+    }
+
+    /// Job ids in the order they are served: highest priority first, then oldest first.
+    fn service_order(&self) -> Vec<JobId> {
+        let mut ids: Vec<(i32, JobId)> = self
+            .jobs
+            .values()
+            .filter(|j| !j.is_over() && j.state != JobState::Paused)
+            .map(|j| (j.priority, j.id))
+            .collect();
+        ids.sort_by_key(|&(p, id)| (std::cmp::Reverse(p), id));
+        ids.into_iter().map(|(_, id)| id).collect()
     }
 
     /// Registers a worker.
@@ -345,33 +486,40 @@ impl Farm {
             .collect()
     }
 
-    /// The next batch for `worker`, from the oldest job that has one.
+    /// The next batch for `worker`: from the first job in service order that has a new or
+    /// taken-back batch; failing that, a speculative duplicate of a straggler at the end
+    /// of a job, so that one slow or stuck worker does not hold the last of a job up.
     pub fn assign(&mut self, worker: WorkerId, now: Instant) -> Option<Assignment> {
-        let info = self.workers.get_mut(&worker)?;
-        for job in self.jobs.values_mut() {
-            if job.is_over() || job.state == JobState::Paused {
-                continue;
-            }
-            let Some(lease) = job.queue.lease_next(worker, now) else { continue };
-            let (batch, attempt) = (lease.spec.clone(), lease.attempt);
-            if job.state == JobState::Queued {
-                job.state = JobState::Running;
-                job.started = Some(now);
-                job.rate.push_back((now, 0));
-            }
-            let scene = info
-                .scenes
-                .insert(job.id)
-                .then(|| (job.bundle.clone(), job.scene_hash.clone(), job.settings.clone()));
-            return Some(Assignment {
-                job: job.id,
-                scene,
-                scene_hash: job.scene_hash.clone(),
-                batch,
-                attempt,
-            });
+        if !self.workers.contains_key(&worker) {
+            return None;
         }
-        None
+        let order = self.service_order();
+        let pick = |job: &mut Job, speculate: bool| {
+            let lease = if speculate {
+                job.queue.lease_speculative(worker, now, SPECULATE_PATIENCE, SPECULATE_MIN_AGE)
+            } else {
+                job.queue.lease_next(worker, now)
+            };
+            lease.map(|l| (l.spec.clone(), l.attempt))
+        };
+        let (id, batch, attempt) = [false, true].into_iter().find_map(|speculate| {
+            order.iter().find_map(|id| {
+                let job = self.jobs.get_mut(id).expect("ordered ids exist");
+                pick(job, speculate).map(|(b, a)| (*id, b, a))
+            })
+        })?;
+        let job = self.jobs.get_mut(&id).expect("picked above");
+        let info = self.workers.get_mut(&worker).expect("checked above");
+        if job.state == JobState::Queued {
+            job.state = JobState::Running;
+            job.started = Some(now);
+            job.rate.push_back((now, job.queue.samples_done()));
+        }
+        let scene = info
+            .scenes
+            .insert(job.id)
+            .then(|| (job.bundle.clone(), job.scene_hash.clone(), job.settings.clone()));
+        Some(Assignment { job: job.id, scene, scene_hash: job.scene_hash.clone(), batch, attempt })
     }
 
     /// Merges a batch's result, exactly once.
@@ -396,7 +544,7 @@ impl Farm {
             job.queue.take_back(batch);
             return Err(ResultError::Malformed { job: job_id, batch, source });
         }
-        job.queue.complete(batch)?;
+        job.queue.complete(batch, now)?;
         job.framebuffer.merge(&spec.quads, samples, sums).expect("sums were checked above");
         job.after_merge(nonfinite, now);
         if let Some(w) = self.workers.get_mut(&worker) {

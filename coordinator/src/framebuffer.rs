@@ -69,6 +69,22 @@ impl Framebuffer {
         }
     }
 
+    /// A framebuffer holding these accumulators (a checkpoint read back), or `None` if
+    /// their lengths do not fit the size. Every pixel with samples is new to viewers.
+    pub fn from_accumulators(width: u32, height: u32, sums: Vec<[u64; 3]>, counts: Vec<u32>) -> Option<Self> {
+        let n = width as usize * height as usize;
+        if sums.len() != n || counts.len() != n {
+            return None;
+        }
+        let versions = counts.iter().map(|&c| u64::from(c > 0)).collect();
+        Some(Framebuffer { width, height, sums, counts, versions, version: 1 })
+    }
+
+    /// The per-pixel sums and sample counts, pixel index y · width + x.
+    pub fn accumulators(&self) -> (&[[u64; 3]], &[u32]) {
+        (&self.sums, &self.counts)
+    }
+
     /// Width in pixels.
     pub fn width(&self) -> u32 {
         self.width

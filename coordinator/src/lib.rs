@@ -3,6 +3,7 @@
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod checkpoint;
 pub mod farm;
 pub mod framebuffer;
 pub mod ids;
@@ -10,5 +11,6 @@ pub mod output;
 pub mod quadtree;
 pub mod scheduler;
 pub mod service;
+pub mod store;
 
-pub use service::{CoordinatorService, Timing};
+pub use service::{CoordinatorService, Recovery, SubmitFailure, Timing};

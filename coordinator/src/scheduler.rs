@@ -2,7 +2,7 @@
 //! workers, taking them back, and accepting each batch's result exactly once. No I/O, no
 //! tokio, no prost: the time comes in as an argument, so tests drive it with a fake clock.
 
-use std::collections::{BTreeMap, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::ops::Range;
 use std::time::{Duration, Instant};
 
@@ -83,6 +83,53 @@ pub enum CompleteError {
     },
 }
 
+/// Which batches of a job are merged: every id below `below`, and the ids in `above`. This
+/// is all a checkpoint needs besides the framebuffer, because the cut of the walk into
+/// batches is deterministic: the same image and spp give the same batches with the same ids.
+#[derive(Debug, Clone, Default, PartialEq, Eq)]
+pub struct Completed {
+    /// Every batch id below this one is merged.
+    pub below: u64,
+    /// Merged ids above `below`, ascending (those finished out of order).
+    pub above: Vec<u64>,
+}
+
+impl Completed {
+    fn contains(&self, id: u64) -> bool {
+        id < self.below || self.above.binary_search(&id).is_ok()
+    }
+
+    /// One past the highest merged id.
+    pub fn end(&self) -> u64 {
+        self.above.last().map_or(self.below, |&a| a + 1).max(self.below)
+    }
+}
+
+/// Why a queue could not be rebuilt from a checkpoint.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum RestoreError {
+    /// The checkpoint names batches this job does not have.
+    #[error("the checkpoint names batch {id}, but a {width}x{height} image at {spp} spp has only {batches} batches")]
+    NoSuchBatch {
+        /// The id named.
+        id: u64,
+        /// Batches the job has.
+        batches: u64,
+        /// Image width.
+        width: u32,
+        /// Image height.
+        height: u32,
+        /// Samples per pixel.
+        spp: u32,
+    },
+    /// The merged ids are not ascending, or repeat one below `below`.
+    #[error("the checkpoint's list of merged batches is not ascending above {below}")]
+    Unordered {
+        /// The watermark.
+        below: u64,
+    },
+}
+
 /// The batches of one job: those not cut yet (the rest of the walk), those waiting to be
 /// leased again, those leased, and how many are done.
 #[derive(Debug)]
@@ -101,6 +148,14 @@ pub struct PassQueue {
     /// Batches whose lease was taken back, waiting to be leased again, oldest first.
     retry: BTreeMap<BatchId, (BatchSpec, u32)>,
     leased: HashMap<BatchId, Lease>,
+    /// Speculative second leases of batches in `leased` (stragglers near the end): the
+    /// first result of either wins.
+    spares: HashMap<BatchId, Lease>,
+    /// Merged batches: all ids below `done_below`, and these above it.
+    done_below: u64,
+    done_above: BTreeSet<u64>,
+    /// Mean time from lease to merge, for judging which leases are stragglers.
+    mean_batch_time: Option<Duration>,
     samples_done: u64,
     pass_one_pixels_done: u64,
 }
@@ -119,8 +174,62 @@ impl PassQueue {
             next_pass_one_size: PASS_ONE_FIRST,
             retry: BTreeMap::new(),
             leased: HashMap::new(),
+            spares: HashMap::new(),
+            done_below: 0,
+            done_above: BTreeSet::new(),
+            mean_batch_time: None,
             samples_done: 0,
             pass_one_pixels_done: 0,
+        }
+    }
+
+    /// The queue of a job of which the batches in `completed` are merged: the walk is cut
+    /// again up to the last merged batch, and the batches in between that are not merged
+    /// wait to be leased first. Costs one walk of the image per pass cut, no rendering.
+    pub fn restore(width: u32, height: u32, spp: u32, completed: &Completed) -> Result<Self, RestoreError> {
+        if completed.above.windows(2).any(|w| w[0] >= w[1])
+            || completed.above.first().is_some_and(|&a| a < completed.below)
+        {
+            return Err(RestoreError::Unordered { below: completed.below });
+        }
+        let mut q = PassQueue::new(width, height, spp);
+        let end = completed.end();
+        while q.next_id < end {
+            let Some(spec) = q.cut() else {
+                let id = completed.above.last().copied().unwrap_or(end - 1);
+                return Err(RestoreError::NoSuchBatch { id, batches: q.next_id, width, height, spp: q.spp });
+            };
+            if completed.contains(spec.id.0) {
+                q.account(&spec);
+            } else {
+                q.retry.insert(spec.id, (spec, 0));
+            }
+        }
+        q.done_below = completed.below;
+        q.done_above = completed.above.iter().copied().collect();
+        Ok(q)
+    }
+
+    /// The merged batches, for a checkpoint.
+    pub fn completed(&self) -> Completed {
+        Completed { below: self.done_below, above: self.done_above.iter().copied().collect() }
+    }
+
+    fn mark_done(&mut self, id: BatchId) {
+        if id.0 == self.done_below {
+            self.done_below += 1;
+            while self.done_above.remove(&self.done_below) {
+                self.done_below += 1;
+            }
+        } else {
+            self.done_above.insert(id.0);
+        }
+    }
+
+    fn account(&mut self, spec: &BatchSpec) {
+        self.samples_done += spec.sample_count();
+        if spec.pass == Pass::One {
+            self.pass_one_pixels_done += spec.quads.len() as u64;
         }
     }
 
@@ -203,9 +312,43 @@ impl PassQueue {
         self.leased.get(&id)
     }
 
-    /// Batches leased to `worker` now.
+    /// Whether every batch is cut and leased: the end of the last pass, where an idle
+    /// worker has nothing to do but duplicate a straggler.
+    pub fn all_leased(&self) -> bool {
+        self.cut_all && self.retry.is_empty()
+    }
+
+    /// A speculative duplicate for `worker` of the oldest lease that has run for longer
+    /// than `patience` times the mean batch time (at least `min_age`), held by another
+    /// worker and not duplicated yet. Only at the end of the last pass: before that, idle
+    /// workers have new batches. The first result of the two wins; the other is refused as
+    /// a duplicate, so merging stays exactly-once.
+    pub fn lease_speculative(
+        &mut self,
+        worker: WorkerId,
+        now: Instant,
+        patience: u32,
+        min_age: Duration,
+    ) -> Option<&Lease> {
+        if !self.all_leased() {
+            return None;
+        }
+        let wait = self.mean_batch_time.map_or(min_age, |m| (m * patience).max(min_age));
+        let oldest = self
+            .leased
+            .values()
+            .filter(|l| l.worker != worker && !self.spares.contains_key(&l.spec.id))
+            .filter(|l| now.saturating_duration_since(l.since) >= wait)
+            .min_by_key(|l| (l.since, l.spec.id))?;
+        let spare = Lease { spec: oldest.spec.clone(), worker, attempt: oldest.attempt + 1, since: now };
+        let id = spare.spec.id;
+        self.spares.insert(id, spare);
+        self.spares.get(&id)
+    }
+
+    /// Batches leased to `worker` now, speculative duplicates included.
     pub fn leased_by(&self, worker: WorkerId) -> usize {
-        self.leased.values().filter(|l| l.worker == worker).count()
+        self.leased.values().chain(self.spares.values()).filter(|l| l.worker == worker).count()
     }
 
     /// The spec of `batch` if its result is still wanted: leased, or taken back and
@@ -222,51 +365,49 @@ impl PassQueue {
     /// Accepts the result of `batch` (from any attempt: all compute the same samples) and
     /// returns its spec for merging. A second result for the same batch is refused, which
     /// is what makes merging exactly-once.
-    pub fn complete(&mut self, batch: BatchId) -> Result<BatchSpec, CompleteError> {
+    pub fn complete(&mut self, batch: BatchId, now: Instant) -> Result<BatchSpec, CompleteError> {
+        let spare = self.spares.remove(&batch);
         let spec = match self.leased.remove(&batch) {
-            Some(lease) => lease.spec,
+            Some(lease) => {
+                // The time of whichever lease delivered first: the spare's, if it won.
+                let since = spare.map_or(lease.since, |s| s.since.max(lease.since));
+                let took = now.saturating_duration_since(since);
+                self.mean_batch_time = Some(match self.mean_batch_time {
+                    Some(m) => (m * 7 + took) / 8,
+                    None => took,
+                });
+                lease.spec
+            }
             None => match self.retry.remove(&batch) {
                 Some((spec, _)) => spec,
                 None => return Err(CompleteError::NotOutstanding { batch }),
             },
         };
-        self.samples_done += spec.sample_count();
-        if spec.pass == Pass::One {
-            self.pass_one_pixels_done += spec.quads.len() as u64;
-        }
+        self.account(&spec);
+        self.mark_done(spec.id);
         Ok(spec)
     }
 
-    /// Takes back the lease of `batch` so that another worker gets it.
+    /// Takes back the lease of `batch` so that another worker gets it. If a speculative
+    /// duplicate is out, that one becomes the lease instead.
     pub fn take_back(&mut self, batch: BatchId) -> bool {
-        match self.leased.remove(&batch) {
-            Some(lease) => {
-                self.retry.insert(batch, (lease.spec, lease.attempt));
-                true
+        let Some(lease) = self.leased.remove(&batch) else { return false };
+        match self.spares.remove(&batch) {
+            Some(spare) => {
+                self.leased.insert(batch, spare);
             }
-            None => false,
+            None => {
+                self.retry.insert(batch, (lease.spec, lease.attempt));
+            }
         }
+        true
     }
 
     /// Takes back every lease held by `worker` (it left, or fell silent); returns them.
     pub fn take_back_worker(&mut self, worker: WorkerId) -> Vec<BatchId> {
+        self.spares.retain(|_, l| l.worker != worker);
         let mut ids: Vec<BatchId> =
             self.leased.values().filter(|l| l.worker == worker).map(|l| l.spec.id).collect();
-        ids.sort();
-        for id in &ids {
-            self.take_back(*id);
-        }
-        ids
-    }
-
-    /// Takes back every lease older than `max_age`, for callers that bound batch time.
-    pub fn take_back_older_than(&mut self, now: Instant, max_age: Duration) -> Vec<BatchId> {
-        let mut ids: Vec<BatchId> = self
-            .leased
-            .values()
-            .filter(|l| now.saturating_duration_since(l.since) > max_age)
-            .map(|l| l.spec.id)
-            .collect();
         ids.sort();
         for id in &ids {
             self.take_back(*id);
@@ -277,6 +418,7 @@ impl PassQueue {
     /// Drops every outstanding lease and everything not yet cut (the job was cancelled).
     pub fn abandon(&mut self) {
         self.leased.clear();
+        self.spares.clear();
         self.retry.clear();
         self.cut_all = true;
     }
@@ -305,7 +447,7 @@ mod tests {
                 for quad in &b.quads {
                     samples[(quad.y * w + quad.x) as usize] += b.samples.end - b.samples.start;
                 }
-                q.complete(b.id).unwrap();
+                q.complete(b.id, now).unwrap();
             }
             assert!(samples.iter().all(|&s| s == spp), "{w}x{h}@{spp}");
             assert!(q.is_finished());
@@ -329,7 +471,7 @@ mod tests {
             let ids: Vec<BatchId> = (0..n).map(|_| q.lease_next(WorkerId(1), now).unwrap().spec.id).collect();
             for id in ids {
                 assert!(!q.is_finished());
-                q.complete(id).unwrap();
+                q.complete(id, now).unwrap();
             }
             assert!(q.is_finished(), "{w}x{h}@{spp}: all batches merged but not finished");
         }
@@ -356,9 +498,9 @@ mod tests {
         let again = q.lease_next(WorkerId(2), now).unwrap();
         assert_eq!((again.spec.id, again.attempt), (first, 2));
         // The silent worker's late result arrives first and wins...
-        assert!(q.complete(first).is_ok());
+        assert!(q.complete(first, now).is_ok());
         // ...and the retry's result is a duplicate.
-        assert_eq!(q.complete(first), Err(CompleteError::NotOutstanding { batch: first }));
+        assert_eq!(q.complete(first, now), Err(CompleteError::NotOutstanding { batch: first }));
     }
 
     #[test]
@@ -375,16 +517,106 @@ mod tests {
         // A result for a batch waiting in the retry queue is still accepted once.
         let d = q.lease_next(WorkerId(4), now).unwrap().spec.id;
         q.take_back(d);
-        assert!(q.complete(d).is_ok());
+        assert!(q.complete(d, now).is_ok());
         assert_ne!(q.lease_next(WorkerId(4), now).unwrap().spec.id, d);
     }
 
+    /// Stragglers: at the end of the last pass an idle worker gets a duplicate of the
+    /// oldest lease that has run long; the first result wins, the second is refused.
     #[test]
-    fn old_leases_expire_with_a_fake_clock() {
+    fn stragglers_get_speculative_duplicates_at_the_end() {
         let t0 = Instant::now();
-        let mut q = PassQueue::new(64, 64, 1);
-        let a = q.lease_next(WorkerId(1), t0).unwrap().spec.id;
-        assert!(q.take_back_older_than(t0 + Duration::from_secs(5), Duration::from_secs(10)).is_empty());
-        assert_eq!(q.take_back_older_than(t0 + Duration::from_secs(11), Duration::from_secs(10)), vec![a]);
+        let ms = Duration::from_millis;
+        let mut q = PassQueue::new(8, 8, 1);
+        let first = q.lease_next(WorkerId(1), t0).unwrap().spec.id;
+        // Not at the end of the pass: no duplicates while there is new work.
+        assert!(q.lease_speculative(WorkerId(2), t0 + ms(5000), 2, ms(100)).is_none());
+        let mut rest = Vec::new();
+        while let Some(l) = q.lease_next(WorkerId(2), t0) {
+            rest.push(l.spec.id);
+        }
+        for id in &rest {
+            q.complete(*id, t0 + ms(10)).unwrap();
+        }
+        assert!(q.all_leased());
+        // Mean batch time 10 ms, patience 2: the straggler qualifies after 20 ms, but
+        // never before `min_age`; and never as a duplicate for its own holder.
+        assert!(q.lease_speculative(WorkerId(2), t0 + ms(50), 2, ms(100)).is_none());
+        assert!(q.lease_speculative(WorkerId(1), t0 + ms(500), 2, ms(100)).is_none());
+        let spare = q.lease_speculative(WorkerId(2), t0 + ms(500), 2, ms(100)).unwrap();
+        assert_eq!((spare.spec.id, spare.attempt), (first, 2));
+        // One duplicate per batch.
+        assert!(q.lease_speculative(WorkerId(3), t0 + ms(600), 2, ms(100)).is_none());
+        assert_eq!(q.leased_by(WorkerId(2)), 1);
+        assert!(q.complete(first, t0 + ms(510)).is_ok());
+        assert_eq!(q.complete(first, t0 + ms(900)), Err(CompleteError::NotOutstanding { batch: first }));
+        assert!(q.is_finished());
+        assert_eq!(q.leased_by(WorkerId(2)), 0);
+    }
+
+    /// A straggler's holder leaving hands the batch to its duplicate, not to the retry
+    /// queue; the duplicate's holder leaving leaves the original lease alone.
+    #[test]
+    fn a_duplicate_takes_over_when_its_original_is_taken_back() {
+        let t0 = Instant::now();
+        let mut q = PassQueue::new(4, 4, 1);
+        let id = q.lease_next(WorkerId(1), t0).unwrap().spec.id;
+        assert!(q.lease_next(WorkerId(1), t0).is_none());
+        q.lease_speculative(WorkerId(2), t0 + Duration::from_secs(1), 2, Duration::ZERO).unwrap();
+        q.take_back_worker(WorkerId(3));
+        assert_eq!(q.take_back_worker(WorkerId(1)), vec![id]);
+        assert_eq!(q.lease(id).unwrap().worker, WorkerId(2));
+        assert!(q.lease_next(WorkerId(4), t0).is_none(), "nothing went back to the retry queue");
+        q.lease_speculative(WorkerId(4), t0 + Duration::from_secs(2), 2, Duration::ZERO).unwrap();
+        assert!(q.take_back_worker(WorkerId(4)).is_empty());
+        assert_eq!(q.lease(id).unwrap().worker, WorkerId(2));
+        q.complete(id, t0).unwrap();
+        assert!(q.is_finished());
+    }
+
+    /// A queue rebuilt from its `Completed` set hands out exactly the batches that were
+    /// not merged, with the same ids and pixels, and the merged counts carry over.
+    #[test]
+    fn restore_resumes_exactly_the_unmerged_batches() {
+        let now = Instant::now();
+        for (w, h, spp, keep) in [(33, 17, 4, 7usize), (64, 64, 1, 3), (20, 9, 3, 0), (5, 5, 2, 1000)] {
+            let mut full = PassQueue::new(w, h, spp);
+            let all = drain(&mut full, now);
+            let mut q = PassQueue::new(w, h, spp);
+            let leased: Vec<BatchSpec> = (0..keep.min(all.len()))
+                .map(|_| q.lease_next(WorkerId(1), now).unwrap().spec.clone())
+                .collect();
+            // Merge out of order: every other batch, so there are gaps.
+            for b in leased.iter().step_by(2) {
+                q.complete(b.id, now).unwrap();
+            }
+            let done = q.completed();
+            let mut r = PassQueue::restore(w, h, spp, &done).unwrap();
+            assert_eq!(r.samples_done(), q.samples_done(), "{w}x{h}@{spp}");
+            assert_eq!(r.pass_one_pixels_done(), q.pass_one_pixels_done());
+            assert_eq!(r.completed(), done);
+            let mut rest = drain(&mut r, now);
+            rest.sort_by_key(|b| b.id);
+            let expect: Vec<BatchSpec> =
+                all.iter().filter(|b| !leased.iter().step_by(2).any(|l| l.id == b.id)).cloned().collect();
+            assert_eq!(rest, expect, "{w}x{h}@{spp}");
+            for b in &rest {
+                r.complete(b.id, now).unwrap();
+            }
+            assert!(r.is_finished());
+            assert_eq!(r.samples_done(), r.samples_total());
+            assert_eq!(r.completed(), Completed { below: all.len() as u64, above: vec![] });
+        }
+    }
+
+    #[test]
+    fn restore_refuses_batches_the_job_does_not_have() {
+        let done = Completed { below: 0, above: vec![5, 100_000] };
+        assert!(matches!(
+            PassQueue::restore(8, 8, 2, &done),
+            Err(RestoreError::NoSuchBatch { id: 100_000, .. })
+        ));
+        let unordered = Completed { below: 3, above: vec![2] };
+        assert!(matches!(PassQueue::restore(8, 8, 2, &unordered), Err(RestoreError::Unordered { .. })));
     }
 }

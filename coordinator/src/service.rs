@@ -1,6 +1,8 @@
 //! The gRPC face of the coordinator: checks every request, turns wire types into the
 //! farm's types and back, and is the only module of this crate that touches prost types.
 
+use std::collections::HashMap;
+use std::path::Path;
 use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
@@ -18,6 +20,7 @@ use tracing::{debug, info, warn};
 
 use crate::farm::{Farm, JobSettings, JobState, ResultError, SubmitError};
 use crate::ids::{BatchId, JobId, WorkerId};
+use crate::store::{Store, StoreError};
 
 /// Timing of the worker protocol.
 #[derive(Debug, Clone, Copy)]
@@ -49,20 +52,123 @@ pub struct CoordinatorService {
     farm: Arc<Mutex<Farm>>,
     changed: Arc<watch::Sender<u64>>,
     timing: Timing,
+    durable: Option<Arc<Durable>>,
+}
+
+/// The database behind a coordinator with a data directory, and what of each job it holds.
+struct Durable {
+    store: Mutex<Store>,
+    /// How often a job with new samples is checkpointed.
+    interval: Duration,
+    saved: Mutex<HashMap<JobId, Saved>>,
+}
+
+/// The last checkpoint written of a job.
+#[derive(Debug, Clone)]
+struct Saved {
+    version: u64,
+    state: JobState,
+    pass_one_complete: bool,
+    at: Instant,
+}
+
+/// Why a submission was not queued.
+#[derive(Debug, thiserror::Error)]
+pub enum SubmitFailure {
+    /// The scene or settings are refused.
+    #[error(transparent)]
+    Invalid(#[from] SubmitError),
+    /// The job could not be written to the data directory, so it was not queued.
+    #[error("the job could not be stored: {0}")]
+    Store(#[from] StoreError),
+}
+
+/// A job taken up again from a data directory.
+#[derive(Debug, Clone)]
+pub struct Resumed {
+    /// The job.
+    pub id: JobId,
+    /// Its state.
+    pub state: JobState,
+    /// Samples kept from its checkpoint.
+    pub samples_kept: u64,
+    /// Samples in the job.
+    pub samples_total: u64,
+}
+
+/// What opening a data directory found.
+#[derive(Debug, Default)]
+pub struct Recovery {
+    /// Jobs taken up again, oldest first.
+    pub resumed: Vec<Resumed>,
+    /// Damage found and how it was handled; jobs that could not be taken up.
+    pub problems: Vec<String>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panic while holding a lock must not take every later request down with it: the
+    // holders keep their data consistent at every return.
+    m.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 impl CoordinatorService {
-    /// A coordinator with no jobs.
+    /// A coordinator with no jobs, keeping nothing on disk.
     pub fn new(timing: Timing) -> Self {
         let (changed, _) = watch::channel(0);
-        CoordinatorService { farm: Arc::new(Mutex::new(Farm::new())), changed: Arc::new(changed), timing }
+        CoordinatorService {
+            farm: Arc::new(Mutex::new(Farm::new())),
+            changed: Arc::new(changed),
+            timing,
+            durable: None,
+        }
+    }
+
+    /// A coordinator keeping its jobs in `dir`, with every unfinished job found there taken
+    /// up again from its newest good checkpoint. Checkpoints are written every `interval`
+    /// while samples come in, at the end of pass one, and when a job ends.
+    pub fn open(timing: Timing, dir: &Path, interval: Duration) -> Result<(Self, Recovery), StoreError> {
+        let (store, loaded) = Store::open(dir)?;
+        let mut this = CoordinatorService::new(timing);
+        let mut recovery = Recovery { problems: loaded.problems, ..Recovery::default() };
+        let mut saved = HashMap::new();
+        {
+            let mut farm = this.farm();
+            farm.reserve_ids_through(store.max_job_id());
+            let now = Instant::now();
+            for job in loaded.jobs {
+                let id = job.record.id;
+                match farm.restore(job, now) {
+                    Ok(id) => {
+                        let j = farm.job(id).expect("just restored");
+                        let p = j.progress(now);
+                        let pass_one_complete = j.pass_one_complete();
+                        let version = j.framebuffer().version();
+                        saved.insert(
+                            id,
+                            Saved { version, state: j.state.clone(), pass_one_complete, at: now },
+                        );
+                        recovery.resumed.push(Resumed {
+                            id,
+                            state: p.state,
+                            samples_kept: p.samples_done,
+                            samples_total: p.samples_total,
+                        });
+                    }
+                    Err(e) => recovery.problems.push(format!("{id} cannot be taken up again: {e}")),
+                }
+            }
+        }
+        for r in &recovery.resumed {
+            info!(id = %r.id, kept = r.samples_kept, total = r.samples_total, state = ?r.state, "job taken up from the data directory");
+        }
+        this.durable =
+            Some(Arc::new(Durable { store: Mutex::new(store), interval, saved: Mutex::new(saved) }));
+        Ok((this, recovery))
     }
 
     /// The farm, locked. Held only for short, non-blocking work.
     pub fn farm(&self) -> MutexGuard<'_, Farm> {
-        // A panic while holding the lock must not take every later request down with it:
-        // the farm's methods keep it consistent at every return.
-        self.farm.lock().unwrap_or_else(|e| e.into_inner())
+        lock(&self.farm)
     }
 
     /// Wakes every worker feeder: a job arrived, leases came back, or a worker left.
@@ -75,12 +181,118 @@ impl CoordinatorService {
         self.changed.subscribe()
     }
 
-    /// Queues a job (in-process submission, as `tessera render` does).
-    pub fn submit(&self, bundle: Bundle, settings: JobSettings) -> Result<JobId, SubmitError> {
-        let id = self.farm().submit(bundle, settings)?;
-        info!(%id, "job queued");
+    /// Queues a job (also in-process, as `tessera render` does). With a data directory the
+    /// job is on disk before this returns.
+    pub async fn submit(
+        &self,
+        bundle: Bundle,
+        settings: JobSettings,
+        priority: i32,
+    ) -> Result<JobId, SubmitFailure> {
+        let this = self.clone();
+        let id = tokio::task::spawn_blocking(move || {
+            // The store's lock is taken first and held until the job's row is written, so
+            // the checkpointer never writes a checkpoint of a job that has no row yet.
+            let mut store = this.durable.as_ref().map(|d| lock(&d.store));
+            let id = this.farm().submit(bundle, settings, priority)?;
+            if let Some(store) = store.as_mut() {
+                let record = this.farm().job(id).expect("just submitted").record();
+                if let Err(e) = store.add_job(&record) {
+                    this.farm().remove_job(id);
+                    return Err(SubmitFailure::Store(e));
+                }
+            }
+            Ok(id)
+        })
+        .await
+        .expect("submit does not panic")?;
+        info!(%id, priority, "job queued");
         self.notify();
         Ok(id)
+    }
+
+    /// Records a job's new state on disk (paused, resumed, cancelled).
+    async fn persist_state(&self, id: JobId) -> Result<(), Status> {
+        let Some(durable) = self.durable.clone() else { return Ok(()) };
+        let Some(state) = self.farm().job(id).map(|j| j.state.clone()) else { return Ok(()) };
+        tokio::task::spawn_blocking(move || {
+            lock(&durable.store).set_state(id, &state)?;
+            if let Some(s) = lock(&durable.saved).get_mut(&id) {
+                s.state = state;
+            }
+            Ok::<_, StoreError>(())
+        })
+        .await
+        .expect("set_state does not panic")
+        .map_err(|e| Status::unavailable(format!("the change is made but not on disk: {e}")))
+    }
+
+    /// Writes a checkpoint of every job that has new samples and is due: its interval has
+    /// passed, it finished pass one, or it ended; with `all`, of every job with anything
+    /// new (at shutdown). Returns how many were written.
+    pub async fn checkpoint(&self, all: bool) -> Result<usize, StoreError> {
+        let Some(durable) = self.durable.clone() else { return Ok(0) };
+        let now = Instant::now();
+        let due: Vec<_> = {
+            let farm = self.farm();
+            let saved = lock(&durable.saved);
+            farm.jobs()
+                .filter_map(|j| {
+                    let version = j.framebuffer().version();
+                    let last = saved.get(&j.id);
+                    let changed = last.is_none_or(|s| s.version != version);
+                    let ended = j.is_over() && last.is_none_or(|s| s.state != j.state);
+                    let due = all
+                        || ended
+                        || last.is_none_or(|s| {
+                            now.saturating_duration_since(s.at) >= durable.interval
+                                || (j.pass_one_complete() && !s.pass_one_complete)
+                        });
+                    ((changed || ended) && due).then(|| {
+                        let saved = Saved {
+                            version,
+                            state: j.state.clone(),
+                            pass_one_complete: j.pass_one_complete(),
+                            at: now,
+                        };
+                        (j.checkpoint(), saved)
+                    })
+                })
+                .collect()
+        };
+        if due.is_empty() {
+            return Ok(0);
+        }
+        tokio::task::spawn_blocking(move || {
+            let n = due.len();
+            for (checkpoint, saved) in due {
+                let started = Instant::now();
+                let generation = lock(&durable.store).save(&checkpoint, &saved.state)?;
+                debug!(job = %checkpoint.job, generation, samples = checkpoint.samples_done, took = ?started.elapsed(), "checkpoint written");
+                lock(&durable.saved).insert(checkpoint.job, saved);
+            }
+            Ok(n)
+        })
+        .await
+        .expect("checkpoint writing does not panic")
+    }
+
+    /// Checkpoints jobs as they fall due, until the service is dropped.
+    pub fn spawn_checkpointer(&self) -> Option<tokio::task::JoinHandle<()>> {
+        let tick = self.durable.as_ref()?.interval.min(Duration::from_millis(250));
+        let this = self.clone();
+        Some(tokio::spawn(async move {
+            loop {
+                tokio::time::sleep(tick).await;
+                if let Err(e) = this.checkpoint(false).await {
+                    // The farm goes on; the next tick tries again, and status shows the age.
+                    warn!("checkpoint failed: {e}");
+                }
+                if Arc::strong_count(&this.farm) == 1 {
+                    return;
+                }
+            }
+        }))
     }
 
     /// The tonic server for this service, with message limits set.
@@ -330,6 +542,7 @@ fn status_to_wire(p: &crate::farm::JobProgress) -> pb::JobStatus {
             _ => String::new(),
         },
         pass_one_done: p.pass_one_done,
+        priority: p.priority,
     }
 }
 
@@ -498,9 +711,11 @@ impl Coordinator for CoordinatorService {
         let bundle = req.bundle.ok_or_else(|| Status::invalid_argument("submit without a scene bundle"))?;
         let settings =
             settings_from_wire(req.settings.unwrap_or_default()).map_err(Status::invalid_argument)?;
-        let id = self
-            .submit(bundle_from_wire(bundle), settings)
-            .map_err(|e| Status::invalid_argument(e.to_string()))?;
+        let id =
+            self.submit(bundle_from_wire(bundle), settings, req.priority).await.map_err(|e| match e {
+                SubmitFailure::Invalid(e) => Status::invalid_argument(e.to_string()),
+                e @ SubmitFailure::Store(_) => Status::unavailable(e.to_string()),
+            })?;
         let farm = self.farm();
         let job = farm.job(id).expect("just submitted");
         let fb = job.framebuffer();
@@ -579,6 +794,7 @@ impl Coordinator for CoordinatorService {
         }
         info!(%id, paused = req.paused, "job paused or resumed");
         self.notify();
+        self.persist_state(id).await?;
         Ok(Response::new(pb::PauseResponse {}))
     }
 
@@ -592,6 +808,7 @@ impl Coordinator for CoordinatorService {
         }
         info!(%id, "job cancelled");
         self.notify();
+        self.persist_state(id).await?;
         Ok(Response::new(pb::CancelResponse {}))
     }
 }

@@ -124,6 +124,13 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
                         progress_bar: false,
                         view: false,
                         output: None,
+                        // Measure the farm as `tessera render` runs it, checkpoints included.
+                        checkpoints: Some(crate::local::Checkpoints {
+                            dir: std::env::temp_dir()
+                                .join(format!("tessera-bench-{}-{run}", std::process::id())),
+                            interval: std::time::Duration::from_secs(30),
+                            resume: false,
+                        }),
                     },
                 )
                 .await?;

@@ -70,6 +70,7 @@ async fn case(
             protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
             bundle: Some(tessera_coordinator::service::bundle_to_wire(&bundle)),
             settings: Some(pb::RenderSettings { spp: spp.unwrap_or(0), width: 0, height: 0 }),
+            priority: 0,
         })
         .await?
         .into_inner()

@@ -1,0 +1,249 @@
+//! A job's checkpoint and its byte format: the merged batches and the framebuffer's
+//! accumulators, cut into parts that each carry a BLAKE3 checksum, so that a damaged part
+//! is detected on reading and never resumed from. Pure: `store.rs` keeps the parts.
+//!
+//! The framebuffer is integer sums, so a checkpoint read back is bit-exact, and the batches
+//! are a deterministic cut of the walk, so the merged set names exactly which samples the
+//! sums hold. Together they make a resumed job end in the same bytes as an uninterrupted one.
+
+use crate::ids::JobId;
+use crate::scheduler::Completed;
+
+/// Identifies the header part and its layout.
+const MAGIC: &[u8; 8] = b"TSRCKPT1";
+/// Pixels per part: 14 MB of accumulators, far below SQLite's 1 GB value limit, and a
+/// bounded buffer when reading back.
+pub const PART_PIXELS: usize = 1 << 19;
+/// Bytes a pixel takes: three u64 sums and a u32 count.
+const PIXEL_BYTES: usize = 28;
+
+/// A job's state at one moment.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Checkpoint {
+    /// The job.
+    pub job: JobId,
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Samples per pixel.
+    pub spp: u32,
+    /// The merged batches.
+    pub completed: Completed,
+    /// Samples that came back NaN or infinite so far.
+    pub nonfinite_samples: u64,
+    /// Samples merged (the sum of `counts`; checked on reading).
+    pub samples_done: u64,
+    /// Per-pixel fixed-point sums.
+    pub sums: Vec<[u64; 3]>,
+    /// Per-pixel sample counts.
+    pub counts: Vec<u32>,
+}
+
+/// One stored part: its bytes and their checksum.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Part {
+    /// The bytes.
+    pub data: Vec<u8>,
+    /// BLAKE3 of `data`.
+    pub sum: [u8; 32],
+}
+
+impl Part {
+    fn new(data: Vec<u8>) -> Self {
+        let sum = *blake3::hash(&data).as_bytes();
+        Part { data, sum }
+    }
+}
+
+/// Why stored parts are not a checkpoint.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum DecodeError {
+    /// A part's bytes do not match its checksum.
+    #[error("part {part} fails its checksum (the stored bytes changed after they were written)")]
+    Checksum {
+        /// Part index, 0 being the header.
+        part: usize,
+    },
+    /// The header is not a checkpoint header of this format.
+    #[error("part 0 is not a checkpoint header of format {}", String::from_utf8_lossy(MAGIC))]
+    Magic,
+    /// Parts are missing or too many.
+    #[error("expected {expected} parts, found {found}")]
+    PartCount {
+        /// Parts the header announces.
+        expected: usize,
+        /// Parts stored.
+        found: usize,
+    },
+    /// A part has the wrong length.
+    #[error("part {part} is {got} bytes, expected {expected}")]
+    PartLength {
+        /// Part index.
+        part: usize,
+        /// Bytes expected.
+        expected: usize,
+        /// Bytes found.
+        got: usize,
+    },
+    /// The counts do not add up to the samples the header claims.
+    #[error("the pixels hold {counted} samples, the header says {claimed}")]
+    Samples {
+        /// Sum of the counts.
+        counted: u64,
+        /// `samples_done` in the header.
+        claimed: u64,
+    },
+}
+
+impl Checkpoint {
+    /// The checkpoint as parts: a header, then the pixels `PART_PIXELS` at a time.
+    pub fn encode(&self) -> Vec<Part> {
+        let pixel_parts = self.counts.len().div_ceil(PART_PIXELS);
+        let mut h = Vec::with_capacity(64 + self.completed.above.len() * 8);
+        h.extend_from_slice(MAGIC);
+        for v in [u64::from(self.width), u64::from(self.height), u64::from(self.spp), self.job.0] {
+            h.extend_from_slice(&v.to_le_bytes());
+        }
+        for v in [self.nonfinite_samples, self.samples_done, self.completed.below] {
+            h.extend_from_slice(&v.to_le_bytes());
+        }
+        h.extend_from_slice(&(pixel_parts as u64).to_le_bytes());
+        h.extend_from_slice(&(self.completed.above.len() as u64).to_le_bytes());
+        for id in &self.completed.above {
+            h.extend_from_slice(&id.to_le_bytes());
+        }
+        let mut parts = vec![Part::new(h)];
+        for (sums, counts) in self.sums.chunks(PART_PIXELS).zip(self.counts.chunks(PART_PIXELS)) {
+            let mut d = Vec::with_capacity(sums.len() * PIXEL_BYTES);
+            for s in sums {
+                s.iter().for_each(|v| d.extend_from_slice(&v.to_le_bytes()));
+            }
+            counts.iter().for_each(|c| d.extend_from_slice(&c.to_le_bytes()));
+            parts.push(Part::new(d));
+        }
+        parts
+    }
+
+    /// Reads parts back, checking every checksum, length and count before trusting any of it.
+    pub fn decode(parts: &[Part]) -> Result<Checkpoint, DecodeError> {
+        for (i, p) in parts.iter().enumerate() {
+            if *blake3::hash(&p.data).as_bytes() != p.sum {
+                return Err(DecodeError::Checksum { part: i });
+            }
+        }
+        let header = parts.first().ok_or(DecodeError::PartCount { expected: 1, found: 0 })?;
+        let h = &header.data;
+        if h.len() < MAGIC.len() + 9 * 8 || &h[..8] != MAGIC {
+            return Err(DecodeError::Magic);
+        }
+        let word = |i: usize| u64::from_le_bytes(h[8 + i * 8..16 + i * 8].try_into().expect("8 bytes"));
+        let narrow = |v: u64| u32::try_from(v).map_err(|_| DecodeError::Magic);
+        let (width, height, spp, job) =
+            (narrow(word(0))?, narrow(word(1))?, narrow(word(2))?, JobId(word(3)));
+        let (nonfinite_samples, samples_done, below) = (word(4), word(5), word(6));
+        let (pixel_parts, n_above) = (word(7) as usize, word(8) as usize);
+        let expected_len = 8 + 9 * 8 + n_above.saturating_mul(8);
+        if h.len() != expected_len {
+            return Err(DecodeError::PartLength { part: 0, expected: expected_len, got: h.len() });
+        }
+        let above = (0..n_above).map(|i| word(9 + i)).collect();
+        let pixels = width as usize * height as usize;
+        if pixel_parts != pixels.div_ceil(PART_PIXELS) || parts.len() != pixel_parts + 1 {
+            return Err(DecodeError::PartCount {
+                expected: pixels.div_ceil(PART_PIXELS) + 1,
+                found: parts.len(),
+            });
+        }
+        let mut sums = Vec::with_capacity(pixels);
+        let mut counts = Vec::with_capacity(pixels);
+        for (i, p) in parts[1..].iter().enumerate() {
+            let n = (pixels - i * PART_PIXELS).min(PART_PIXELS);
+            if p.data.len() != n * PIXEL_BYTES {
+                return Err(DecodeError::PartLength {
+                    part: i + 1,
+                    expected: n * PIXEL_BYTES,
+                    got: p.data.len(),
+                });
+            }
+            let (s, c) = p.data.split_at(n * 24);
+            let u64s: Vec<u64> =
+                s.chunks_exact(8).map(|b| u64::from_le_bytes(b.try_into().expect("8"))).collect();
+            sums.extend(u64s.chunks_exact(3).map(|t| [t[0], t[1], t[2]]));
+            counts.extend(c.chunks_exact(4).map(|b| u32::from_le_bytes(b.try_into().expect("4"))));
+        }
+        let counted: u64 = counts.iter().map(|&c| u64::from(c)).sum();
+        if counted != samples_done {
+            return Err(DecodeError::Samples { counted, claimed: samples_done });
+        }
+        Ok(Checkpoint {
+            job,
+            width,
+            height,
+            spp,
+            completed: Completed { below, above },
+            nonfinite_samples,
+            samples_done,
+            sums,
+            counts,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn sample(width: u32, height: u32) -> Checkpoint {
+        let n = (width * height) as usize;
+        let counts: Vec<u32> = (0..n).map(|i| (i % 5) as u32).collect();
+        Checkpoint {
+            job: JobId(7),
+            width,
+            height,
+            spp: 4,
+            completed: Completed { below: 12, above: vec![14, 15, 99] },
+            nonfinite_samples: 3,
+            samples_done: counts.iter().map(|&c| u64::from(c)).sum(),
+            sums: (0..n as u64).map(|i| [i, i * 3, u64::MAX - i]).collect(),
+            counts,
+        }
+    }
+
+    #[test]
+    fn round_trips_across_several_parts() {
+        for (w, h) in [(1, 1), (7, 3), (1024, 1025)] {
+            let c = sample(w, h);
+            let parts = c.encode();
+            assert_eq!(parts.len(), 1 + ((w * h) as usize).div_ceil(PART_PIXELS));
+            assert_eq!(Checkpoint::decode(&parts).unwrap(), c);
+        }
+    }
+
+    /// Every single flipped bit, in the header or a pixel part, is caught by a checksum;
+    /// a part whose checksum was recomputed still fails the structural checks.
+    #[test]
+    fn damage_is_detected() {
+        let parts = sample(9, 5).encode();
+        for part in 0..parts.len() {
+            for byte in [0, parts[part].data.len() / 2, parts[part].data.len() - 1] {
+                let mut bad = parts.clone();
+                bad[part].data[byte] ^= 0x10;
+                assert_eq!(Checkpoint::decode(&bad), Err(DecodeError::Checksum { part }));
+            }
+        }
+        let mut truncated = parts.clone();
+        truncated.pop();
+        assert!(matches!(Checkpoint::decode(&truncated), Err(DecodeError::PartCount { .. })));
+        let mut short = parts.clone();
+        short[1].data.truncate(10);
+        short[1] = Part::new(short[1].data.clone());
+        assert!(matches!(Checkpoint::decode(&short), Err(DecodeError::PartLength { part: 1, .. })));
+        let mut lying = parts.clone();
+        lying[1].data[24 * 45] ^= 1;
+        lying[1] = Part::new(lying[1].data.clone());
+        assert!(matches!(Checkpoint::decode(&lying), Err(DecodeError::Samples { .. })));
+        assert_eq!(Checkpoint::decode(&[]), Err(DecodeError::PartCount { expected: 1, found: 0 }));
+        assert_eq!(Checkpoint::decode(&[Part::new(b"garbage".to_vec())]), Err(DecodeError::Magic));
+    }
+}

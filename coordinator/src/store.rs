@@ -1,0 +1,683 @@
+//! Durable jobs: every job's scene, settings and state, and its last two checkpoints, in
+//! one SQLite database (`jobs.db`) in the coordinator's data directory.
+//!
+//! Atomicity is SQLite's: each write is one transaction with a rollback journal and a full
+//! sync, so a coordinator killed in the middle of a write leaves the previous state. Damage
+//! that SQLite cannot see (bits changed on disk) is caught by the checksums of every stored
+//! scene and checkpoint part. What is damaged is reported and skipped: a job resumes from its
+//! newest checkpoint that reads back whole, else from its start, never from garbage.
+
+use std::path::{Path, PathBuf};
+
+use rusqlite::{params, Connection, OptionalExtension};
+use tessera_worker::bundle::Bundle;
+use tracing::warn;
+
+use crate::checkpoint::{Checkpoint, Part};
+use crate::farm::{JobSettings, JobState};
+use crate::ids::JobId;
+
+/// The database file in a data directory.
+pub const DB_FILE: &str = "jobs.db";
+/// Checkpoints kept per job: the newest, and one to fall back on should it be damaged.
+const GENERATIONS_KEPT: i64 = 2;
+/// The layout version of the tables, in `PRAGMA user_version`.
+const SCHEMA_VERSION: i64 = 1;
+/// Test hook: a checkpoint write stops this many milliseconds before its commit, so a test
+/// can kill the coordinator in the middle of a write.
+pub const FAULT_STALL_ENV: &str = "TESSERA_FAULT_STALL_CHECKPOINT_MS";
+
+/// Why the data directory cannot be used.
+#[derive(Debug, thiserror::Error)]
+pub enum StoreError {
+    /// The directory or the database file cannot be created or opened.
+    #[error("cannot open {path}: {source}")]
+    Open {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        source: Box<dyn std::error::Error + Send + Sync>,
+    },
+    /// Another coordinator (or render) holds the database.
+    #[error("{path} is in use by another coordinator or render; one process per data directory")]
+    InUse {
+        /// The file.
+        path: PathBuf,
+    },
+    /// The database is damaged beyond reading its list of jobs.
+    #[error("{path} is damaged beyond reading its jobs ({detail}); move it aside to start with no jobs")]
+    Damaged {
+        /// The file.
+        path: PathBuf,
+        /// SQLite's account.
+        detail: String,
+    },
+    /// The database is from a different version of tessera.
+    #[error("{path} has table layout {found}, this tessera reads layout {SCHEMA_VERSION}")]
+    Version {
+        /// The file.
+        path: PathBuf,
+        /// The layout found.
+        found: i64,
+    },
+    /// A write failed; the previous state stays.
+    #[error("writing {path}: {source}")]
+    Write {
+        /// The file.
+        path: PathBuf,
+        /// SQLite's error.
+        source: rusqlite::Error,
+    },
+}
+
+/// A job as stored.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobRecord {
+    /// The id.
+    pub id: JobId,
+    /// The scene as submitted.
+    pub bundle: Bundle,
+    /// The settings.
+    pub settings: JobSettings,
+    /// Higher runs first.
+    pub priority: i32,
+    /// The state last recorded.
+    pub state: JobState,
+}
+
+/// A job read back, with its newest good checkpoint (`None`: start from scratch).
+#[derive(Debug)]
+pub struct LoadedJob {
+    /// The job.
+    pub record: JobRecord,
+    /// The checkpoint to resume from.
+    pub checkpoint: Option<Checkpoint>,
+}
+
+/// Everything read from a data directory, and what was wrong with it.
+#[derive(Debug, Default)]
+pub struct Loaded {
+    /// Jobs, oldest first.
+    pub jobs: Vec<LoadedJob>,
+    /// Damage found and how it was handled, one line each (also logged).
+    pub problems: Vec<String>,
+    /// Where a damaged database was moved before being rebuilt from what read back.
+    pub moved_aside: Option<PathBuf>,
+}
+
+/// Removes a file when dropped.
+struct Removal<'a>(&'a Path);
+
+impl Drop for Removal<'_> {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_file(self.0);
+    }
+}
+
+/// The open database.
+#[derive(Debug)]
+pub struct Store {
+    conn: Connection,
+    path: PathBuf,
+    stall: Option<std::time::Duration>,
+}
+
+fn state_columns(s: &JobState) -> (&'static str, Option<&str>) {
+    match s {
+        JobState::Queued => ("queued", None),
+        JobState::Running => ("running", None),
+        JobState::Done => ("done", None),
+        JobState::Cancelled => ("cancelled", None),
+        JobState::Paused => ("paused", None),
+        JobState::Failed(e) => ("failed", Some(e)),
+    }
+}
+
+fn state_from_columns(name: &str, error: Option<String>) -> Option<JobState> {
+    Some(match name {
+        "queued" => JobState::Queued,
+        "running" => JobState::Running,
+        "done" => JobState::Done,
+        "cancelled" => JobState::Cancelled,
+        "paused" => JobState::Paused,
+        "failed" => JobState::Failed(error.unwrap_or_default()),
+        _ => return None,
+    })
+}
+
+/// A bundle as bytes: each field length-prefixed.
+fn encode_bundle(b: &Bundle) -> Vec<u8> {
+    let mut out = Vec::new();
+    let mut field = |bytes: &[u8]| {
+        out.extend_from_slice(&(bytes.len() as u64).to_le_bytes());
+        out.extend_from_slice(bytes);
+    };
+    field(b.name.as_bytes());
+    field(b.text.as_bytes());
+    field(&(b.assets.len() as u64).to_le_bytes());
+    for (path, data) in &b.assets {
+        field(path.as_bytes());
+        field(data);
+    }
+    out
+}
+
+fn decode_bundle(mut bytes: &[u8]) -> Option<Bundle> {
+    let mut field = || -> Option<&[u8]> {
+        let len = usize::try_from(u64::from_le_bytes(bytes.get(..8)?.try_into().ok()?)).ok()?;
+        let data = bytes.get(8..8usize.checked_add(len)?)?;
+        bytes = &bytes[8 + len..];
+        Some(data)
+    };
+    let name = String::from_utf8(field()?.to_vec()).ok()?;
+    let text = String::from_utf8(field()?.to_vec()).ok()?;
+    let n = u64::from_le_bytes(field()?.try_into().ok()?);
+    let mut assets = Vec::new();
+    for _ in 0..n {
+        let path = String::from_utf8(field()?.to_vec()).ok()?;
+        assets.push((path, field()?.to_vec()));
+    }
+    Some(Bundle { name, text, assets })
+}
+
+fn blake3_of(bytes: &[u8]) -> Vec<u8> {
+    blake3::hash(bytes).as_bytes().to_vec()
+}
+
+impl Store {
+    /// Opens (creating if need be) the database in `dir` and reads every job back, with
+    /// damage reported in `Loaded::problems`. A database SQLite finds damaged is salvaged:
+    /// what reads back whole is kept, the file is moved aside, and a new one is written.
+    pub fn open(dir: &Path) -> Result<(Store, Loaded), StoreError> {
+        let path = dir.join(DB_FILE);
+        std::fs::create_dir_all(dir)
+            .map_err(|e| StoreError::Open { path: path.clone(), source: e.into() })?;
+        let stall = std::env::var(FAULT_STALL_ENV)
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .map(std::time::Duration::from_millis);
+        let mut problems = Vec::new();
+        if let Some((mut store, jobs)) = Self::open_clean(&path, &mut problems)? {
+            store.stall = stall;
+            problems.iter().for_each(|p| warn!("{p}"));
+            return Ok((store, Loaded { jobs, problems, moved_aside: None }));
+        }
+        let jobs = Self::salvage(&path, &mut problems)?;
+        let stamp =
+            std::time::SystemTime::now().duration_since(std::time::UNIX_EPOCH).map_or(0, |d| d.as_secs());
+        let aside = path.with_extension(format!("db.damaged-{stamp}"));
+        std::fs::rename(&path, &aside)
+            .map_err(|e| StoreError::Open { path: path.clone(), source: e.into() })?;
+        let _ = std::fs::remove_file(path.with_extension("db-journal"));
+        let mut rebuild_problems = Vec::new();
+        let (mut store, fresh) = Self::open_clean(&path, &mut rebuild_problems)?
+            .ok_or_else(|| StoreError::Damaged { path: path.clone(), detail: rebuild_problems.join("; ") })?;
+        debug_assert!(fresh.is_empty());
+        for job in &jobs {
+            store.add_job(&job.record)?;
+            if let Some(c) = &job.checkpoint {
+                store.save(c, &job.record.state)?;
+            }
+        }
+        store.stall = stall;
+        problems.push(format!(
+            "{} was damaged: moved to {} and rebuilt from the {} jobs that read back",
+            path.display(),
+            aside.display(),
+            jobs.len()
+        ));
+        problems.iter().for_each(|p| warn!("{p}"));
+        Ok((store, Loaded { jobs, problems, moved_aside: Some(aside) }))
+    }
+
+    /// Opens the database and reads it back if SQLite finds nothing wrong with it; `None`
+    /// (with the reason in `problems`) if it is damaged.
+    fn open_clean(
+        path: &Path,
+        problems: &mut Vec<String>,
+    ) -> Result<Option<(Store, Vec<LoadedJob>)>, StoreError> {
+        let conn = match Self::connect(path) {
+            Ok(conn) => conn,
+            Err(StoreError::Damaged { detail, .. }) => {
+                problems.push(format!("{}: SQLite cannot read it: {detail}", path.display()));
+                return Ok(None);
+            }
+            Err(e) => return Err(e),
+        };
+        // SQLite's own page check: finds broken tree pages and lost pages.
+        let quick: Result<Vec<String>, _> = conn
+            .prepare("PRAGMA quick_check")
+            .and_then(|mut s| s.query_map([], |r| r.get::<_, String>(0))?.collect());
+        match quick {
+            Ok(lines) if lines == ["ok"] => {}
+            Ok(lines) => {
+                let first: Vec<String> = lines.into_iter().take(3).collect();
+                problems.push(format!("{}: SQLite finds damage: {}", path.display(), first.join("; ")));
+                return Ok(None);
+            }
+            Err(e) => {
+                problems.push(format!("{}: SQLite cannot check it: {e}", path.display()));
+                return Ok(None);
+            }
+        }
+        let write_err = |source| StoreError::Write { path: path.to_owned(), source };
+        let version: i64 = conn.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(write_err)?;
+        if version == 0 {
+            conn.execute_batch(&format!(
+                "CREATE TABLE IF NOT EXISTS jobs (
+                    id INTEGER PRIMARY KEY,
+                    priority INTEGER NOT NULL,
+                    spp INTEGER, width INTEGER, height INTEGER,
+                    state TEXT NOT NULL, error TEXT,
+                    bundle BLOB NOT NULL, bundle_sum BLOB NOT NULL);
+                 CREATE TABLE IF NOT EXISTS checkpoint_parts (
+                    job INTEGER NOT NULL, generation INTEGER NOT NULL, part INTEGER NOT NULL,
+                    data BLOB NOT NULL, sum BLOB NOT NULL,
+                    PRIMARY KEY (job, generation, part));
+                 PRAGMA user_version = {SCHEMA_VERSION};"
+            ))
+            .map_err(write_err)?;
+        } else if version != SCHEMA_VERSION {
+            return Err(StoreError::Version { path: path.to_owned(), found: version });
+        }
+        let mut store = Store { conn, path: path.to_owned(), stall: None };
+        match store.read_jobs(problems) {
+            Ok(jobs) => Ok(Some((store, jobs))),
+            Err(e) => {
+                problems.push(format!("{}: reading it back failed: {e}", path.display()));
+                Ok(None)
+            }
+        }
+    }
+
+    /// Reads what it can from a damaged database, through a copy whose header no longer
+    /// claims more pages than the file has (SQLite refuses a truncated file outright
+    /// otherwise). The original is left as it is.
+    fn salvage(path: &Path, problems: &mut Vec<String>) -> Result<Vec<LoadedJob>, StoreError> {
+        use std::io::{Seek, SeekFrom, Write};
+        let copy = path.with_extension("db.salvage");
+        let damaged = |detail: String| StoreError::Damaged { path: path.to_owned(), detail };
+        std::fs::copy(path, &copy).map_err(|e| damaged(format!("copying it to salvage: {e}")))?;
+        let cleanup = Removal(&copy);
+        // Bytes 28..32 of the header: the size in pages. Zero means "take the file's size".
+        let mut f =
+            std::fs::OpenOptions::new().write(true).open(&copy).map_err(|e| damaged(e.to_string()))?;
+        if f.metadata().map_err(|e| damaged(e.to_string()))?.len() >= 100 {
+            f.seek(SeekFrom::Start(28))
+                .and_then(|_| f.write_all(&[0; 4]))
+                .map_err(|e| damaged(e.to_string()))?;
+        }
+        drop(f);
+        let conn = Connection::open_with_flags(&copy, rusqlite::OpenFlags::SQLITE_OPEN_READ_ONLY)
+            .map_err(|e| damaged(e.to_string()))?;
+        let mut store = Store { conn, path: copy.clone(), stall: None };
+        let jobs = store.read_jobs(problems).map_err(|e| damaged(e.to_string()))?;
+        drop(store);
+        drop(cleanup);
+        Ok(jobs)
+    }
+
+    fn connect(path: &Path) -> Result<Connection, StoreError> {
+        let conn = Connection::open(path)
+            .map_err(|e| StoreError::Open { path: path.to_owned(), source: e.into() })?;
+        // One process per data directory: an exclusive lock held for the connection's life.
+        let setup = conn.execute_batch(
+            "PRAGMA locking_mode = EXCLUSIVE; PRAGMA journal_mode = DELETE; PRAGMA synchronous = FULL;
+             BEGIN EXCLUSIVE; COMMIT;",
+        );
+        match setup {
+            Ok(()) => Ok(conn),
+            Err(rusqlite::Error::SqliteFailure(e, _)) if e.code == rusqlite::ErrorCode::DatabaseBusy => {
+                Err(StoreError::InUse { path: path.to_owned() })
+            }
+            Err(e) => Err(StoreError::Damaged { path: path.to_owned(), detail: e.to_string() }),
+        }
+    }
+
+    /// Reads every job. A job whose row fails is reported and left out; only a list of
+    /// jobs that cannot be read at all is an error.
+    fn read_jobs(&mut self, problems: &mut Vec<String>) -> rusqlite::Result<Vec<LoadedJob>> {
+        let ids: Vec<i64> = self
+            .conn
+            .prepare("SELECT id FROM jobs ORDER BY id")?
+            .query_map([], |r| r.get(0))?
+            .collect::<Result<_, _>>()?;
+        let mut jobs = Vec::new();
+        for id in ids {
+            match self.read_job(id, problems) {
+                Ok(Some(job)) => jobs.push(job),
+                Ok(None) => {}
+                Err(e) => problems.push(format!("job {id}: its record cannot be read ({e}); it is lost")),
+            }
+        }
+        Ok(jobs)
+    }
+
+    #[allow(clippy::type_complexity)]
+    fn read_job(&mut self, id: i64, problems: &mut Vec<String>) -> rusqlite::Result<Option<LoadedJob>> {
+        let row: (i32, Option<u32>, Option<u32>, Option<u32>, String, Option<String>, Vec<u8>, Vec<u8>) =
+            self.conn.query_row(
+                "SELECT priority, spp, width, height, state, error, bundle, bundle_sum FROM jobs WHERE id = ?1",
+                [id],
+                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?, r.get(6)?, r.get(7)?)),
+            )?;
+        let (priority, spp, width, height, state, error, bundle, sum) = row;
+        let bundle = (blake3_of(&bundle) == sum).then(|| decode_bundle(&bundle)).flatten();
+        let (Some(bundle), Some(state)) = (bundle, state_from_columns(&state, error)) else {
+            problems.push(format!("job {id}: its stored scene fails its checksum; it is lost"));
+            return Ok(None);
+        };
+        let size = width.zip(height);
+        let record =
+            JobRecord { id: JobId(id as u64), bundle, settings: JobSettings { spp, size }, priority, state };
+        let generations: Vec<i64> = self
+            .conn
+            .prepare(
+                "SELECT DISTINCT generation FROM checkpoint_parts WHERE job = ?1 ORDER BY generation DESC",
+            )?
+            .query_map([id], |r| r.get(0))?
+            .collect::<Result<_, _>>()?;
+        let mut checkpoint = None;
+        for g in generations {
+            match self.read_checkpoint(id, g) {
+                Ok(Ok(c)) if c.job.0 == id as u64 => {
+                    checkpoint = Some(c);
+                    break;
+                }
+                Ok(Ok(c)) => {
+                    problems.push(format!("job {id}: checkpoint {g} belongs to job {}; skipped", c.job.0))
+                }
+                Ok(Err(e)) => {
+                    problems.push(format!("job {id}: checkpoint {g} is damaged ({e}); trying an older one"))
+                }
+                Err(e) => problems
+                    .push(format!("job {id}: checkpoint {g} cannot be read ({e}); trying an older one")),
+            }
+        }
+        if checkpoint.is_none() && problems.iter().any(|p| p.starts_with(&format!("job {id}:"))) {
+            problems
+                .push(format!("job {id}: no checkpoint reads back whole; it restarts from the beginning"));
+        }
+        Ok(Some(LoadedJob { record, checkpoint }))
+    }
+
+    fn read_checkpoint(
+        &mut self,
+        job: i64,
+        generation: i64,
+    ) -> rusqlite::Result<Result<Checkpoint, crate::checkpoint::DecodeError>> {
+        let parts: Vec<Part> = self
+            .conn
+            .prepare(
+                "SELECT data, sum FROM checkpoint_parts WHERE job = ?1 AND generation = ?2 ORDER BY part",
+            )?
+            .query_map(params![job, generation], |r| {
+                let sum: Vec<u8> = r.get(1)?;
+                Ok(Part { data: r.get(0)?, sum: sum.try_into().unwrap_or([0; 32]) })
+            })?
+            .collect::<Result<_, _>>()?;
+        Ok(Checkpoint::decode(&parts))
+    }
+
+    /// The database file.
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    fn write_err(&self) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
+        |source| StoreError::Write { path: self.path.clone(), source }
+    }
+
+    /// Records a new job; durable when this returns.
+    pub fn add_job(&mut self, job: &JobRecord) -> Result<(), StoreError> {
+        let bundle = encode_bundle(&job.bundle);
+        let (state, error) = state_columns(&job.state);
+        let (width, height) = job.settings.size.unzip();
+        self.conn
+            .execute(
+                "INSERT INTO jobs (id, priority, spp, width, height, state, error, bundle, bundle_sum)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+                params![
+                    job.id.0 as i64,
+                    job.priority,
+                    job.settings.spp,
+                    width,
+                    height,
+                    state,
+                    error,
+                    bundle,
+                    blake3_of(&bundle)
+                ],
+            )
+            .map_err(self.write_err())?;
+        Ok(())
+    }
+
+    /// Records a job's state (paused, resumed, cancelled, ...).
+    pub fn set_state(&mut self, job: JobId, state: &JobState) -> Result<(), StoreError> {
+        let (name, error) = state_columns(state);
+        self.conn
+            .execute(
+                "UPDATE jobs SET state = ?2, error = ?3 WHERE id = ?1",
+                params![job.0 as i64, name, error],
+            )
+            .map_err(self.write_err())?;
+        Ok(())
+    }
+
+    /// Writes a checkpoint and the job's state in one transaction, keeping the previous
+    /// checkpoint to fall back on; returns the new checkpoint's generation.
+    pub fn save(&mut self, checkpoint: &Checkpoint, state: &JobState) -> Result<i64, StoreError> {
+        let parts = checkpoint.encode();
+        let job = checkpoint.job.0 as i64;
+        let (name, error) = state_columns(state);
+        let path = self.path.clone();
+        let err = |source| StoreError::Write { path: path.clone(), source };
+        let tx = self.conn.transaction().map_err(err)?;
+        let generation: i64 = tx
+            .query_row(
+                "SELECT COALESCE(MAX(generation), 0) + 1 FROM checkpoint_parts WHERE job = ?1",
+                [job],
+                |r| r.get(0),
+            )
+            .map_err(err)?;
+        {
+            let mut insert = tx
+                .prepare("INSERT INTO checkpoint_parts (job, generation, part, data, sum) VALUES (?1, ?2, ?3, ?4, ?5)")
+                .map_err(err)?;
+            for (i, p) in parts.iter().enumerate() {
+                insert.execute(params![job, generation, i as i64, p.data, p.sum.as_slice()]).map_err(err)?;
+            }
+        }
+        tx.execute(
+            "DELETE FROM checkpoint_parts WHERE job = ?1 AND generation <= ?2",
+            params![job, generation - GENERATIONS_KEPT],
+        )
+        .map_err(err)?;
+        tx.execute("UPDATE jobs SET state = ?2, error = ?3 WHERE id = ?1", params![job, name, error])
+            .map_err(err)?;
+        if let Some(stall) = self.stall {
+            eprintln!("tessera: checkpoint {generation} of job {job} written, not committed (test stall)");
+            std::thread::sleep(stall);
+        }
+        tx.commit().map_err(err)?;
+        Ok(generation)
+    }
+
+    /// The highest job id ever stored, so that ids are never reused.
+    pub fn max_job_id(&self) -> u64 {
+        self.conn
+            .query_row("SELECT MAX(id) FROM jobs", [], |r| r.get::<_, Option<i64>>(0))
+            .optional()
+            .ok()
+            .flatten()
+            .flatten()
+            .map_or(0, |v| v as u64)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scheduler::Completed;
+
+    fn record(id: u64) -> JobRecord {
+        JobRecord {
+            id: JobId(id),
+            bundle: Bundle {
+                name: "scene.toml".into(),
+                text: "# a scene".into(),
+                assets: vec![("mesh.obj".into(), vec![1, 2, 3])],
+            },
+            settings: JobSettings { spp: Some(4), size: Some((40, 30)) },
+            priority: -2,
+            state: JobState::Running,
+        }
+    }
+
+    fn checkpoint(id: u64, pixels: u32, below: u64) -> Checkpoint {
+        let n = pixels as usize * 3;
+        Checkpoint {
+            job: JobId(id),
+            width: pixels,
+            height: 3,
+            spp: 4,
+            completed: Completed { below, above: vec![below + 2] },
+            nonfinite_samples: 0,
+            samples_done: n as u64,
+            sums: vec![[below, 2, 3]; n],
+            counts: vec![1; n],
+        }
+    }
+
+    fn corrupt_part(dir: &Path, generation: i64, part: i64) {
+        let conn = Connection::open(dir.join(DB_FILE)).unwrap();
+        let data: Vec<u8> = conn
+            .query_row(
+                "SELECT data FROM checkpoint_parts WHERE generation = ?1 AND part = ?2",
+                [generation, part],
+                |r| r.get(0),
+            )
+            .unwrap();
+        let mut bad = data.clone();
+        bad[data.len() / 2] ^= 0x40;
+        conn.execute(
+            "UPDATE checkpoint_parts SET data = ?1 WHERE generation = ?2 AND part = ?3",
+            params![bad, generation, part],
+        )
+        .unwrap();
+    }
+
+    #[test]
+    fn jobs_and_the_newest_checkpoint_survive_a_reopen() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let (mut store, loaded) = Store::open(dir.path()).unwrap();
+            assert!(loaded.jobs.is_empty() && loaded.problems.is_empty());
+            store.add_job(&record(1)).unwrap();
+            store
+                .add_job(&JobRecord { id: JobId(2), state: JobState::Failed("boom".into()), ..record(2) })
+                .unwrap();
+            for below in [10, 20, 30] {
+                store.save(&checkpoint(1, 50, below), &JobState::Running).unwrap();
+            }
+            store.set_state(JobId(1), &JobState::Paused).unwrap();
+        }
+        let (store, loaded) = Store::open(dir.path()).unwrap();
+        assert!(loaded.problems.is_empty(), "{:?}", loaded.problems);
+        assert_eq!(loaded.jobs.len(), 2);
+        let one = &loaded.jobs[0];
+        assert_eq!(one.record, JobRecord { state: JobState::Paused, ..record(1) });
+        assert_eq!(one.checkpoint, Some(checkpoint(1, 50, 30)));
+        assert_eq!(loaded.jobs[1].record.state, JobState::Failed("boom".into()));
+        assert!(loaded.jobs[1].checkpoint.is_none());
+        assert_eq!(store.max_job_id(), 2);
+        let generations: i64 = store
+            .conn
+            .query_row("SELECT COUNT(DISTINCT generation) FROM checkpoint_parts", [], |r| r.get(0))
+            .unwrap();
+        assert_eq!(generations, GENERATIONS_KEPT);
+    }
+
+    /// Bits changed on disk in the newest checkpoint: the one before it is used; both
+    /// damaged: the job starts over. Either way the damage is reported.
+    #[test]
+    fn a_damaged_checkpoint_falls_back_to_the_last_good_one() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let (mut store, _) = Store::open(dir.path()).unwrap();
+            store.add_job(&record(1)).unwrap();
+            store.save(&checkpoint(1, 50, 10), &JobState::Running).unwrap();
+            store.save(&checkpoint(1, 50, 20), &JobState::Running).unwrap();
+        }
+        corrupt_part(dir.path(), 2, 1);
+        {
+            let (_, loaded) = Store::open(dir.path()).unwrap();
+            assert_eq!(loaded.jobs[0].checkpoint, Some(checkpoint(1, 50, 10)));
+            assert!(
+                loaded.problems.iter().any(|p| p.contains("checkpoint 2 is damaged")),
+                "{:?}",
+                loaded.problems
+            );
+        }
+        corrupt_part(dir.path(), 1, 0);
+        let (_, loaded) = Store::open(dir.path()).unwrap();
+        assert_eq!(loaded.jobs[0].checkpoint, None);
+        assert!(
+            loaded.problems.iter().any(|p| p.contains("restarts from the beginning")),
+            "{:?}",
+            loaded.problems
+        );
+    }
+
+    /// A truncated file: SQLite's page check finds it, what reads back is kept, the file
+    /// is moved aside and rebuilt, and the rebuilt one opens clean.
+    #[test]
+    fn a_truncated_database_is_rebuilt_from_what_reads_back() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let (mut store, _) = Store::open(dir.path()).unwrap();
+            store.add_job(&record(1)).unwrap();
+            store.save(&checkpoint(1, 4000, 10), &JobState::Running).unwrap();
+            store.save(&checkpoint(1, 4000, 20), &JobState::Running).unwrap();
+        }
+        let path = dir.path().join(DB_FILE);
+        let len = std::fs::metadata(&path).unwrap().len();
+        std::fs::OpenOptions::new().write(true).open(&path).unwrap().set_len(len * 3 / 4).unwrap();
+        let (_, loaded) = Store::open(dir.path()).unwrap();
+        assert!(!loaded.problems.is_empty());
+        assert!(loaded.moved_aside.as_ref().is_some_and(|p| p.exists()));
+        assert_eq!(loaded.jobs.len(), 1);
+        // Whatever survived is whole; nothing half-read is resumed from.
+        if let Some(c) = &loaded.jobs[0].checkpoint {
+            assert!([checkpoint(1, 4000, 10), checkpoint(1, 4000, 20)].contains(c));
+        }
+        let again = Store::open(dir.path()).unwrap().1;
+        assert!(again.problems.is_empty(), "{:?}", again.problems);
+        assert_eq!(again.jobs[0].checkpoint, loaded.jobs[0].checkpoint);
+    }
+
+    #[test]
+    fn garbage_and_a_second_opener_are_clear_errors() {
+        let dir = tempfile::tempdir().unwrap();
+        std::fs::write(dir.path().join(DB_FILE), vec![0x5a; 8192]).unwrap();
+        let e = Store::open(dir.path()).unwrap_err();
+        assert!(matches!(e, StoreError::Damaged { .. }), "{e}");
+        assert!(e.to_string().contains("move it aside"), "{e}");
+
+        let dir = tempfile::tempdir().unwrap();
+        let _first = Store::open(dir.path()).unwrap();
+        let e = Store::open(dir.path()).unwrap_err();
+        assert!(matches!(e, StoreError::InUse { .. }), "{e}");
+    }
+
+    #[test]
+    fn bundles_round_trip_and_refuse_truncation() {
+        let b = record(1).bundle;
+        let bytes = encode_bundle(&b);
+        assert_eq!(decode_bundle(&bytes), Some(b));
+        for n in [0, 5, bytes.len() - 1] {
+            assert_eq!(decode_bundle(&bytes[..n]), None);
+        }
+    }
+}
