@@ -219,6 +219,8 @@ pub struct Assignment {
     pub batch: BatchSpec,
     /// Its attempt number.
     pub attempt: u32,
+    /// A duplicate of a straggler's batch, leased to another worker too.
+    pub speculative: bool,
 }
 
 /// Why a submission was refused.
@@ -502,10 +504,10 @@ impl Farm {
             };
             lease.map(|l| (l.spec.clone(), l.attempt))
         };
-        let (id, batch, attempt) = [false, true].into_iter().find_map(|speculate| {
+        let (id, batch, attempt, speculative) = [false, true].into_iter().find_map(|speculate| {
             order.iter().find_map(|id| {
                 let job = self.jobs.get_mut(id).expect("ordered ids exist");
-                pick(job, speculate).map(|(b, a)| (*id, b, a))
+                pick(job, speculate).map(|(b, a)| (*id, b, a, speculate))
             })
         })?;
         let job = self.jobs.get_mut(&id).expect("picked above");
@@ -519,7 +521,14 @@ impl Farm {
             .scenes
             .insert(job.id)
             .then(|| (job.bundle.clone(), job.scene_hash.clone(), job.settings.clone()));
-        Some(Assignment { job: job.id, scene, scene_hash: job.scene_hash.clone(), batch, attempt })
+        Some(Assignment {
+            job: job.id,
+            scene,
+            scene_hash: job.scene_hash.clone(),
+            batch,
+            attempt,
+            speculative,
+        })
     }
 
     /// Merges a batch's result, exactly once.

@@ -379,6 +379,9 @@ impl CoordinatorService {
             while credit > 0 {
                 let Some(a) = self.farm().assign(id, Instant::now()) else { break };
                 credit -= 1;
+                if a.speculative {
+                    info!(worker = %id, job = %a.job, batch = %a.batch.id, attempt = a.attempt, "speculative duplicate of a straggler's batch");
+                }
                 if let Some((bundle, hash, settings)) = a.scene {
                     let scene = pb::JobScene {
                         job_id: a.job.0,

@@ -54,7 +54,16 @@ pub struct Proc {
 
 impl Proc {
     pub fn spawn(args: &[&str]) -> Proc {
-        let mut child = tessera().args(args).stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
+        Self::spawn_with_env(args, &[])
+    }
+
+    pub fn spawn_with_env(args: &[&str], env: &[(&str, &str)]) -> Proc {
+        Self::spawn_command(tessera().args(args).envs(env.iter().copied()))
+    }
+
+    /// Spawns a prepared command (e.g. `ip netns exec … tessera …`).
+    pub fn spawn_command(cmd: &mut Command) -> Proc {
+        let mut child = cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap();
         let stderr = Arc::new(Mutex::new(String::new()));
         let pipe = child.stderr.take().unwrap();
         let sink = stderr.clone();
@@ -122,12 +131,43 @@ pub struct Coordinator {
 
 impl Coordinator {
     pub fn start(extra: &[&str]) -> Coordinator {
-        let mut args = vec!["coordinator", "--listen", "127.0.0.1:0"];
+        Self::start_at("127.0.0.1:0", extra, &[])
+    }
+
+    /// A coordinator listening on `addr`, with extra arguments and environment.
+    pub fn start_at(addr: &str, extra: &[&str], env: &[(&str, &str)]) -> Coordinator {
+        let mut args = vec!["coordinator", "--listen", addr];
         args.extend_from_slice(extra);
-        let proc = Proc::spawn(&args);
+        let proc = Proc::spawn_with_env(&args, env);
         let line = proc.wait_for("coordinator listening on ", Duration::from_secs(30));
         let addr = line.rsplit("listening on ").next().unwrap().trim().to_string();
         Coordinator { proc, url: format!("http://{addr}") }
+    }
+
+    /// The job's status over gRPC; `None` while the coordinator does not answer.
+    pub fn job(&self, id: u64) -> Option<JobStatus> {
+        job_status(&self.url, id)
+    }
+
+    /// Polls the job until `done` holds of it; panics after `limit`.
+    pub fn wait_until(
+        &self,
+        id: u64,
+        limit: Duration,
+        what: &str,
+        done: impl Fn(&JobStatus) -> bool,
+    ) -> JobStatus {
+        let start = Instant::now();
+        loop {
+            if let Some(s) = self.job(id) {
+                if done(&s) {
+                    return s;
+                }
+                assert!(start.elapsed() < limit, "{what}: not within {limit:?}; last status {s:?}");
+            }
+            assert!(start.elapsed() < limit, "{what}: coordinator not answering within {limit:?}");
+            std::thread::sleep(Duration::from_millis(25));
+        }
     }
 
     /// A worker connected to this coordinator.
@@ -177,4 +217,54 @@ pub fn job_state(status: &str, id: u64) -> String {
         .and_then(|l| l.split_whitespace().nth(1))
         .unwrap_or("")
         .to_string()
+}
+
+/// A job's figures, read over gRPC.
+#[derive(Debug, Clone)]
+pub struct JobStatus {
+    pub state: String,
+    pub pass: u32,
+    pub samples_done: u64,
+    pub samples_total: u64,
+    pub samples_per_second: f64,
+}
+
+impl JobStatus {
+    pub fn fraction(&self) -> f64 {
+        self.samples_done as f64 / self.samples_total.max(1) as f64
+    }
+}
+
+/// Job `id`'s status at `url`; `None` if the coordinator does not answer.
+pub fn job_status(url: &str, id: u64) -> Option<JobStatus> {
+    use tessera_proto::v1 as pb;
+    let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
+    rt.block_on(async {
+        let endpoint = tonic::transport::Endpoint::from_shared(url.to_string())
+            .ok()?
+            .connect_timeout(Duration::from_secs(2));
+        let channel = endpoint.connect().await.ok()?;
+        let mut client = pb::coordinator_client::CoordinatorClient::new(channel);
+        let r = tokio::time::timeout(Duration::from_secs(5), client.status(pb::StatusRequest { job_id: id }))
+            .await
+            .ok()?
+            .ok()?
+            .into_inner();
+        let j = r.jobs.into_iter().next()?;
+        let state = pb::JobState::try_from(j.state).map_or("?", |s| s.as_str_name());
+        Some(JobStatus {
+            state: state.trim_start_matches("JOB_STATE_").to_lowercase(),
+            pass: j.pass,
+            samples_done: j.samples_done,
+            samples_total: j.samples_total,
+            samples_per_second: j.samples_per_second,
+        })
+    })
+}
+
+/// A loopback address with a port free a moment ago, for a coordinator that restarts on
+/// the same address.
+pub fn free_loopback_addr() -> String {
+    let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    l.local_addr().unwrap().to_string()
 }
