@@ -82,3 +82,51 @@ fn sigint_writes_unfinished_image_and_leaves_no_process() {
         std::thread::sleep(Duration::from_millis(50));
     }
 }
+
+/// Ctrl-C, then `--resume`: the render continues from its checkpoint and ends in the bytes
+/// of an uninterrupted render. Without `--resume` the checkpoint is not silently discarded,
+/// and a checkpoint of other settings is refused.
+#[test]
+fn sigint_then_resume_gives_the_uninterrupted_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = root().join("scenes/showcase.toml");
+    let settings = ["--size", "640x480", "--spp", "4"];
+    let reference = dir.path().join("reference.png");
+    render_local(&scene, &reference, 2, &settings);
+
+    let out = dir.path().join("out.png");
+    let checkpoint = dir.path().join("out.png.tessera");
+    let mut args = vec!["render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--workers", "1"];
+    args.extend_from_slice(&["--threads", "1", "--checkpoint-interval", "0.3"]);
+    args.extend_from_slice(&settings);
+    let mut first = Proc::spawn(&args);
+    // Interrupt once the checkpointer has had time to write: rendering is under way.
+    std::thread::sleep(Duration::from_millis(1500));
+    assert!(checkpoint.join("jobs.db").exists(), "no checkpoint while rendering");
+    first.signal(2);
+    let status = first.wait(Duration::from_secs(30));
+    let stderr = first.stderr.lock().unwrap().clone();
+    assert_eq!(status.code(), Some(130), "the render finished before the interrupt: {stderr}");
+    assert!(stderr.contains("--resume"), "{stderr}");
+
+    let again = run(&args);
+    assert!(!again.status.success());
+    let msg = String::from_utf8_lossy(&again.stderr);
+    assert!(msg.contains("holds an interrupted render") && msg.contains("--resume"), "{msg}");
+
+    let mut other: Vec<&str> = args.iter().map(|a| if *a == "4" { "8" } else { a }).collect();
+    other.push("--resume");
+    let refused = run(&other);
+    assert!(!refused.status.success());
+    let msg = String::from_utf8_lossy(&refused.stderr);
+    assert!(msg.contains("different scene or settings"), "{msg}");
+
+    let mut resume = args.clone();
+    resume.push("--resume");
+    let o = run(&resume);
+    let msg = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{msg}");
+    assert!(msg.contains("resumed job 1"), "{msg}");
+    assert_eq!(read(&out), read(&reference), "resumed render differs from the uninterrupted one");
+    assert!(!checkpoint.exists(), "the checkpoint outlived the finished render");
+}
