@@ -223,7 +223,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
     let window = opts.view.then(|| {
         let (url, job) = (url.clone(), job.0);
         std::thread::spawn(move || {
-            if let Err(e) = tessera_viewer::window::run(&url, job) {
+            if let Err(e) = tessera_viewer::window::run(&url, job, std::time::Duration::ZERO) {
                 eprintln!("warning: {e}");
             }
         })

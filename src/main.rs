@@ -163,6 +163,10 @@ pub struct ViewArgs {
     /// listens on 127.0.0.1:14158 by default).
     #[arg(long, conflicts_with = "save")]
     tev: Option<String>,
+    /// Seconds to keep reconnecting to a lost coordinator (one restarting on its data
+    /// directory) before giving up; 0 gives up at once.
+    #[arg(long, default_value_t = 60.0)]
+    reconnect_for: f64,
 }
 
 fn init_tracing(default: &str) {
@@ -304,14 +308,18 @@ async fn run(command: Command) -> Result<ExitCode> {
 
 async fn view(args: ViewArgs) -> Result<ExitCode> {
     use tessera_viewer::headless::{run, Headless, When};
+    let reconnect_for = match args.reconnect_for {
+        0.0 => std::time::Duration::ZERO,
+        s => seconds("--reconnect-for", s)?,
+    };
     if let Some(tev) = &args.tev {
-        tessera_viewer::tev::run(&args.coordinator, args.job.unwrap_or(0), tev).await?;
+        tessera_viewer::tev::run(&args.coordinator, args.job.unwrap_or(0), tev, reconnect_for).await?;
         eprintln!("forwarded the job to tev at {tev}");
         return Ok(ExitCode::SUCCESS);
     }
     let Some(save) = args.save else {
         let (url, job) = (args.coordinator, args.job.unwrap_or(0));
-        tokio::task::spawn_blocking(move || tessera_viewer::window::run(&url, job)).await??;
+        tokio::task::spawn_blocking(move || tessera_viewer::window::run(&url, job, reconnect_for)).await??;
         return Ok(ExitCode::SUCCESS);
     };
     check_output(&save)?;
@@ -326,9 +334,14 @@ async fn view(args: ViewArgs) -> Result<ExitCode> {
         (_, Some(p)) => When::At(p),
         (None, None) => When::End,
     };
-    let outcome =
-        run(Headless { coordinator: args.coordinator, job: args.job.unwrap_or(0), save: save.clone(), when })
-            .await?;
+    let outcome = run(Headless {
+        coordinator: args.coordinator,
+        job: args.job.unwrap_or(0),
+        save: save.clone(),
+        when,
+        reconnect_for,
+    })
+    .await?;
     eprintln!(
         "wrote {} at {:.1}%{}",
         save.display(),

@@ -151,7 +151,10 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
     Ok(if state == pb::JobState::Done { ExitCode::SUCCESS } else { ExitCode::FAILURE })
 }
 
-/// Polls a job until it is over, with a progress bar.
+/// How long `submit --wait` keeps trying a lost coordinator.
+const RECONNECT_FOR: Duration = Duration::from_secs(60);
+
+/// Polls a job until it is over, with a progress bar; rides out a coordinator restart.
 async fn wait(client: &mut CoordinatorClient<Channel>, job: u64) -> Result<pb::JobStatus> {
     let bar = indicatif::ProgressBar::new(1000);
     bar.set_style(
@@ -160,9 +163,31 @@ async fn wait(client: &mut CoordinatorClient<Channel>, job: u64) -> Result<pb::J
             .progress_chars("=> "),
     );
     let mut said_waiting = false;
+    let mut lost_since: Option<std::time::Instant> = None;
     loop {
-        let response =
-            client.status(pb::StatusRequest { job_id: job }).await.map_err(status_error)?.into_inner();
+        let response = match client.status(pb::StatusRequest { job_id: job }).await {
+            Ok(r) => {
+                if lost_since.take().is_some() {
+                    bar.suspend(|| eprintln!("job {job}: reconnected to the coordinator"));
+                }
+                r.into_inner()
+            }
+            // A coordinator restarting on its data directory comes back with the job.
+            Err(s) if s.code() == tonic::Code::Unavailable => {
+                let since = *lost_since.get_or_insert_with(|| {
+                    bar.suspend(|| {
+                        eprintln!("job {job}: lost the coordinator ({}); reconnecting", s.message())
+                    });
+                    std::time::Instant::now()
+                });
+                if since.elapsed() > RECONNECT_FOR {
+                    bail!("lost the coordinator for {RECONNECT_FOR:?}: {}", s.message());
+                }
+                tokio::time::sleep(Duration::from_millis(500)).await;
+                continue;
+            }
+            Err(s) => return Err(status_error(s)),
+        };
         // Say it once, also where the bar is hidden (no terminal): a job with no worker
         // otherwise looks like a hang.
         if response.workers.is_empty() && !said_waiting {

@@ -233,3 +233,45 @@ fn a_damaged_data_directory_resumes_from_its_last_good_state() {
         .to_string_lossy()
         .contains("damaged")));
 }
+
+/// Clients ride out a coordinator restart: a viewer saving the image and a `submit -o`
+/// waiting for it both reconnect, and both end with the uninterrupted render's bytes.
+#[test]
+fn viewer_and_waiting_client_reconnect_across_a_restart() {
+    let dir = tempfile::tempdir().unwrap();
+    let reference = reference(dir.path());
+    let data = dir.path().join("data");
+    let addr = free_loopback_addr();
+    let args = ["--data", data.to_str().unwrap(), "--checkpoint-interval", "0.3"];
+    let coord = Coordinator::start_at(&addr, &args, &[]);
+    let submitted = dir.path().join("submitted.png");
+    let viewed = dir.path().join("viewed.png");
+    let mut client = Proc::spawn(&[
+        "submit",
+        scene().to_str().unwrap(),
+        "--coordinator",
+        &coord.url,
+        "--size",
+        SIZE,
+        "--spp",
+        SPP,
+        "-o",
+        submitted.to_str().unwrap(),
+    ]);
+    client.wait_for("submitted job 1", Duration::from_secs(30));
+    let mut viewer =
+        Proc::spawn(&["view", "--coordinator", &coord.url, "--job", "1", "--save", viewed.to_str().unwrap()]);
+    let _w = coord.worker(2);
+    coord.wait_until(1, Duration::from_secs(60), "progress", |s| s.fraction() > 0.3);
+    coord.proc.signal(9);
+    drop(coord);
+    std::thread::sleep(Duration::from_millis(500));
+    let coord = Coordinator::start_at(&addr, &args, &[]);
+    samples_kept(&coord);
+    assert!(client.wait(Duration::from_secs(120)).success(), "{}", client.stderr.lock().unwrap());
+    assert!(viewer.wait(Duration::from_secs(60)).success(), "{}", viewer.stderr.lock().unwrap());
+    assert!(viewer.stderr.lock().unwrap().contains("reconnected"), "{}", viewer.stderr.lock().unwrap());
+    assert!(client.stderr.lock().unwrap().contains("reconnected"), "{}", client.stderr.lock().unwrap());
+    assert_eq!(read(&submitted), read(&reference), "submit -o image differs");
+    assert_eq!(read(&viewed), read(&reference), "viewer image differs");
+}

@@ -192,7 +192,8 @@ fn tev_bridge_sends_the_exact_image() {
 }
 
 /// With no job running, a viewer without --job lists the jobs to choose from; a
-/// coordinator that goes away mid-stream is a clear error, after the last image is saved.
+/// coordinator that goes away mid-stream and stays away past --reconnect-for is a clear
+/// error, after the last image is saved.
 #[test]
 fn viewer_lists_jobs_and_survives_a_lost_coordinator() {
     let dir = tempfile::tempdir().unwrap();
@@ -217,11 +218,19 @@ fn viewer_lists_jobs_and_survives_a_lost_coordinator() {
     let o = run(&["submit", small_scene().to_str().unwrap(), "--coordinator", &coord.url, "--spp", "8192"]);
     assert!(o.status.success());
     let out = dir.path().join("last.png");
-    let mut viewer = Proc::spawn(&["view", "--coordinator", &coord.url, "--save", out.to_str().unwrap()]);
+    let mut viewer = Proc::spawn(&[
+        "view",
+        "--coordinator",
+        &coord.url,
+        "--save",
+        out.to_str().unwrap(),
+        "--reconnect-for",
+        "1",
+    ]);
     std::thread::sleep(Duration::from_millis(800));
     coord.proc.signal(9);
     let status = viewer.wait(Duration::from_secs(30));
     let err = viewer.stderr.lock().unwrap().clone();
-    assert!(!status.success() && err.contains("lost the coordinator"), "{err}");
+    assert!(!status.success() && err.contains("gave up reconnecting after 1s"), "{err}");
     assert!(out.exists(), "the last image was not saved: {err}");
 }

@@ -645,6 +645,7 @@ impl CoordinatorService {
                         status: Some(status_to_wire(&j.progress(Instant::now()))),
                         workers: farm.workers().count() as u32,
                         r#final: over && next.is_none(),
+                        reset: sent == 0 && f == 0,
                     }
                 };
                 if tx.send(Ok(update)).await.is_err() {

@@ -78,7 +78,7 @@ async fn case(
     let mut tasks = Vec::new();
     let mut held = Vec::new();
     for v in 0..viewers {
-        let mut watch = tessera_viewer::conn::Watch::open(&url, job, 10.0).await?;
+        let mut watch = tessera_viewer::conn::Watch::open(&url, job, 10.0, std::time::Duration::ZERO).await?;
         if v < stalled {
             // Opened and never read.
             held.push(watch);

@@ -30,6 +30,8 @@ pub struct Headless {
     pub save: PathBuf,
     /// When.
     pub when: When,
+    /// How long to keep reconnecting to a lost coordinator.
+    pub reconnect_for: std::time::Duration,
 }
 
 /// How a headless run failed.
@@ -75,7 +77,7 @@ fn write(r: &Replica, save: &std::path::Path) -> Result<(), HeadlessError> {
 pub async fn run(h: Headless) -> Result<Outcome, HeadlessError> {
     // A snapshot at a given percentage wants fine-grained updates to land close to it.
     let rate = if matches!(h.when, When::At(_)) { 50.0 } else { 10.0 };
-    let mut watch = Watch::open(&h.coordinator, h.job, rate).await?;
+    let mut watch = Watch::open(&h.coordinator, h.job, rate, h.reconnect_for).await?;
     let mut replica = Replica::new();
     let mut snapshots = 0;
     let mut last = Instant::now();

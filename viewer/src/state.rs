@@ -47,8 +47,14 @@ impl Replica {
         Replica::default()
     }
 
-    /// Applies one update; checks it all before changing anything.
+    /// Applies one update; checks it all before changing anything. The first update of a
+    /// stream starts the replica afresh.
     pub fn apply(&mut self, u: pb::FramebufferUpdate) -> Result<(), UpdateError> {
+        if u.reset {
+            self.fb = None;
+            self.version = 0;
+            self.finished = false;
+        }
         let size = (u.width, u.height);
         let n = u64::from(u.width) * u64::from(u.height);
         if n == 0 || self.fb.as_ref().is_some_and(|fb| (fb.width(), fb.height()) != size) {

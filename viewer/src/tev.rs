@@ -69,11 +69,16 @@ pub fn update_tile(name: &str, width: u32, y: u32, rows: u32, rgb: &[f32]) -> Ve
 
 /// Follows job `job` at `coordinator` and mirrors it into tev at `tev` (HOST:PORT) until
 /// the job ends.
-pub async fn run(coordinator: &str, job: u64, tev: &str) -> Result<(), HeadlessError> {
+pub async fn run(
+    coordinator: &str,
+    job: u64,
+    tev: &str,
+    reconnect_for: Duration,
+) -> Result<(), HeadlessError> {
     let mut socket = TcpStream::connect(tev)
         .await
         .map_err(|e| HeadlessError::Tev(format!("cannot reach tev at {tev}: {e} (is tev running?)")))?;
-    let mut watch = Watch::open(coordinator, job, 10.0).await?;
+    let mut watch = Watch::open(coordinator, job, 10.0, reconnect_for).await?;
     let mut replica = Replica::new();
     let mut created = false;
     let mut last = Instant::now() - Duration::from_secs(1);

@@ -34,7 +34,7 @@ struct Shared {
 
 /// Opens the window on job `job` (0: the running one) of the coordinator at `url`; blocks
 /// until the window is closed.
-pub fn run(url: &str, job: u64) -> Result<(), WindowError> {
+pub fn run(url: &str, job: u64, reconnect_for: Duration) -> Result<(), WindowError> {
     let shared = Arc::new(Mutex::new(Shared::default()));
     let net = shared.clone();
     let net_url = url.to_string();
@@ -47,7 +47,7 @@ pub fn run(url: &str, job: u64) -> Result<(), WindowError> {
         .name("viewer-net".into())
         .spawn(move || {
             runtime.block_on(async move {
-                let ended = match Watch::open(&net_url, job, 20.0).await {
+                let ended = match Watch::open(&net_url, job, 20.0, reconnect_for).await {
                     Err(e) => e.to_string(),
                     Ok(mut watch) => loop {
                         match watch.next().await {
