@@ -621,3 +621,117 @@ impl Job {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SCENE: &str = include_str!("../../tests/scenes/small.toml");
+
+    fn bundle() -> Bundle {
+        Bundle { name: "small.toml".into(), text: SCENE.into(), assets: vec![] }
+    }
+
+    fn settings(w: u32, h: u32, spp: u32) -> JobSettings {
+        JobSettings { spp: Some(spp), size: Some((w, h)) }
+    }
+
+    /// What a worker would send: sums that depend on pixel and samples only.
+    fn fake_sums(spec: &BatchSpec) -> Vec<u64> {
+        let n = u64::from(spec.samples.end - spec.samples.start);
+        spec.quads.iter().flat_map(|q| [1, 2, 3].map(|c| u64::from((q.x * 7 + q.y * 3 + c) % 11) * n)).collect()
+    }
+
+    /// Leases and completes up to `limit` batches for one worker; returns how many.
+    fn work(farm: &mut Farm, worker: WorkerId, limit: usize) -> usize {
+        let now = Instant::now();
+        let mut n = 0;
+        while n < limit {
+            let Some(a) = farm.assign(worker, now) else { break };
+            farm.complete(worker, a.job, a.batch.id, &fake_sums(&a.batch), 0, now).unwrap();
+            n += 1;
+        }
+        n
+    }
+
+    #[test]
+    fn higher_priorities_are_served_first_then_the_oldest() {
+        let mut farm = Farm::new();
+        let low = farm.submit(bundle(), settings(16, 16, 2), -1).unwrap();
+        let normal_old = farm.submit(bundle(), settings(16, 16, 2), 0).unwrap();
+        let high = farm.submit(bundle(), settings(16, 16, 2), 5).unwrap();
+        let normal_new = farm.submit(bundle(), settings(16, 16, 2), 0).unwrap();
+        let w = farm.add_worker("w".into(), 1, Instant::now());
+        let mut served = Vec::new();
+        while let Some(a) = farm.assign(w, Instant::now()) {
+            if served.last() != Some(&a.job) {
+                served.push(a.job);
+            }
+            farm.complete(w, a.job, a.batch.id, &fake_sums(&a.batch), 0, Instant::now()).unwrap();
+        }
+        assert_eq!(served, vec![high, normal_old, normal_new, low]);
+    }
+
+    /// A job checkpointed mid-pass and restored into a new farm (a restarted coordinator)
+    /// ends with exactly the accumulators of a job never interrupted, whatever was leased
+    /// and lost at the moment of the checkpoint.
+    #[test]
+    fn a_restored_job_ends_with_the_uninterrupted_accumulators() {
+        let (w, h, spp) = (37, 23, 5);
+        let mut clean = Farm::new();
+        let id = clean.submit(bundle(), settings(w, h, spp), 0).unwrap();
+        let cw = clean.add_worker("clean".into(), 1, Instant::now());
+        work(&mut clean, cw, usize::MAX);
+        assert_eq!(clean.job(id).unwrap().state, JobState::Done);
+
+        for stop_after in [0, 1, 3, 9, 20] {
+            let mut farm = Farm::new();
+            let id = farm.submit(bundle(), settings(w, h, spp), 0).unwrap();
+            let a = farm.add_worker("a".into(), 1, Instant::now());
+            work(&mut farm, a, stop_after);
+            // Leases in flight at the checkpoint, one of them finished out of order.
+            let now = Instant::now();
+            let held: Vec<_> = (0..3).filter_map(|_| farm.assign(a, now)).collect();
+            if let Some(x) = held.get(1) {
+                farm.complete(a, x.job, x.batch.id, &fake_sums(&x.batch), 0, now).unwrap();
+            }
+            let job = farm.job(id).unwrap();
+            let stored = LoadedJob { record: job.record(), checkpoint: Some(job.checkpoint()) };
+
+            let mut restarted = Farm::new();
+            assert_eq!(restarted.restore(stored, Instant::now()).unwrap(), id);
+            let b = restarted.add_worker("b".into(), 1, Instant::now());
+            work(&mut restarted, b, usize::MAX);
+            let (got, want) = (restarted.job(id).unwrap(), clean.job(id).unwrap());
+            assert_eq!(got.state, JobState::Done, "stopped after {stop_after}");
+            assert_eq!(got.framebuffer().accumulators(), want.framebuffer().accumulators(), "stopped after {stop_after}");
+            assert_eq!(got.progress(now).samples_done, want.progress(now).samples_done);
+            // New jobs never reuse the restored id.
+            assert!(restarted.submit(bundle(), settings(4, 4, 1), 0).unwrap() > id);
+        }
+    }
+
+    #[test]
+    fn restored_states_are_kept_and_a_mismatched_checkpoint_is_refused() {
+        let mut farm = Farm::new();
+        let id = farm.submit(bundle(), settings(8, 8, 2), 0).unwrap();
+        let job = farm.job(id).unwrap();
+        for (state, want) in [
+            (JobState::Paused, JobState::Paused),
+            (JobState::Cancelled, JobState::Cancelled),
+            (JobState::Running, JobState::Queued),
+        ] {
+            let mut record = job.record();
+            record.state = state;
+            let mut f = Farm::new();
+            f.restore(LoadedJob { record, checkpoint: Some(job.checkpoint()) }, Instant::now()).unwrap();
+            assert_eq!(f.job(id).unwrap().state, want);
+            let w = f.add_worker("w".into(), 1, Instant::now());
+            assert_eq!(f.assign(w, Instant::now()).is_some(), want == JobState::Queued);
+        }
+        let mut wrong = job.checkpoint();
+        wrong.spp = 3;
+        let e = Farm::new().restore(LoadedJob { record: job.record(), checkpoint: Some(wrong) }, Instant::now());
+        assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{e:?}");
+    }
+}
