@@ -12,6 +12,7 @@ use tessera_worker::bundle::Bundle;
 
 use crate::local::{render_local, LocalOptions};
 
+mod checkpoint;
 mod reference;
 mod viewers;
 
@@ -41,6 +42,19 @@ pub enum BenchCommand {
         spp: Option<u32>,
         /// Runs of each case (the fastest is reported) [default: 2].
         #[arg(long, default_value_t = 2)]
+        runs: usize,
+    },
+    /// What durability costs: snapshot, write and take-up times of a half-done job's
+    /// checkpoint at 640x480, 1920x1080 and 3840x2160.
+    Checkpoint {
+        /// The scene [default: scenes/whitted.toml].
+        #[arg(default_value = "scenes/whitted.toml")]
+        scene: PathBuf,
+        /// Samples per pixel [default: 16].
+        #[arg(long, default_value_t = 16)]
+        spp: u32,
+        /// Runs of each (the fastest is reported) [default: 3].
+        #[arg(long, default_value_t = 3)]
         runs: usize,
     },
     /// The BVH at scale: build time and traversal speed for meshes of 10k to 1M triangles.
@@ -77,6 +91,10 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
     match cmd {
         BenchCommand::Whitted { scene, runs } => whitted(&scene, runs.max(1)),
         BenchCommand::Bvh { triangles } => bvh(triangles),
+        BenchCommand::Checkpoint { scene, spp, runs } => {
+            checkpoint::run(&scene, spp.max(2), runs.max(1))?;
+            Ok(ExitCode::SUCCESS)
+        }
         BenchCommand::Viewers { scene, spp, runs } => {
             viewers::run(&scene, spp, runs.max(1)).await?;
             Ok(ExitCode::SUCCESS)
