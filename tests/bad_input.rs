@@ -120,3 +120,45 @@ fn submitting_a_bad_scene_or_asking_for_a_missing_job_is_refused() {
     // The coordinator is still serving.
     assert!(coord.status().contains("no workers connected"));
 }
+
+/// Data directories and checkpoints: every misuse is one clear error line.
+#[test]
+fn bad_data_directories_and_checkpoints_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = small_scene();
+    let scene = scene.to_str().unwrap();
+    let listen = ["coordinator", "--listen", "127.0.0.1:0"];
+
+    let file = dir.path().join("a-file");
+    std::fs::write(&file, "x").unwrap();
+    let e = stderr_of(&[&listen[..], &["--data", file.to_str().unwrap()]].concat());
+    assert!(e.contains("data directory") && e.contains("a-file"), "{e}");
+
+    let garbage = dir.path().join("garbage");
+    std::fs::create_dir(&garbage).unwrap();
+    std::fs::write(garbage.join("jobs.db"), vec![0x42u8; 4096]).unwrap();
+    let e = stderr_of(&[&listen[..], &["--data", garbage.to_str().unwrap()]].concat());
+    assert!(e.contains("damaged") && e.contains("move it aside"), "{e}");
+
+    let data = dir.path().join("data");
+    let e =
+        stderr_of(&[&listen[..], &["--data", data.to_str().unwrap(), "--checkpoint-interval", "0"]].concat());
+    assert!(e.contains("--checkpoint-interval must be a positive number"), "{e}");
+    let o = run(&[&listen[..], &["--checkpoint-interval", "5"]].concat());
+    let e = String::from_utf8_lossy(&o.stderr);
+    assert!(!o.status.success() && e.contains("required") && e.contains("--data"), "{e}");
+
+    // One process per data directory.
+    let _first = Coordinator::start(&["--data", data.to_str().unwrap()]);
+    let e = stderr_of(&[&listen[..], &["--data", data.to_str().unwrap()]].concat());
+    assert!(e.contains("in use by another coordinator"), "{e}");
+
+    let out = dir.path().join("o.png");
+    let e = stderr_of(&["render", scene, "-o", out.to_str().unwrap(), "--resume"]);
+    assert!(e.contains("nothing to resume"), "{e}");
+    // A coordinator's data directory is not a render's checkpoint.
+    let e = stderr_of(&["render", scene, "-o", out.to_str().unwrap(), "--data", garbage.to_str().unwrap()]);
+    assert!(e.contains("damaged"), "{e}");
+    let e = stderr_of(&["submit", scene, "--coordinator", "http://127.0.0.1:1", "--priority", "high"]);
+    assert!(e.contains("--priority"), "{e}");
+}

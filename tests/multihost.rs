@@ -93,8 +93,14 @@ fn workers_on_other_hosts_survive_a_cut_link() {
     ));
     coord.wait_for("coordinator listening on", Duration::from_secs(30));
     let local = "http://127.0.0.1:7878";
-    let cut = Proc::spawn_command(&mut in_ns(a, &["worker", "--coordinator", "http://10.213.1.1:7878", "--threads", "1"]));
-    let kept = Proc::spawn_command(&mut in_ns(b, &["worker", "--coordinator", "http://10.213.2.1:7878", "--threads", "1"]));
+    let cut = Proc::spawn_command(&mut in_ns(
+        a,
+        &["worker", "--coordinator", "http://10.213.1.1:7878", "--threads", "1"],
+    ));
+    let kept = Proc::spawn_command(&mut in_ns(
+        b,
+        &["worker", "--coordinator", "http://10.213.2.1:7878", "--threads", "1"],
+    ));
     cut.wait_for("connected to", Duration::from_secs(30));
     kept.wait_for("connected to", Duration::from_secs(30));
     let mut submit = vec!["submit", scene.to_str().unwrap(), "--coordinator", local];

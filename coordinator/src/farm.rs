@@ -639,7 +639,10 @@ mod tests {
     /// What a worker would send: sums that depend on pixel and samples only.
     fn fake_sums(spec: &BatchSpec) -> Vec<u64> {
         let n = u64::from(spec.samples.end - spec.samples.start);
-        spec.quads.iter().flat_map(|q| [1, 2, 3].map(|c| u64::from((q.x * 7 + q.y * 3 + c) % 11) * n)).collect()
+        spec.quads
+            .iter()
+            .flat_map(|q| [1, 2, 3].map(|c| u64::from((q.x * 7 + q.y * 3 + c) % 11) * n))
+            .collect()
     }
 
     /// Leases and completes up to `limit` batches for one worker; returns how many.
@@ -704,7 +707,11 @@ mod tests {
             work(&mut restarted, b, usize::MAX);
             let (got, want) = (restarted.job(id).unwrap(), clean.job(id).unwrap());
             assert_eq!(got.state, JobState::Done, "stopped after {stop_after}");
-            assert_eq!(got.framebuffer().accumulators(), want.framebuffer().accumulators(), "stopped after {stop_after}");
+            assert_eq!(
+                got.framebuffer().accumulators(),
+                want.framebuffer().accumulators(),
+                "stopped after {stop_after}"
+            );
             assert_eq!(got.progress(now).samples_done, want.progress(now).samples_done);
             // New jobs never reuse the restored id.
             assert!(restarted.submit(bundle(), settings(4, 4, 1), 0).unwrap() > id);
@@ -731,7 +738,8 @@ mod tests {
         }
         let mut wrong = job.checkpoint();
         wrong.spp = 3;
-        let e = Farm::new().restore(LoadedJob { record: job.record(), checkpoint: Some(wrong) }, Instant::now());
+        let e =
+            Farm::new().restore(LoadedJob { record: job.record(), checkpoint: Some(wrong) }, Instant::now());
         assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{e:?}");
     }
 }

@@ -40,7 +40,8 @@ pub fn run(scene: &Path, spp: u32, runs: usize) -> Result<()> {
         while farm.job(id).expect("submitted").progress(Instant::now()).samples_done < total / 2 {
             let a = farm.assign(worker, Instant::now()).expect("work left");
             let n = u64::from(a.batch.samples.end - a.batch.samples.start);
-            let sums: Vec<u64> = (0..a.batch.quads.len() * 3).map(|i| (i as u64 % 5 + 1) * n * 4_000_000).collect();
+            let sums: Vec<u64> =
+                (0..a.batch.quads.len() * 3).map(|i| (i as u64 % 5 + 1) * n * 4_000_000).collect();
             farm.complete(worker, id, a.batch.id, &sums, 0, Instant::now()).map_err(|e| anyhow!(e))?;
         }
         let job = farm.job(id).expect("submitted");
