@@ -88,7 +88,9 @@ fn coordinator_killed_three_times_resumes_to_the_same_bytes() {
     });
     assert_eq!(before.pass, 1, "pass one ended too soon to kill inside it: {before:?}");
     let (coord, redone_1) = kill_and_restart(coord, &addr, &args, &[], "killed in pass one", &before);
-    assert!(redone_1 <= 2.0 * INTERVAL + 1.0, "pass one: {redone_1:.2} s of work redone");
+    // The bound: one interval, a quarter interval of checkpointer tick, and slack for the
+    // rate estimate and a loaded machine.
+    assert!(redone_1 <= INTERVAL * 1.25 + 1.0, "pass one: {redone_1:.2} s of work redone");
 
     // A second worker joins the running job.
     let _w2 = coord.worker(1);
@@ -99,13 +101,13 @@ fn coordinator_killed_three_times_resumes_to_the_same_bytes() {
     let stall_ms = 1500;
     let stall = [("TESSERA_FAULT_STALL_CHECKPOINT_MS", "1500")];
     let (coord, redone_2) = kill_and_restart(coord, &addr, &args, &stall, "killed in pass two", &before);
-    assert!(redone_2 <= 2.0 * INTERVAL + 1.0, "pass two: {redone_2:.2} s of work redone");
+    assert!(redone_2 <= INTERVAL * 1.25 + 1.0, "pass two: {redone_2:.2} s of work redone");
 
     // 3. In the middle of a checkpoint write (written, not committed).
     coord.proc.wait_for("not committed (test stall)", Duration::from_secs(60));
     let before = coord.job(1).expect("the stalled coordinator still answers");
     let (coord, redone_3) = kill_and_restart(coord, &addr, &args, &[], "killed mid-checkpoint", &before);
-    let bound = 2.0 * INTERVAL + stall_ms as f64 / 1000.0 + 1.0;
+    let bound = INTERVAL * 1.25 + stall_ms as f64 / 1000.0 + 1.0;
     assert!(redone_3 <= bound, "mid-checkpoint: {redone_3:.2} s of work redone, bound {bound} s");
 
     coord.wait_until(1, Duration::from_secs(120), "job done", |s| s.state == "done");
