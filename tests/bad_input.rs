@@ -39,6 +39,7 @@ fn bad_scene_files_name_file_line_and_column() {
         (good.replace("radius = 0.4", "radius = nan"), "positive"),
         (good.replace("center = [1.8, 0.4, -0.8]", "center = [1.8, nan, -0.8]"), "finite"),
         (good.replace("fov = 40", "fov = 40\nzoom = 2"), "zoom"),
+        (good.replace("spp = 4", "spp = 4\nsampler = \"halton\""), "unknown sampler \"halton\""),
         (
             format!("{good}\n[[mesh]]\nfile = \"../../etc/passwd\"\nmaterial = \"red\"\n"),
             "escapes the scene's folder",

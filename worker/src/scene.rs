@@ -222,6 +222,8 @@ struct RenderDef {
     spp: u32,
     #[serde(default)]
     seed: u64,
+    #[serde(default)]
+    sampler: Option<Spanned<String>>,
     #[serde(default = "default_depth")]
     max_depth: u32,
     #[serde(default = "black")]
@@ -890,6 +892,15 @@ pub fn parse_scene_with_assets(file: &str, text: &str, assets: &dyn Assets) -> R
             ctx.err(&rspan, format!("max_depth must be 1..={}, got {}", limits::MAX_DEPTH, r.max_depth))
         );
     }
+    let sampler = match &r.sampler {
+        None => crate::render::SamplerKind::default(),
+        Some(name) => crate::render::SamplerKind::from_name(name.get_ref()).ok_or_else(|| {
+            ctx.err(
+                &name.span(),
+                format!("unknown sampler {:?}: use \"stratified\", \"independent\" or \"sobol\"", name.get_ref()),
+            )
+        })?,
+    };
     let background = ctx.colour(&rspan, "render.background", r.background.0)?;
     let ambient = ctx.colour(&rspan, "render.ambient", r.ambient.0)?;
     let camera = camera(&ctx, raw.camera, r.width, r.height)?;
@@ -1013,6 +1024,7 @@ pub fn parse_scene_with_assets(file: &str, text: &str, assets: &dyn Assets) -> R
         height: r.height,
         spp: r.spp,
         seed: r.seed,
+        sampler,
         max_depth: r.max_depth,
         background,
         ambient,

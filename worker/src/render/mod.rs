@@ -21,7 +21,7 @@ use camera::Camera;
 use geometry::{Hit, Plane, Ray};
 use light::Light;
 use material::Material;
-pub use sampler::Sampler;
+pub use sampler::{Sampler, SamplerKind};
 use shape::{Mesh, Primitive};
 use texture::Texture;
 use transform::Motion;
@@ -37,6 +37,8 @@ pub struct Scene {
     pub spp: u32,
     /// Seed of every random choice; the same seed gives the same image.
     pub seed: u64,
+    /// The sample pattern.
+    pub sampler: SamplerKind,
     /// Most path segments (camera ray included) and depth of the classic ray tree.
     pub max_depth: u32,
     /// Radiance of rays that escape.
@@ -174,6 +176,6 @@ impl Scene {
 
     /// A sampler for this scene's pattern.
     pub fn sampler(&self) -> Sampler {
-        Sampler::new(self.seed, self.spp)
+        Sampler::new(self.sampler, self.seed, self.spp)
     }
 }

@@ -1,4 +1,6 @@
-//! Cook's jittered, stratified sampling as a pure function of (seed, pixel, sample index).
+//! Sampling as a pure function of (seed, pixel, sample index), with three patterns: Cook's
+//! jittered strata (the default), independent uniform random numbers, and an Owen-scrambled
+//! Sobol sequence.
 //!
 //! Each 2-D dimension of a pixel's samples (the pixel area now; lens, time, light and
 //! lobes as the scene needs them) is stratified with a correlated multi-jittered pattern
@@ -95,9 +97,72 @@ fn cmj(s: u32, (m, rows): (u32, u32), key: u64) -> Vec2 {
 /// The largest f32 below 1.
 pub const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON / 2.0;
 
+/// Which pattern a pixel's samples follow.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SamplerKind {
+    /// Cook's jittered strata: each 2-D dimension a correlated multi-jittered pattern over
+    /// the pixel's samples, dimensions associated at random.
+    #[default]
+    Stratified,
+    /// Independent uniform random numbers: the baseline every other pattern must beat.
+    Independent,
+    /// The first two dimensions of Sobol's sequence, Owen-scrambled per pixel and dimension
+    /// (hash-based nested uniform scrambling), sample order shuffled per dimension. A (0, 2)
+    /// net in base 2: best at power-of-two sample counts.
+    Sobol,
+}
+
+impl SamplerKind {
+    /// The name used in scene files.
+    pub fn name(self) -> &'static str {
+        match self {
+            SamplerKind::Stratified => "stratified",
+            SamplerKind::Independent => "independent",
+            SamplerKind::Sobol => "sobol",
+        }
+    }
+
+    /// The kind of a scene-file name.
+    pub fn from_name(name: &str) -> Option<Self> {
+        [SamplerKind::Stratified, SamplerKind::Independent, SamplerKind::Sobol].into_iter().find(|k| k.name() == name)
+    }
+}
+
+/// The second dimension of Sobol's sequence (the first is the bit-reversed index): its
+/// direction numbers follow v₁ = 2³¹, vₖ₊₁ = vₖ ⊕ (vₖ ≫ 1).
+fn sobol_dim1(mut i: u32) -> u32 {
+    let (mut v, mut r) = (1u32 << 31, 0u32);
+    while i != 0 {
+        if i & 1 != 0 {
+            r ^= v;
+        }
+        i >>= 1;
+        v ^= v >> 1;
+    }
+    r
+}
+
+/// Owen scrambling of a 32-bit fixed-point coordinate by hashing: a keyed function in which
+/// each bit is flipped depending only on the bits above it (Burley 2020, after Laine and
+/// Karras), applied to the bit-reversed value so that it runs from the top bit down.
+fn owen_scramble(x: u32, key: u32) -> u32 {
+    let mut v = x.reverse_bits();
+    v = v.wrapping_add(key);
+    v ^= v.wrapping_mul(0x6c50_b47c);
+    v ^= v.wrapping_mul(0xb82f_1e52);
+    v ^= v.wrapping_mul(0xc7af_e638);
+    v ^= v.wrapping_mul(0x8d22_f6e6);
+    v.reverse_bits()
+}
+
+fn fixed_to_unit(x: u32) -> f32 {
+    ((x >> 8) as f32 * (1.0 / (1u32 << 24) as f32)).min(ONE_MINUS_EPSILON)
+}
+
 /// The sample generator of one pixel sample; dimensions are drawn in a fixed order.
 #[derive(Debug, Clone)]
 pub struct Sampler {
+    kind: SamplerKind,
     seed: u64,
     spp: u32,
     grid: (u32, u32),
@@ -108,9 +173,9 @@ pub struct Sampler {
 
 impl Sampler {
     /// A sampler for patterns of `spp` samples per pixel.
-    pub fn new(seed: u64, spp: u32) -> Self {
+    pub fn new(kind: SamplerKind, seed: u64, spp: u32) -> Self {
         let spp = spp.max(1);
-        Sampler { seed, spp, grid: grid(spp), pixel: UVec2::ZERO, index: 0, dimension: 0 }
+        Sampler { kind, seed, spp, grid: grid(spp), pixel: UVec2::ZERO, index: 0, dimension: 0 }
     }
 
     /// Positions the sampler at sample `index` of `pixel`; the next draw is dimension 0.
@@ -134,30 +199,44 @@ impl Sampler {
         self.dimension
     }
 
-    /// The next 2-D dimension, stratified over the pixel's samples.
+    /// The next 2-D dimension, following the pixel's pattern.
     pub fn get_2d(&mut self) -> Vec2 {
         let key = self.dimension_key();
         self.dimension += 1;
-        if self.index >= self.spp {
-            // Beyond the pattern (not used by the farm today): plain random.
+        if self.index >= self.spp || self.kind == SamplerKind::Independent {
+            // Beyond the pattern, or no pattern: plain random.
             let h = hash_words(&[key, u64::from(self.index)]);
             return Vec2::new(unit_float(h), unit_float(mix64(h)));
         }
         // Cook's random association: each dimension visits the strata in its own order.
         let s = permute(self.index, self.spp, key);
-        cmj(s, self.grid, mix64(key))
+        match self.kind {
+            SamplerKind::Sobol => {
+                let k = mix64(key);
+                Vec2::new(
+                    fixed_to_unit(owen_scramble(s.reverse_bits(), k as u32)),
+                    fixed_to_unit(owen_scramble(sobol_dim1(s), (k >> 32) as u32)),
+                )
+            }
+            _ => cmj(s, self.grid, mix64(key)),
+        }
     }
 
-    /// The next 1-D dimension, stratified over the pixel's samples.
+    /// The next 1-D dimension, following the pixel's pattern.
     pub fn get_1d(&mut self) -> f32 {
         let key = self.dimension_key();
         self.dimension += 1;
-        if self.index >= self.spp {
+        if self.index >= self.spp || self.kind == SamplerKind::Independent {
             return unit_float(hash_words(&[key, u64::from(self.index)]));
         }
         let s = permute(self.index, self.spp, key);
-        let jitter = unit_float(hash_words(&[key, u64::from(s), 3]));
-        ((s as f32 + jitter) / self.spp as f32).min(ONE_MINUS_EPSILON)
+        match self.kind {
+            SamplerKind::Sobol => fixed_to_unit(owen_scramble(s.reverse_bits(), mix64(key) as u32)),
+            _ => {
+                let jitter = unit_float(hash_words(&[key, u64::from(s), 3]));
+                ((s as f32 + jitter) / self.spp as f32).min(ONE_MINUS_EPSILON)
+            }
+        }
     }
 }
 
@@ -183,7 +262,7 @@ mod tests {
     #[test]
     fn pixel_samples_are_stratified() {
         for spp in [1u32, 4, 9, 16, 7, 10, 64] {
-            let mut sampler = Sampler::new(7, spp);
+            let mut sampler = Sampler::new(SamplerKind::Stratified, 7, spp);
             let (m, rows) = grid(spp);
             assert_eq!(m * rows, spp);
             let mut cells = std::collections::HashSet::new();
@@ -201,7 +280,7 @@ mod tests {
     /// makes reassignment and resume correct.
     #[test]
     fn samples_are_pure_functions_of_pixel_and_index() {
-        let mut a = Sampler::new(1, 16);
+        let mut a = Sampler::new(SamplerKind::Stratified, 1, 16);
         a.start_pixel_sample(UVec2::new(10, 20), 5);
         let first = (a.get_2d(), a.get_1d(), a.get_2d());
         for i in 0..16 {
@@ -218,7 +297,7 @@ mod tests {
     #[test]
     fn samples_cover_the_pixel_evenly_for_any_count() {
         for spp in [2u32, 7, 10, 128, 200] {
-            let mut sampler = Sampler::new(11, spp);
+            let mut sampler = Sampler::new(SamplerKind::Stratified, 11, spp);
             let (mut top, mut right, mut n) = (0u32, 0u32, 0u32);
             for p in 0..256u32 {
                 for i in 0..spp {
@@ -243,7 +322,7 @@ mod tests {
     fn dimensions_are_associated_at_random() {
         // Pixel-area stratum and the next dimension's stratum must not be the same index.
         let spp = 16;
-        let mut sampler = Sampler::new(3, spp);
+        let mut sampler = Sampler::new(SamplerKind::Stratified, 3, spp);
         let mut same = 0;
         for i in 0..spp {
             sampler.start_pixel_sample(UVec2::new(1, 1), i);
@@ -254,5 +333,49 @@ mod tests {
             }
         }
         assert!(same < spp / 2, "{same} of {spp} strata paired identically");
+    }
+
+    /// Sobol at a power-of-two count is a (0, m, 2)-net: every elementary interval of area
+    /// 1/spp holds exactly one sample, whatever the scrambling key.
+    #[test]
+    fn sobol_is_a_net_at_powers_of_two() {
+        for k in [2u32, 4, 6] {
+            let spp = 1u32 << k;
+            for pixel in [UVec2::new(0, 0), UVec2::new(17, 5)] {
+                let mut sampler = Sampler::new(SamplerKind::Sobol, 9, spp);
+                let pts: Vec<Vec2> = (0..spp)
+                    .map(|i| {
+                        sampler.start_pixel_sample(pixel, i);
+                        sampler.get_2d()
+                    })
+                    .collect();
+                for a in 0..=k {
+                    let (nx, ny) = (1u32 << a, 1u32 << (k - a));
+                    let mut cells = std::collections::HashSet::new();
+                    for p in &pts {
+                        assert!((0.0..1.0).contains(&p.x) && (0.0..1.0).contains(&p.y));
+                        assert!(cells.insert(((p.x * nx as f32) as u32, (p.y * ny as f32) as u32)), "spp {spp}, {nx}x{ny}");
+                    }
+                }
+            }
+        }
+    }
+
+    /// Independent samples are uniform (a coarse histogram) and, like every pattern, a pure
+    /// function of (seed, pixel, index).
+    #[test]
+    fn independent_samples_are_uniform_and_repeatable() {
+        let mut s = Sampler::new(SamplerKind::Independent, 5, 4096);
+        let mut bins = [0u32; 8];
+        for i in 0..4096 {
+            s.start_pixel_sample(UVec2::new(2, 3), i);
+            let v = s.get_2d();
+            bins[(v.x * 8.0) as usize] += 1;
+            s.start_pixel_sample(UVec2::new(2, 3), i);
+            assert_eq!(s.get_2d(), v);
+        }
+        assert!(bins.iter().all(|&b| (412..=612).contains(&b)), "{bins:?}");
+        assert_eq!(SamplerKind::from_name("sobol"), Some(SamplerKind::Sobol));
+        assert_eq!(SamplerKind::from_name("halton"), None);
     }
 }
