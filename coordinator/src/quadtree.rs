@@ -206,6 +206,21 @@ impl Iterator for Walk {
 /// tested against, and the measure of the queue the paper needed. Returns the visit order
 /// and the queue's peak length.
 pub fn fifo_walk(width: u32, height: u32) -> (Vec<Quad>, usize) {
+    fifo_walk_in(width, height, ChildOrder::Paper)
+}
+
+/// The order in which a quadrant's children are visited.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum ChildOrder {
+    /// The paper's: upper-left, lower-right, upper-right (the lower-left is known).
+    Paper,
+    /// The plain sequential order the paper rejects for its rising "lines": lower-left
+    /// (known), lower-right, upper-left, upper-right. For measuring previews only.
+    Sequential,
+}
+
+/// [`fifo_walk`] with the children of each quadrant in `order`.
+pub fn fifo_walk_in(width: u32, height: u32, order_of_children: ChildOrder) -> (Vec<Quad>, usize) {
     use std::collections::VecDeque;
     let mut order = Vec::new();
     if width == 0 || height == 0 {
@@ -217,7 +232,12 @@ pub fn fifo_walk(width: u32, height: u32) -> (Vec<Quad>, usize) {
     order.push(root);
     let mut peak = queue.len();
     while let Some(q) = queue.pop_front() {
-        for child in q.split() {
+        let [ul, lr, ur, ll] = q.split();
+        let children = match order_of_children {
+            ChildOrder::Paper => [ul, lr, ur, ll],
+            ChildOrder::Sequential => [ll, lr, ul, ur],
+        };
+        for child in children {
             if child.queued {
                 queue.push_back(child.quad);
             }

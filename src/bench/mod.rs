@@ -13,6 +13,9 @@ use tessera_worker::bundle::Bundle;
 use crate::local::{render_local, LocalOptions};
 
 mod checkpoint;
+mod convergence;
+mod font;
+mod plot;
 mod reference;
 mod viewers;
 
@@ -57,6 +60,41 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 3)]
         runs: usize,
     },
+    /// The trade of speed against accuracy: the scene at 1, 4, 16, … spp with each sampler
+    /// (independent, stratified, Sobol), each run's time and error (RMSE, relative MSE,
+    /// PSNR) against a high-sample render; writes a table, a CSV and a log-log plot.
+    Convergence {
+        /// The scene file.
+        scene: PathBuf,
+        /// Image size WIDTHxHEIGHT [default: the scene's].
+        #[arg(long, value_parser = crate::parse_size)]
+        size: Option<(u32, u32)>,
+        /// The top of the ladder 1, 4, 16, … [default: 256].
+        #[arg(long, default_value_t = 256)]
+        max_spp: u32,
+        /// Samples per pixel of the reference [default: 16 × --max-spp].
+        #[arg(long)]
+        reference_spp: Option<u32>,
+        /// A reference image (EXR, linear) instead of rendering one.
+        #[arg(long)]
+        reference: Option<PathBuf>,
+        /// Where to write the figures [default: docs/accuracy/SCENE].
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+    /// The preview, measured: its error against the final image after 1 %, 5 %, 25 % and
+    /// 100 % of pass one, for the paper's order, the sequential quadrant order it rejects,
+    /// and scanline order; writes a table, a plot and the preview images.
+    Preview {
+        /// The scene file.
+        scene: PathBuf,
+        /// Image size WIDTHxHEIGHT [default: the scene's].
+        #[arg(long, value_parser = crate::parse_size)]
+        size: Option<(u32, u32)>,
+        /// Where to write the figures [default: docs/accuracy/SCENE].
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
     /// The BVH at scale: build time and traversal speed for meshes of 10k to 1M triangles.
     Bvh {
         /// The largest triangle count [default: 1000000].
@@ -91,6 +129,20 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
     match cmd {
         BenchCommand::Whitted { scene, runs } => whitted(&scene, runs.max(1)),
         BenchCommand::Bvh { triangles } => bvh(triangles),
+        BenchCommand::Convergence { scene, size, max_spp, reference_spp, reference, out } => {
+            if max_spp == 0 {
+                anyhow::bail!("--max-spp must be at least 1");
+            }
+            let reference_spp = reference_spp.unwrap_or(max_spp.saturating_mul(16)).clamp(1, 1 << 20);
+            let out = out.unwrap_or_else(|| convergence::default_out(&scene));
+            convergence::convergence(&scene, size, max_spp, reference_spp, reference.as_deref(), &out)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        BenchCommand::Preview { scene, size, out } => {
+            let out = out.unwrap_or_else(|| convergence::default_out(&scene));
+            convergence::preview(&scene, size, &out)?;
+            Ok(ExitCode::SUCCESS)
+        }
         BenchCommand::Checkpoint { scene, spp, runs } => {
             checkpoint::run(&scene, spp.max(2), runs.max(1))?;
             Ok(ExitCode::SUCCESS)

@@ -897,7 +897,10 @@ pub fn parse_scene_with_assets(file: &str, text: &str, assets: &dyn Assets) -> R
         Some(name) => crate::render::SamplerKind::from_name(name.get_ref()).ok_or_else(|| {
             ctx.err(
                 &name.span(),
-                format!("unknown sampler {:?}: use \"stratified\", \"independent\" or \"sobol\"", name.get_ref()),
+                format!(
+                    "unknown sampler {:?}: use \"stratified\", \"independent\" or \"sobol\"",
+                    name.get_ref()
+                ),
             )
         })?,
     };

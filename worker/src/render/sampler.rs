@@ -124,7 +124,9 @@ impl SamplerKind {
 
     /// The kind of a scene-file name.
     pub fn from_name(name: &str) -> Option<Self> {
-        [SamplerKind::Stratified, SamplerKind::Independent, SamplerKind::Sobol].into_iter().find(|k| k.name() == name)
+        [SamplerKind::Stratified, SamplerKind::Independent, SamplerKind::Sobol]
+            .into_iter()
+            .find(|k| k.name() == name)
     }
 }
 
@@ -354,7 +356,10 @@ mod tests {
                     let mut cells = std::collections::HashSet::new();
                     for p in &pts {
                         assert!((0.0..1.0).contains(&p.x) && (0.0..1.0).contains(&p.y));
-                        assert!(cells.insert(((p.x * nx as f32) as u32, (p.y * ny as f32) as u32)), "spp {spp}, {nx}x{ny}");
+                        assert!(
+                            cells.insert(((p.x * nx as f32) as u32, (p.y * ny as f32) as u32)),
+                            "spp {spp}, {nx}x{ny}"
+                        );
                     }
                 }
             }
