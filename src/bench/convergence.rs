@@ -53,7 +53,7 @@ fn reference(scene: &Scene, spp: u32, file: Option<&Path>) -> Result<Vec<f32>> {
     let mut r = scene.clone();
     r.spp = spp;
     r.sampler = SamplerKind::Stratified;
-    r.seed = scene.seed ^ 0x5eed_0f_4ef;
+    r.seed = scene.seed ^ 0x0005_eed0_f4ef;
     let t = Instant::now();
     let rgb = render_image(&r, 0..spp);
     println!("reference: {spp} spp in {:.1} s", t.elapsed().as_secs_f64());
