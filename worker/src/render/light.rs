@@ -115,8 +115,7 @@ impl Light {
                 if d2 <= r2 {
                     return uniform_area_pdf(sphere, p, wi, dist);
                 }
-                let cos_max = (1.0 - r2 / d2).max(0.0).sqrt();
-                1.0 / (2.0 * PI * (1.0 - cos_max))
+                1.0 / (2.0 * PI * one_minus_cos_max(r2, d2))
             }
         }
     }
@@ -155,13 +154,22 @@ fn sample_sphere_cone(sphere: &Sphere, p: Vec3, u: Vec2) -> Option<(Vec3, f32)> 
         let phi = 2.0 * PI * u.y;
         return Some((Vec3::new(r * phi.cos(), r * phi.sin(), z), 1.0 / (4.0 * PI)));
     }
-    let cos_max = (1.0 - r2 / d2).max(0.0).sqrt();
-    let cos_t = 1.0 - u.x * (1.0 - cos_max);
-    let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
+    // Work with 1 − cos θ, not cos θ: for a small or far sphere cos θmax rounds to 1 and
+    // the cone would vanish, with an infinite density.
+    let cone = one_minus_cos_max(r2, d2);
+    let k = u.x * cone;
+    let (cos_t, sin_t) = (1.0 - k, (k * (2.0 - k)).max(0.0).sqrt());
     let phi = 2.0 * PI * u.y;
     let frame = Frame::new(to_c / d2.sqrt());
     let wi = frame.to_world(Vec3::new(sin_t * phi.cos(), sin_t * phi.sin(), cos_t));
-    Some((wi.normalize(), 1.0 / (2.0 * PI * (1.0 - cos_max))))
+    Some((wi.normalize(), 1.0 / (2.0 * PI * cone)))
+}
+
+/// 1 − cos θmax of the cone a sphere of squared radius `r2` subtends from squared distance
+/// `d2`, as sin²θ / (1 + cos θ): exact where 1 − √(1 − sin²θ) cancels to 0.
+fn one_minus_cos_max(r2: f32, d2: f32) -> f32 {
+    let sin2 = (r2 / d2).min(1.0);
+    sin2 / (1.0 + (1.0 - sin2).sqrt())
 }
 
 fn uniform_area_pdf(_sphere: &Sphere, _p: Vec3, _wi: Vec3, _dist: f32) -> f32 {

@@ -108,11 +108,13 @@ impl Material {
     }
 
     /// What fraction of light a shadow ray passes through this surface: the classic
-    /// model's transmission (coloured shadows), zero for everything else (Cook's
+    /// model's transmission (coloured shadows), all of it for a dielectric of index 1 (no
+    /// interface at all: it neither bends nor reflects), zero for everything else (Cook's
     /// transport: shadows through glass are black, no caustics).
     pub fn shadow_transmission(&self) -> Vec3 {
         match self {
             Material::Classic(c) => c.transmit,
+            Material::Dielectric { ior } | Material::RoughDielectric { ior, .. } if *ior == 1.0 => Vec3::ONE,
             _ => Vec3::ZERO,
         }
     }
