@@ -40,6 +40,15 @@ pub struct RenderArgs {
     /// Open the viewer window on the render (it stays open until closed).
     #[arg(long)]
     pub view: bool,
+    /// Stop after this much rendering time, e.g. 90s, 2m, 1h30m (spp is then the most a
+    /// pixel takes): pass two runs in rounds over the whole image, so the image is evenly
+    /// converged whenever it stops.
+    #[arg(long, value_parser = crate::parse_duration, allow_hyphen_values = true)]
+    pub time: Option<Duration>,
+    /// Stop sampling each pixel once its estimated relative error is below this, e.g.
+    /// 0.01 (adaptive sampling, in rounds as with --time; spp is the most a pixel takes).
+    #[arg(long, allow_negative_numbers = true)]
+    pub noise: Option<f32>,
     /// Continue an interrupted render of the same scene and settings from its checkpoint.
     #[arg(long)]
     pub resume: bool,
@@ -87,6 +96,10 @@ pub struct LocalOptions {
     pub spp: Option<u32>,
     /// Size override.
     pub size: Option<(u32, u32)>,
+    /// Time budget.
+    pub time_limit: Option<Duration>,
+    /// Noise target.
+    pub noise: Option<f32>,
     /// Show a progress bar.
     pub progress_bar: bool,
     /// Open the viewer window.
@@ -206,7 +219,8 @@ impl Workers {
 pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRender> {
     let start = Instant::now();
     let bundle = Bundle::read(scene)?;
-    let settings = JobSettings { spp: opts.spp, size: opts.size };
+    let settings =
+        JobSettings { spp: opts.spp, size: opts.size, time_limit: opts.time_limit, noise: opts.noise };
     let (service, job) = start_job(bundle, settings, opts.checkpoints.as_ref()).await?;
     let checkpointer = service.spawn_checkpointer();
     let listener =
@@ -360,6 +374,8 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
         threads,
         spp: args.spp,
         size: args.size,
+        time_limit: args.time,
+        noise: args.noise,
         progress_bar: true,
         view: args.view,
         output: Some(args.output.clone()),
@@ -372,12 +388,19 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
     }
     match r.ending {
         Ending::Done => {
+            let samples = match p.halted {
+                Some(why) => format!(
+                    "stopped by the {why} at {:.1} samples per pixel on average, of at most {}",
+                    p.samples_done as f64 / (f64::from(r.width) * f64::from(r.height)),
+                    p.spp
+                ),
+                None => format!("{} spp", p.spp),
+            };
             eprintln!(
-                "wrote {} ({}x{}, {} spp) in {:.2} s, {}",
+                "wrote {} ({}x{}, {samples}) in {:.2} s, {}",
                 args.output.display(),
                 r.width,
                 r.height,
-                p.spp,
                 r.wall.as_secs_f64(),
                 rate(p.samples_done as f64 / p.elapsed.as_secs_f64().max(1e-9))
             );

@@ -35,6 +35,12 @@ pub struct SubmitArgs {
     /// Image size WIDTHxHEIGHT [default: the scene's].
     #[arg(long, value_parser = crate::parse_size)]
     pub size: Option<(u32, u32)>,
+    /// Stop after this much rendering time, e.g. 90s, 2m, 1h30m (see `tessera render`).
+    #[arg(long, value_parser = crate::parse_duration, allow_hyphen_values = true)]
+    pub time: Option<Duration>,
+    /// Per-pixel noise target, e.g. 0.01 (adaptive sampling; see `tessera render`).
+    #[arg(long, allow_negative_numbers = true)]
+    pub noise: Option<f32>,
     /// Priority: jobs with a higher one are served first, equal ones oldest first.
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub priority: i32,
@@ -125,7 +131,12 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
             protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
             bundle: Some(bundle_to_wire(&bundle)),
             settings: Some(tessera_coordinator::service::settings_to_wire(
-                &tessera_coordinator::farm::JobSettings { spp: args.spp, size: args.size },
+                &tessera_coordinator::farm::JobSettings {
+                    spp: args.spp,
+                    size: args.size,
+                    time_limit: args.time,
+                    noise: args.noise,
+                },
             )),
             priority: args.priority,
         })

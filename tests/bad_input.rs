@@ -163,3 +163,27 @@ fn bad_data_directories_and_checkpoints_are_clear_errors() {
     let e = stderr_of(&["submit", scene, "--coordinator", "http://127.0.0.1:1", "--priority", "high"]);
     assert!(e.contains("--priority"), "{e}");
 }
+
+/// Halt conditions out of range are one clear error line each.
+#[test]
+fn bad_halt_conditions_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.png");
+    let (scene, out) = (small_scene(), out.to_str().unwrap().to_string());
+    let render = |extra: &[&str]| {
+        let mut args = vec!["render", scene.to_str().unwrap(), "-o", &out];
+        args.extend_from_slice(extra);
+        stderr_of(&args)
+    };
+    for noise in ["2", "0", "-0.1", "nan"] {
+        let e = render(&["--noise", noise]);
+        assert!(
+            e.contains("noise target must be a relative error in (0, 1)") || e.contains("--noise"),
+            "{noise}: {e}"
+        );
+    }
+    for time in ["0", "soon", "5x", "-1s"] {
+        let e = render(&["--time", time]);
+        assert!(e.contains("--time") && e.contains("duration"), "{time}: {e}");
+    }
+}

@@ -212,3 +212,34 @@ fn thin_and_tiny_images_render_through_the_farm() {
         assert!(img.pixels().flat_map(|p| p.0).all(f32::is_finite), "{size}: a pixel is not finite");
     }
 }
+
+/// Halt conditions through the whole farm: a noise target gives the same bytes with 1 and
+/// 3 workers and stops early; a time budget stops a render that would take hours.
+#[test]
+fn noise_target_is_deterministic_and_a_time_budget_stops() {
+    let dir = tempfile::tempdir().unwrap();
+    let one = dir.path().join("one.png");
+    let three = dir.path().join("three.png");
+    let adaptive = ["--spp", "128", "--noise", "0.05"];
+    render_local(&small_scene(), &one, 1, &adaptive);
+    render_local(&small_scene(), &three, 3, &adaptive);
+    assert_eq!(read(&one), read(&three), "adaptive sampling differs between 1 and 3 workers");
+
+    let timed = dir.path().join("timed.png");
+    let start = std::time::Instant::now();
+    let o = run(&[
+        "render",
+        small_scene().to_str().unwrap(),
+        "-o",
+        timed.to_str().unwrap(),
+        "--spp",
+        "1048576",
+        "--time",
+        "2s",
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success(), "{err}");
+    assert!(err.contains("stopped by the time budget"), "{err}");
+    assert!(start.elapsed() < Duration::from_secs(30), "took {:?}", start.elapsed());
+    assert_eq!(image::open(&timed).unwrap().to_rgb8().dimensions(), (64, 48));
+}

@@ -10,12 +10,15 @@ use crate::ids::JobId;
 use crate::scheduler::Completed;
 
 /// Identifies the header part and its layout.
-const MAGIC: &[u8; 8] = b"TSRCKPT1";
+const MAGIC: &[u8; 8] = b"TSRCKPT2";
 /// Pixels per part: 14 MB of accumulators, far below SQLite's 1 GB value limit, and a
 /// bounded buffer when reading back.
 pub const PART_PIXELS: usize = 1 << 19;
-/// Bytes a pixel takes: three u64 sums and a u32 count.
+/// Bytes a pixel takes: three u64 sums and a u32 count (and a u64 even-sample sum for jobs
+/// with a noise target).
 const PIXEL_BYTES: usize = 28;
+/// Words of the header after the magic, before the merged-batch ids.
+const HEADER_WORDS: usize = 11;
 
 /// A job's state at one moment.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -38,6 +41,10 @@ pub struct Checkpoint {
     pub sums: Vec<[u64; 3]>,
     /// Per-pixel sample counts.
     pub counts: Vec<u32>,
+    /// Per-pixel even-sample luminance sums (jobs with a noise target), else empty.
+    pub even: Vec<u64>,
+    /// Rendering time so far (counted against a time budget).
+    pub spent: std::time::Duration,
 }
 
 /// One stored part: its bytes and their checksum.
@@ -109,17 +116,25 @@ impl Checkpoint {
             h.extend_from_slice(&v.to_le_bytes());
         }
         h.extend_from_slice(&(pixel_parts as u64).to_le_bytes());
+        h.extend_from_slice(&u64::from(!self.even.is_empty()).to_le_bytes());
+        h.extend_from_slice(&(self.spent.as_millis() as u64).to_le_bytes());
         h.extend_from_slice(&(self.completed.above.len() as u64).to_le_bytes());
         for id in &self.completed.above {
             h.extend_from_slice(&id.to_le_bytes());
         }
         let mut parts = vec![Part::new(h)];
-        for (sums, counts) in self.sums.chunks(PART_PIXELS).zip(self.counts.chunks(PART_PIXELS)) {
-            let mut d = Vec::with_capacity(sums.len() * PIXEL_BYTES);
+        for (k, (sums, counts)) in
+            self.sums.chunks(PART_PIXELS).zip(self.counts.chunks(PART_PIXELS)).enumerate()
+        {
+            let mut d = Vec::with_capacity(sums.len() * (PIXEL_BYTES + 8));
             for s in sums {
                 s.iter().for_each(|v| d.extend_from_slice(&v.to_le_bytes()));
             }
             counts.iter().for_each(|c| d.extend_from_slice(&c.to_le_bytes()));
+            if !self.even.is_empty() {
+                let even = &self.even[k * PART_PIXELS..k * PART_PIXELS + counts.len()];
+                even.iter().for_each(|e| d.extend_from_slice(&e.to_le_bytes()));
+            }
             parts.push(Part::new(d));
         }
         parts
@@ -134,7 +149,7 @@ impl Checkpoint {
         }
         let header = parts.first().ok_or(DecodeError::PartCount { expected: 1, found: 0 })?;
         let h = &header.data;
-        if h.len() < MAGIC.len() + 9 * 8 || &h[..8] != MAGIC {
+        if h.len() < MAGIC.len() + HEADER_WORDS * 8 || &h[..8] != MAGIC {
             return Err(DecodeError::Magic);
         }
         let word = |i: usize| u64::from_le_bytes(h[8 + i * 8..16 + i * 8].try_into().expect("8 bytes"));
@@ -142,12 +157,13 @@ impl Checkpoint {
         let (width, height, spp, job) =
             (narrow(word(0))?, narrow(word(1))?, narrow(word(2))?, JobId(word(3)));
         let (nonfinite_samples, samples_done, below) = (word(4), word(5), word(6));
-        let (pixel_parts, n_above) = (word(7) as usize, word(8) as usize);
-        let expected_len = 8 + 9 * 8 + n_above.saturating_mul(8);
+        let (pixel_parts, has_even, spent_ms, n_above) =
+            (word(7) as usize, word(8) != 0, word(9), word(10) as usize);
+        let expected_len = (8 + HEADER_WORDS * 8).saturating_add(n_above.saturating_mul(8));
         if h.len() != expected_len {
             return Err(DecodeError::PartLength { part: 0, expected: expected_len, got: h.len() });
         }
-        let above = (0..n_above).map(|i| word(9 + i)).collect();
+        let above = (0..n_above).map(|i| word(HEADER_WORDS + i)).collect();
         let pixels = width as usize * height as usize;
         if pixel_parts != pixels.div_ceil(PART_PIXELS) || parts.len() != pixel_parts + 1 {
             return Err(DecodeError::PartCount {
@@ -157,20 +173,25 @@ impl Checkpoint {
         }
         let mut sums = Vec::with_capacity(pixels);
         let mut counts = Vec::with_capacity(pixels);
+        let mut even = Vec::with_capacity(if has_even { pixels } else { 0 });
+        let pixel_bytes = PIXEL_BYTES + if has_even { 8 } else { 0 };
+        let u64s = |b: &[u8]| -> Vec<u64> {
+            b.chunks_exact(8).map(|b| u64::from_le_bytes(b.try_into().expect("8"))).collect()
+        };
         for (i, p) in parts[1..].iter().enumerate() {
             let n = (pixels - i * PART_PIXELS).min(PART_PIXELS);
-            if p.data.len() != n * PIXEL_BYTES {
+            if p.data.len() != n * pixel_bytes {
                 return Err(DecodeError::PartLength {
                     part: i + 1,
-                    expected: n * PIXEL_BYTES,
+                    expected: n * pixel_bytes,
                     got: p.data.len(),
                 });
             }
-            let (s, c) = p.data.split_at(n * 24);
-            let u64s: Vec<u64> =
-                s.chunks_exact(8).map(|b| u64::from_le_bytes(b.try_into().expect("8"))).collect();
-            sums.extend(u64s.chunks_exact(3).map(|t| [t[0], t[1], t[2]]));
+            let (s, rest) = p.data.split_at(n * 24);
+            let (c, e) = rest.split_at(n * 4);
+            sums.extend(u64s(s).chunks_exact(3).map(|t| [t[0], t[1], t[2]]));
             counts.extend(c.chunks_exact(4).map(|b| u32::from_le_bytes(b.try_into().expect("4"))));
+            even.extend(u64s(e));
         }
         let counted: u64 = counts.iter().map(|&c| u64::from(c)).sum();
         if counted != samples_done {
@@ -186,6 +207,8 @@ impl Checkpoint {
             samples_done,
             sums,
             counts,
+            even,
+            spent: std::time::Duration::from_millis(spent_ms),
         })
     }
 }
@@ -206,7 +229,9 @@ mod tests {
             nonfinite_samples: 3,
             samples_done: counts.iter().map(|&c| u64::from(c)).sum(),
             sums: (0..n as u64).map(|i| [i, i * 3, u64::MAX - i]).collect(),
+            even: if width % 2 == 1 { (0..n as u64).map(|i| i * 7).collect() } else { Vec::new() },
             counts,
+            spent: std::time::Duration::from_millis(4321),
         }
     }
 

@@ -10,6 +10,7 @@ use tessera_worker::bundle::Bundle;
 use crate::checkpoint::Checkpoint;
 use crate::framebuffer::{Framebuffer, MergeError};
 use crate::ids::{BatchId, JobId, WorkerId};
+use crate::quadtree::Quad;
 use crate::scheduler::{BatchSpec, CompleteError, PassQueue, RestoreError};
 use crate::store::{JobRecord, LoadedJob};
 
@@ -24,13 +25,37 @@ const SPECULATE_PATIENCE: u32 = 3;
 const SPECULATE_MIN_AGE: Duration = Duration::from_secs(1);
 
 /// Settings a submission may override.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
+#[derive(Debug, Clone, Default, PartialEq)]
 pub struct JobSettings {
-    /// Samples per pixel; `None` keeps the scene's.
+    /// Samples per pixel (the most, with a time budget or noise target); `None` keeps the
+    /// scene's.
     pub spp: Option<u32>,
     /// Image size; `None` keeps the scene's.
     pub size: Option<(u32, u32)>,
+    /// Stop after this much rendering time, wherever the job is.
+    pub time_limit: Option<Duration>,
+    /// Stop sampling each pixel once its estimated relative error is below this.
+    pub noise: Option<f32>,
 }
+
+impl JobSettings {
+    /// Only spp and size: a job that runs to its sample count in the paper's two passes.
+    pub fn sized(spp: Option<u32>, size: Option<(u32, u32)>) -> Self {
+        JobSettings { spp, size, ..JobSettings::default() }
+    }
+
+    /// Whether pass two runs in rounds over the image (a time budget or a noise target).
+    pub fn in_rounds(&self) -> bool {
+        self.time_limit.is_some() || self.noise.is_some()
+    }
+}
+
+/// Luminance below which a pixel's noise is measured against this floor instead: black
+/// pixels would otherwise never reach a relative target.
+pub const NOISE_FLOOR: f64 = 0.05;
+/// Samples a pixel takes before its noise estimate may stop it: fewer give estimates too
+/// rough to trust.
+pub const NOISE_MIN_SAMPLES: u32 = 16;
 
 /// Where a job stands.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -74,6 +99,9 @@ pub struct Job {
     rate: VecDeque<(Instant, u64)>,
     failures: HashMap<BatchId, u32>,
     nonfinite_samples: u64,
+    /// Rendering time before a restart, counted against a time budget.
+    spent_before: Duration,
+    halted: Option<&'static str>,
 }
 
 impl Job {
@@ -109,7 +137,27 @@ impl Job {
             pass_one_done: self.queue.pass_one_pixels_done(),
             nonfinite_samples: self.nonfinite_samples,
             priority: self.priority,
+            halted: self.halted,
         }
+    }
+
+    /// Rendering time so far, across restarts.
+    pub fn spent(&self, now: Instant) -> Duration {
+        let end = self.finished.unwrap_or(now);
+        self.spent_before + self.started.map_or(Duration::ZERO, |s| end.saturating_duration_since(s))
+    }
+
+    /// Ends the job if its time budget is spent; returns whether it did.
+    fn enforce_deadline(&mut self, now: Instant) -> bool {
+        let Some(limit) = self.settings.time_limit else { return false };
+        if self.is_over() || self.state == JobState::Paused || self.spent(now) < limit {
+            return false;
+        }
+        self.queue.abandon();
+        self.state = JobState::Done;
+        self.finished = Some(now);
+        self.halted = Some("time budget");
+        true
     }
 
     /// Whether every pixel has its pass-one sample.
@@ -123,6 +171,8 @@ impl Job {
     pub fn checkpoint(&self) -> Checkpoint {
         let (sums, counts) = self.framebuffer.accumulators();
         Checkpoint {
+            even: self.framebuffer.even().to_vec(),
+            spent: self.spent(Instant::now()),
             job: self.id,
             width: self.framebuffer.width(),
             height: self.framebuffer.height(),
@@ -178,6 +228,9 @@ pub struct JobProgress {
     pub nonfinite_samples: u64,
     /// The job's priority.
     pub priority: i32,
+    /// Why the job ended before its sample count: "time budget", or "noise target" when
+    /// every pixel reached it.
+    pub halted: Option<&'static str>,
 }
 
 impl JobProgress {
@@ -221,6 +274,8 @@ pub struct Assignment {
     pub attempt: u32,
     /// A duplicate of a straggler's batch, leased to another worker too.
     pub speculative: bool,
+    /// The job wants even-sample sums back (it has a noise target).
+    pub even_sums: bool,
 }
 
 /// Why a submission was refused.
@@ -237,6 +292,12 @@ pub enum SubmitError {
         /// Limit.
         max: u32,
     },
+    /// Noise target out of range.
+    #[error("the noise target must be a relative error in (0, 1), e.g. 0.01, got {0}")]
+    Noise(f32),
+    /// A zero time budget.
+    #[error("the time budget must be positive")]
+    TimeLimit,
     /// Size override out of range.
     #[error("image size must be 1..={max_side} on each side and at most {max_pixels} pixels, got {width}x{height}")]
     Size {
@@ -335,16 +396,31 @@ impl Farm {
                     got: format!("{}x{}@{}", c.width, c.height, c.spp),
                 });
             }
-            job.queue = PassQueue::restore(w, h, job.spp, &c.completed)?;
+            if c.even.is_empty() == job.framebuffer.has_even() {
+                return Err(RestoreJobError::Mismatch {
+                    expected: format!("noise target {:?}", job.settings.noise),
+                    got: "a checkpoint with other accumulators".into(),
+                });
+            }
+            let fb = Framebuffer::from_accumulators(w, h, c.sums, c.counts, c.even)
+                .expect("decode checked lengths");
+            job.queue = if job.settings.in_rounds() {
+                let target = job.settings.noise;
+                let keep = |q: Quad| !converged(&fb, q, target);
+                let decide: Option<&dyn Fn(Quad) -> bool> = if target.is_some() { Some(&keep) } else { None };
+                PassQueue::restore_rounds(w, h, job.spp, &c.completed, fb.accumulators().1, decide)?
+            } else {
+                PassQueue::restore(w, h, job.spp, &c.completed)?
+            };
             if job.queue.samples_done() != c.samples_done {
                 return Err(RestoreJobError::Mismatch {
                     expected: format!("{} samples for its merged batches", job.queue.samples_done()),
                     got: format!("{} samples", c.samples_done),
                 });
             }
-            job.framebuffer =
-                Framebuffer::from_accumulators(w, h, c.sums, c.counts).expect("decode checked lengths");
+            job.framebuffer = fb;
             job.nonfinite_samples = c.nonfinite_samples;
+            job.spent_before = c.spent;
         }
         job.state = match record.state {
             JobState::Cancelled | JobState::Failed(_) => {
@@ -372,6 +448,11 @@ impl Farm {
         }
     }
 
+    /// Ends every job whose time budget is spent; returns them.
+    pub fn enforce_deadlines(&mut self, now: Instant) -> Vec<JobId> {
+        self.jobs.values_mut().filter_map(|j| j.enforce_deadline(now).then_some(j.id)).collect()
+    }
+
     /// Makes sure ids stay above `id` (one that was used, even if its job is lost).
     pub fn reserve_ids_through(&mut self, id: u64) {
         self.next_job = self.next_job.max(id);
@@ -396,7 +477,26 @@ impl Farm {
             }
         }
         scene.apply(settings.spp, settings.size);
+        if let Some(n) = settings.noise.filter(|n| !(n.is_finite() && *n > 0.0 && *n < 1.0)) {
+            return Err(SubmitError::Noise(n));
+        }
+        if settings.time_limit.is_some_and(|t| t.is_zero()) {
+            return Err(SubmitError::TimeLimit);
+        }
         let spp = scene.spp;
+        let (queue, framebuffer) = match (settings.in_rounds(), settings.noise.is_some()) {
+            (false, _) => {
+                (PassQueue::new(scene.width, scene.height, spp), Framebuffer::new(scene.width, scene.height))
+            }
+            (true, adaptive) => (
+                PassQueue::with_rounds(scene.width, scene.height, spp),
+                if adaptive {
+                    Framebuffer::with_even(scene.width, scene.height)
+                } else {
+                    Framebuffer::new(scene.width, scene.height)
+                },
+            ),
+        };
         Ok(Job {
             id,
             scene_hash: bundle.hash(),
@@ -405,13 +505,15 @@ impl Farm {
             priority,
             spp,
             state: JobState::Queued,
-            queue: PassQueue::new(scene.width, scene.height, spp),
-            framebuffer: Framebuffer::new(scene.width, scene.height),
+            queue,
+            framebuffer,
             started: None,
             finished: None,
             rate: VecDeque::new(),
             failures: HashMap::new(),
             nonfinite_samples: 0,
+            spent_before: Duration::ZERO,
+            halted: None,
         })
     }
 
@@ -495,6 +597,7 @@ impl Farm {
         if !self.workers.contains_key(&worker) {
             return None;
         }
+        self.enforce_deadlines(now);
         let order = self.service_order();
         let pick = |job: &mut Job, speculate: bool| {
             let lease = if speculate {
@@ -521,6 +624,7 @@ impl Farm {
             .scenes
             .insert(job.id)
             .then(|| (job.bundle.clone(), job.scene_hash.clone(), job.settings.clone()));
+        let even_sums = job.framebuffer.has_even();
         Some(Assignment {
             job: job.id,
             scene,
@@ -528,6 +632,7 @@ impl Farm {
             batch,
             attempt,
             speculative,
+            even_sums,
         })
     }
 
@@ -541,6 +646,21 @@ impl Farm {
         nonfinite: u64,
         now: Instant,
     ) -> Result<(), ResultError> {
+        self.complete_split(worker, job_id, batch, sums, &[], nonfinite, now)
+    }
+
+    /// `complete`, with the batch's even-sample sums (needed by jobs with a noise target).
+    #[allow(clippy::too_many_arguments)]
+    pub fn complete_split(
+        &mut self,
+        worker: WorkerId,
+        job_id: JobId,
+        batch: BatchId,
+        sums: &[u64],
+        even: &[u64],
+        nonfinite: u64,
+        now: Instant,
+    ) -> Result<(), ResultError> {
         let job = self.jobs.get_mut(&job_id).ok_or(ResultError::UnknownJob(job_id))?;
         if job.is_over() {
             return Err(CompleteError::NotOutstanding { batch }.into());
@@ -549,12 +669,31 @@ impl Farm {
         // merges nor marks the batch done.
         let spec = job.queue.outstanding(batch).ok_or(CompleteError::NotOutstanding { batch })?.clone();
         let samples = spec.samples.end - spec.samples.start;
-        if let Err(source) = Framebuffer::check(&spec.quads, samples, sums) {
+        let checked = Framebuffer::check(&spec.quads, samples, sums).and_then(|()| {
+            if job.framebuffer.has_even() {
+                Framebuffer::check_even(&spec.quads, samples, even)
+            } else {
+                Ok(())
+            }
+        });
+        if let Err(source) = checked {
             job.queue.take_back(batch);
             return Err(ResultError::Malformed { job: job_id, batch, source });
         }
         job.queue.complete(batch, now)?;
-        job.framebuffer.merge(&spec.quads, samples, sums).expect("sums were checked above");
+        job.framebuffer.merge_split(&spec.quads, samples, sums, even).expect("sums were checked above");
+        if let Some((round, tile)) = job.queue.round_of(batch) {
+            // The tile's next round: every pixel, or those still above the noise target
+            // (decided on merged samples only, so the same whatever the arrival order).
+            let next = job.settings.noise.map(|target| {
+                spec.quads
+                    .iter()
+                    .copied()
+                    .filter(|q| !converged(&job.framebuffer, *q, Some(target)))
+                    .collect()
+            });
+            job.queue.schedule_round(tile, round + 1, next);
+        }
         job.after_merge(nonfinite, now);
         if let Some(w) = self.workers.get_mut(&worker) {
             w.batches_done += 1;
@@ -604,6 +743,13 @@ impl Farm {
     }
 }
 
+/// Whether pixel `q` has reached the noise target (never without one).
+fn converged(fb: &Framebuffer, q: Quad, target: Option<f32>) -> bool {
+    let Some(target) = target else { return false };
+    let count = fb.accumulators().1[(q.y * fb.width() + q.x) as usize];
+    count >= NOISE_MIN_SAMPLES && fb.noise(q.x, q.y, NOISE_FLOOR).is_some_and(|n| n <= f64::from(target))
+}
+
 impl Job {
     fn queue_leases_of(&self, worker: WorkerId) -> usize {
         self.queue.leased_by(worker)
@@ -618,6 +764,9 @@ impl Job {
         if self.queue.is_finished() {
             self.state = JobState::Done;
             self.finished = Some(now);
+            if self.settings.noise.is_some() && self.queue.samples_done() < self.queue.samples_total() {
+                self.halted = Some("noise target");
+            }
         }
     }
 }
@@ -633,7 +782,7 @@ mod tests {
     }
 
     fn settings(w: u32, h: u32, spp: u32) -> JobSettings {
-        JobSettings { spp: Some(spp), size: Some((w, h)) }
+        JobSettings::sized(Some(spp), Some((w, h)))
     }
 
     /// What a worker would send: sums that depend on pixel and samples only.
@@ -741,5 +890,101 @@ mod tests {
         let e =
             Farm::new().restore(LoadedJob { record: job.record(), checkpoint: Some(wrong) }, Instant::now());
         assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{e:?}");
+    }
+
+    /// Per-sample values of a fake scene: flat pixels (they reach any noise target) and
+    /// noisy ones (they do not), as fixed-point r = g = b.
+    fn fake_sample(q: &Quad, i: u32) -> u64 {
+        if (q.x + q.y) % 2 == 0 {
+            5 << 22
+        } else {
+            (u64::from(i).wrapping_mul(2_654_435_761) % 1000) << 14
+        }
+    }
+
+    /// A worker's result with even-sample sums.
+    fn fake_split(spec: &BatchSpec) -> (Vec<u64>, Vec<u64>) {
+        let mut sums = Vec::new();
+        let mut even = Vec::new();
+        for q in &spec.quads {
+            let vals: Vec<u64> = spec.samples.clone().map(|i| fake_sample(q, i)).collect();
+            let total: u64 = vals.iter().sum();
+            sums.extend([total; 3]);
+            even.push(spec.samples.clone().zip(&vals).filter(|(i, _)| i % 2 == 0).map(|(_, v)| *v).sum());
+        }
+        (sums, even)
+    }
+
+    /// Runs a job to its end, merging each window of `window` leases in reverse order.
+    fn run_adaptive(farm: &mut Farm, limit: usize, window: usize) -> usize {
+        let w = farm.add_worker("w".into(), 1, Instant::now());
+        let now = Instant::now();
+        let mut merged = 0;
+        while merged < limit {
+            let held: Vec<Assignment> = (0..window).map_while(|_| farm.assign(w, now)).collect();
+            if held.is_empty() {
+                break;
+            }
+            for a in held.iter().rev() {
+                let (sums, even) = fake_split(&a.batch);
+                farm.complete_split(w, a.job, a.batch.id, &sums, &even, 0, now).unwrap();
+                merged += 1;
+            }
+        }
+        merged
+    }
+
+    /// With a noise target, flat pixels stop early and noisy ones go on; the result is the
+    /// same bits whatever the merge order, and after a restore from a mid-run checkpoint.
+    #[test]
+    fn adaptive_sampling_is_deterministic_and_resumable() {
+        let adaptive = JobSettings { noise: Some(0.02), ..settings(40, 36, 256) };
+        let mut reference = Farm::new();
+        let id = reference.submit(bundle(), adaptive.clone(), 0).unwrap();
+        run_adaptive(&mut reference, usize::MAX, 1);
+        let done = reference.job(id).unwrap();
+        assert_eq!(done.state, JobState::Done);
+        assert_eq!(done.progress(Instant::now()).halted, Some("noise target"));
+        let counts = done.framebuffer().accumulators().1;
+        let flat = counts.iter().enumerate().filter(|(i, _)| (i % 40 + i / 40) % 2 == 0).map(|(_, &c)| c);
+        assert!(flat.clone().all(|c| c == NOISE_MIN_SAMPLES), "flat pixels stop at the minimum");
+        assert!(counts.iter().any(|&c| c == 256), "noisy pixels take every sample");
+
+        let mut shuffled = Farm::new();
+        shuffled.submit(bundle(), adaptive.clone(), 0).unwrap();
+        run_adaptive(&mut shuffled, usize::MAX, 7);
+        let got = shuffled.job(id).unwrap().framebuffer();
+        assert_eq!(got.accumulators(), done.framebuffer().accumulators());
+        assert_eq!(got.even(), done.framebuffer().even());
+
+        for stop in [3, 40, 90] {
+            let mut first = Farm::new();
+            first.submit(bundle(), adaptive.clone(), 0).unwrap();
+            run_adaptive(&mut first, stop, 3);
+            let job = first.job(id).unwrap();
+            let stored = LoadedJob { record: job.record(), checkpoint: Some(job.checkpoint()) };
+            let mut restarted = Farm::new();
+            restarted.restore(stored, Instant::now()).unwrap();
+            run_adaptive(&mut restarted, usize::MAX, 2);
+            let got = restarted.job(id).unwrap();
+            assert_eq!(got.state, JobState::Done, "stop {stop}");
+            assert_eq!(got.framebuffer().accumulators(), done.framebuffer().accumulators(), "stop {stop}");
+        }
+    }
+
+    /// A time budget ends the job wherever it is, even mid-round, and says so.
+    #[test]
+    fn a_spent_time_budget_ends_the_job() {
+        let mut farm = Farm::new();
+        let timed = JobSettings { time_limit: Some(Duration::from_secs(5)), ..settings(16, 16, 1000) };
+        let id = farm.submit(bundle(), timed, 0).unwrap();
+        let w = farm.add_worker("w".into(), 1, Instant::now());
+        let t0 = Instant::now();
+        let a = farm.assign(w, t0).unwrap();
+        farm.complete(w, id, a.batch.id, &fake_sums(&a.batch), 0, t0).unwrap();
+        assert!(farm.enforce_deadlines(t0 + Duration::from_secs(4)).is_empty());
+        assert!(farm.assign(w, t0 + Duration::from_secs(6)).is_none());
+        let job = farm.job(id).unwrap();
+        assert_eq!((job.state.clone(), job.progress(t0).halted), (JobState::Done, Some("time budget")));
     }
 }

@@ -17,6 +17,14 @@ pub enum MergeError {
         /// What came.
         got: usize,
     },
+    /// The result does not have one even-sample sum per pixel.
+    #[error("expected {expected} even-sample sums (1 per pixel), got {got}")]
+    EvenLength {
+        /// Pixels.
+        expected: usize,
+        /// What came.
+        got: usize,
+    },
     /// A sum is larger than its samples can produce.
     #[error("sum {value} of pixel {x},{y} exceeds the largest possible for {samples} samples")]
     OutOfRange {
@@ -38,6 +46,10 @@ pub struct Framebuffer {
     height: u32,
     sums: Vec<[u64; 3]>,
     counts: Vec<u32>,
+    /// Per pixel, the sum of the luminance of its even-numbered samples, for jobs with a
+    /// noise target: with the full sums it gives two independent half estimates, whose
+    /// difference estimates the error of the mean. Empty otherwise.
+    even: Vec<u64>,
     /// Per pixel, the version of the merge that last changed it (for viewers' deltas).
     versions: Vec<u64>,
     /// Merges so far.
@@ -64,20 +76,64 @@ impl Framebuffer {
             height,
             sums: vec![[0; 3]; n],
             counts: vec![0; n],
+            even: Vec::new(),
             versions: vec![0; n],
             version: 0,
         }
     }
 
+    /// An empty framebuffer that also keeps even-sample luminance sums (noise targets).
+    pub fn with_even(width: u32, height: u32) -> Self {
+        let mut fb = Framebuffer::new(width, height);
+        fb.even = vec![0; fb.counts.len()];
+        fb
+    }
+
+    /// Whether it keeps even-sample sums.
+    pub fn has_even(&self) -> bool {
+        !self.even.is_empty()
+    }
+
+    /// The even-sample luminance sums (empty unless `with_even`).
+    pub fn even(&self) -> &[u64] {
+        &self.even
+    }
+
+    /// The estimated relative standard error of pixel `(x, y)`'s mean luminance: half the
+    /// difference of the means of its even and odd samples (each half an independent
+    /// estimate, so that their difference has twice the mean's standard deviation),
+    /// relative to the mean, which is floored at `floor` so that black pixels converge too.
+    /// `None` before two samples, or without even sums.
+    pub fn noise(&self, x: u32, y: u32, floor: f64) -> Option<f64> {
+        let i = self.index(x, y);
+        let n = self.counts[i];
+        if n < 2 || self.even.is_empty() {
+            return None;
+        }
+        let total = self.sums[i].iter().map(|&s| s as f64).sum::<f64>() / 3.0;
+        let even = self.even[i] as f64;
+        let (n_even, n_odd) = (f64::from(n.div_ceil(2)), f64::from(n / 2));
+        let (m_even, m_odd) = (even / n_even, (total - even).max(0.0) / n_odd);
+        let mean = total / f64::from(n);
+        let scale = fixed::SCALE;
+        Some((m_even - m_odd).abs() / 2.0 / (mean / scale).max(floor) / scale)
+    }
+
     /// A framebuffer holding these accumulators (a checkpoint read back), or `None` if
     /// their lengths do not fit the size. Every pixel with samples is new to viewers.
-    pub fn from_accumulators(width: u32, height: u32, sums: Vec<[u64; 3]>, counts: Vec<u32>) -> Option<Self> {
+    pub fn from_accumulators(
+        width: u32,
+        height: u32,
+        sums: Vec<[u64; 3]>,
+        counts: Vec<u32>,
+        even: Vec<u64>,
+    ) -> Option<Self> {
         let n = width as usize * height as usize;
-        if sums.len() != n || counts.len() != n {
+        if sums.len() != n || counts.len() != n || !(even.is_empty() || even.len() == n) {
             return None;
         }
         let versions = counts.iter().map(|&c| u64::from(c > 0)).collect();
-        Some(Framebuffer { width, height, sums, counts, versions, version: 1 })
+        Some(Framebuffer { width, height, sums, counts, even, versions, version: 1 })
     }
 
     /// The per-pixel sums and sample counts, pixel index y · width + x.
@@ -103,7 +159,26 @@ impl Framebuffer {
     /// changing anything, so a refused result leaves the framebuffer as it was. Integer
     /// addition makes the result independent of merge order (DESIGN contract 1).
     pub fn merge(&mut self, quads: &[Quad], samples: u32, sums: &[u64]) -> Result<(), MergeError> {
+        self.merge_split(quads, samples, sums, &[])
+    }
+
+    /// `merge`, with the batch's even-sample luminance sums `even` (one per pixel) when the
+    /// framebuffer keeps them; ignored otherwise.
+    pub fn merge_split(
+        &mut self,
+        quads: &[Quad],
+        samples: u32,
+        sums: &[u64],
+        even: &[u64],
+    ) -> Result<(), MergeError> {
         Self::check(quads, samples, sums)?;
+        if self.has_even() {
+            Self::check_even(quads, samples, even)?;
+            for (q, e) in quads.iter().zip(even) {
+                let i = self.index(q.x, q.y);
+                self.even[i] = self.even[i].saturating_add(*e);
+            }
+        }
         self.version += 1;
         for (q, s) in quads.iter().zip(sums.chunks_exact(3)) {
             let i = self.index(q.x, q.y);
@@ -129,6 +204,19 @@ impl Framebuffer {
             }
         }
         Ok(())
+    }
+
+    /// Checks even-sample sums: one per pixel, each within what the batch's even samples
+    /// (at most half of them, rounded up) can produce.
+    pub fn check_even(quads: &[Quad], samples: u32, even: &[u64]) -> Result<(), MergeError> {
+        if even.len() != quads.len() {
+            return Err(MergeError::EvenLength { expected: quads.len(), got: even.len() });
+        }
+        let max = fixed::max_sum(samples.div_ceil(2));
+        match quads.iter().zip(even).find(|(_, &v)| v > max) {
+            Some((q, &value)) => Err(MergeError::OutOfRange { x: q.x, y: q.y, value, samples }),
+            None => Ok(()),
+        }
     }
 
     /// Merges so far: the framebuffer's version.

@@ -9,6 +9,7 @@ pub mod framebuffer;
 pub mod ids;
 pub mod output;
 pub mod quadtree;
+pub mod rounds;
 pub mod scheduler;
 pub mod service;
 pub mod store;

@@ -8,6 +8,7 @@ use std::time::{Duration, Instant};
 
 use crate::ids::{BatchId, WorkerId};
 use crate::quadtree::{Quad, Walk};
+use crate::rounds::{round_end, Rounds};
 
 /// Pixels in the first pass-one batch: small, so that the first mosaic shows at once.
 pub const PASS_ONE_FIRST: usize = 16;
@@ -122,6 +123,14 @@ pub enum RestoreError {
         /// Samples per pixel.
         spp: u32,
     },
+    /// The sample counts of a tile fit no round (a checkpoint of another job).
+    #[error("tile {tile} holds {count} samples in a pixel, which no round ends at")]
+    Rounds {
+        /// The tile.
+        tile: u32,
+        /// The count found.
+        count: u32,
+    },
     /// The merged ids are not ascending, or repeat one below `below`.
     #[error("the checkpoint's list of merged batches is not ascending above {below}")]
     Unordered {
@@ -156,6 +165,11 @@ pub struct PassQueue {
     done_above: BTreeSet<u64>,
     /// Mean time from lease to merge, for judging which leases are stragglers.
     mean_batch_time: Option<Duration>,
+    /// Pass two in rounds over tiles (jobs with a time budget or noise target).
+    rounds: Option<Rounds>,
+    /// In rounds mode, the number of pass-one batches, once pass one is cut: pass-two
+    /// batch ids follow them, derived from (round, tile).
+    pass_one_batches: Option<u64>,
     samples_done: u64,
     pass_one_pixels_done: u64,
 }
@@ -178,21 +192,95 @@ impl PassQueue {
             done_below: 0,
             done_above: BTreeSet::new(),
             mean_batch_time: None,
+            rounds: None,
+            pass_one_batches: None,
             samples_done: 0,
             pass_one_pixels_done: 0,
         }
+    }
+
+    /// The batches of a job whose pass two runs in rounds over tiles (see `rounds.rs`).
+    pub fn with_rounds(width: u32, height: u32, spp: u32) -> Self {
+        let mut q = PassQueue::new(width, height, spp);
+        q.rounds = Some(Rounds::new(width, height, q.spp));
+        q
+    }
+
+    /// Whether pass two runs in rounds.
+    pub fn in_rounds(&self) -> bool {
+        self.rounds.is_some()
+    }
+
+    /// The (round, tile) of a pass-two batch of a job in rounds.
+    pub fn round_of(&self, batch: BatchId) -> Option<(u32, u32)> {
+        let (rounds, first) = (self.rounds.as_ref()?, self.pass_one_batches?);
+        let k = batch.0.checked_sub(first)?;
+        let tiles = u64::from(rounds.tile_count().max(1));
+        Some(((k / tiles) as u32 + 1, (k % tiles) as u32))
+    }
+
+    /// Schedules round `round` of tile `tile` for `active` pixels (`None`: all of the
+    /// tile); an empty list or a round past the last closes the tile.
+    pub fn schedule_round(&mut self, tile: u32, round: u32, active: Option<Vec<Quad>>) {
+        if let Some(r) = self.rounds.as_mut() {
+            r.schedule(tile, round, active);
+        }
+    }
+
+    /// A queue in rounds rebuilt from a checkpoint: pass one from its merged batches, and
+    /// each tile's next round from its pixels' sample counts (a tile's active pixels all
+    /// hold the samples of the last round merged; the others stopped earlier). `active`
+    /// says whether a pixel that finished a round goes on (the adaptive decision), `None`
+    /// if every pixel does.
+    pub fn restore_rounds(
+        width: u32,
+        height: u32,
+        spp: u32,
+        completed: &Completed,
+        counts: &[u32],
+        active: Option<&dyn Fn(Quad) -> bool>,
+    ) -> Result<Self, RestoreError> {
+        let mut q = Self::restore_with(PassQueue::with_rounds(width, height, spp), completed)?;
+        let pixels = u64::from(width) * u64::from(height);
+        if !(q.cut_all && q.retry.is_empty() && q.pass_one_pixels_done == pixels) {
+            return Ok(q);
+        }
+        let spp = q.spp;
+        let rounds = q.rounds.as_mut().expect("made with rounds");
+        rounds.start_restored();
+        let mut extra = 0u64;
+        for t in 0..rounds.tile_count() {
+            let tile = rounds.tile_pixels(t);
+            let count = |p: &Quad| counts[(p.y * width + p.x) as usize];
+            let most = tile.iter().map(count).max().unwrap_or(1);
+            let round = (0..=crate::rounds::last_round(spp))
+                .find(|&r| round_end(r, spp) == most)
+                .ok_or(RestoreError::Rounds { tile: t, count: most })?;
+            extra += tile.iter().map(|p| u64::from(count(p) - 1)).sum::<u64>();
+            let next = match (round, active) {
+                (0, _) | (_, None) => None,
+                (_, Some(keep)) => Some(tile.into_iter().filter(|p| count(p) == most && keep(*p)).collect()),
+            };
+            rounds.schedule(t, round + 1, next);
+        }
+        q.samples_done += extra;
+        Ok(q)
     }
 
     /// The queue of a job of which the batches in `completed` are merged: the walk is cut
     /// again up to the last merged batch, and the batches in between that are not merged
     /// wait to be leased first. Costs one walk of the image per pass cut, no rendering.
     pub fn restore(width: u32, height: u32, spp: u32, completed: &Completed) -> Result<Self, RestoreError> {
+        Self::restore_with(PassQueue::new(width, height, spp), completed)
+    }
+
+    fn restore_with(mut q: PassQueue, completed: &Completed) -> Result<Self, RestoreError> {
+        let (width, height) = (q.width, q.height);
         if completed.above.windows(2).any(|w| w[0] >= w[1])
             || completed.above.first().is_some_and(|&a| a < completed.below)
         {
             return Err(RestoreError::Unordered { below: completed.below });
         }
-        let mut q = PassQueue::new(width, height, spp);
         let end = completed.end();
         while q.next_id < end {
             let Some(spec) = q.cut() else {
@@ -208,6 +296,18 @@ impl PassQueue {
         q.done_below = completed.below;
         q.done_above = completed.above.iter().copied().collect();
         Ok(q)
+    }
+
+    /// In rounds mode, releases round 1 once pass one is merged: the adaptive decisions
+    /// that follow may then rely on every pixel's first sample.
+    fn maybe_start_rounds(&mut self) {
+        let pixels = u64::from(self.width) * u64::from(self.height);
+        let pass_one_over = self.cut_all && self.retry.is_empty() && self.pass_one_pixels_done == pixels;
+        if let Some(r) = self.rounds.as_mut() {
+            if pass_one_over && !r.started() {
+                r.start();
+            }
+        }
     }
 
     /// The merged batches, for a checkpoint.
@@ -235,7 +335,10 @@ impl PassQueue {
 
     /// The pass whose batches are being cut now.
     pub fn pass(&self) -> Pass {
-        self.pass
+        match &self.rounds {
+            Some(r) if r.started() => Pass::Two,
+            _ => self.pass,
+        }
     }
 
     /// Samples in the whole job.
@@ -260,7 +363,10 @@ impl PassQueue {
 
     /// Whether every batch has been merged.
     pub fn is_finished(&self) -> bool {
-        self.cut_all && self.retry.is_empty() && self.leased.is_empty()
+        self.cut_all
+            && self.retry.is_empty()
+            && self.leased.is_empty()
+            && self.rounds.as_ref().is_none_or(|r| r.finished())
     }
 
     /// Cuts the next batch off the walk, moving on to pass two when pass one is cut.
@@ -284,7 +390,11 @@ impl PassQueue {
             };
             let quads: Vec<Quad> = self.walk.by_ref().take(size).collect();
             if self.walk.peek().is_none() {
-                if self.pass == Pass::One && self.spp > 1 {
+                if self.rounds.is_some() {
+                    // Pass two comes in rounds over tiles, not off the walk.
+                    self.cut_all = true;
+                    self.pass_one_batches = Some(self.next_id + u64::from(!quads.is_empty()));
+                } else if self.pass == Pass::One && self.spp > 1 {
                     self.pass = Pass::Two;
                     self.walk = Walk::new(self.width, self.height).peekable();
                 } else {
@@ -305,17 +415,30 @@ impl PassQueue {
     pub fn lease_next(&mut self, worker: WorkerId, now: Instant) -> Option<&Lease> {
         let (spec, attempt) = match self.retry.pop_first() {
             Some((_, (spec, attempts))) => (spec, attempts + 1),
-            None => (self.cut()?, 1),
+            None => match self.cut() {
+                Some(spec) => (spec, 1),
+                None => (self.next_round()?, 1),
+            },
         };
         let id = spec.id;
         self.leased.insert(id, Lease { spec, worker, attempt, since: now });
         self.leased.get(&id)
     }
 
+    /// The next ready round of a tile, as a batch.
+    fn next_round(&mut self) -> Option<BatchSpec> {
+        let first = self.pass_one_batches?;
+        let rounds = self.rounds.as_mut()?;
+        let tiles = u64::from(rounds.tile_count());
+        let (round, tile, quads, samples) = rounds.take()?;
+        let id = BatchId(first + u64::from(round - 1) * tiles + u64::from(tile));
+        Some(BatchSpec { id, pass: Pass::Two, quads, samples })
+    }
+
     /// Whether every batch is cut and leased: the end of the last pass, where an idle
     /// worker has nothing to do but duplicate a straggler.
     pub fn all_leased(&self) -> bool {
-        self.cut_all && self.retry.is_empty()
+        self.cut_all && self.retry.is_empty() && self.rounds.as_ref().is_none_or(|r| r.idle())
     }
 
     /// A speculative duplicate for `worker` of the oldest lease that has run for longer
@@ -384,7 +507,12 @@ impl PassQueue {
             },
         };
         self.account(&spec);
-        self.mark_done(spec.id);
+        // In rounds, pass-two batches are known from the sample counts; only pass one's
+        // ids need remembering.
+        if self.round_of(spec.id).is_none() {
+            self.mark_done(spec.id);
+        }
+        self.maybe_start_rounds();
         Ok(spec)
     }
 
@@ -421,6 +549,9 @@ impl PassQueue {
         self.spares.clear();
         self.retry.clear();
         self.cut_all = true;
+        if let Some(r) = self.rounds.as_mut() {
+            r.abandon();
+        }
     }
 }
 

@@ -310,6 +310,13 @@ impl CoordinatorService {
             let mut tick = tokio::time::interval(Duration::from_secs(1));
             loop {
                 tick.tick().await;
+                let ended = this.farm().enforce_deadlines(Instant::now());
+                for id in &ended {
+                    info!(%id, "time budget spent; job ends");
+                }
+                if !ended.is_empty() {
+                    this.notify();
+                }
                 let expired = this.farm().expire_silent(Instant::now(), this.timing.silence_timeout);
                 for (worker, n) in &expired {
                     warn!(%worker, batches = n, "worker silent; its batches go to others");
@@ -404,6 +411,7 @@ impl CoordinatorService {
                     sample_start: a.batch.samples.start,
                     sample_end: a.batch.samples.end,
                     pixels,
+                    even_sums: a.even_sums,
                 };
                 if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Batch(batch)) })).await.is_err() {
                     break;
@@ -442,7 +450,16 @@ impl CoordinatorService {
                 let mut merged = false;
                 for res in r.results {
                     let (job, batch) = (JobId(res.job_id), BatchId(res.batch_id));
-                    match self.farm().complete(id, job, batch, &res.sums, res.nonfinite_samples, now) {
+                    let done = self.farm().complete_split(
+                        id,
+                        job,
+                        batch,
+                        &res.sums,
+                        &res.even_sums,
+                        res.nonfinite_samples,
+                        now,
+                    );
+                    match done {
                         Ok(()) => merged = true,
                         Err(ResultError::Duplicate(e)) => {
                             debug!(worker = %id, %job, "dropped duplicate: {e}")
@@ -497,7 +514,13 @@ pub fn bundle_from_wire(b: pb::SceneBundle) -> Bundle {
 /// Job settings as they travel.
 pub fn settings_to_wire(s: &JobSettings) -> pb::RenderSettings {
     let (width, height) = s.size.unwrap_or((0, 0));
-    pb::RenderSettings { spp: s.spp.unwrap_or(0), width, height }
+    pb::RenderSettings {
+        spp: s.spp.unwrap_or(0),
+        width,
+        height,
+        time_limit_seconds: s.time_limit.map_or(0.0, |t| t.as_secs_f64()),
+        noise: s.noise.map_or(0.0, f64::from),
+    }
 }
 
 /// Job settings from the wire; 0 means "keep the scene's".
@@ -507,7 +530,17 @@ pub fn settings_from_wire(s: pb::RenderSettings) -> Result<JobSettings, String> 
         (0, _) | (_, 0) => return Err(format!("give both width and height, got {}x{}", s.width, s.height)),
         (w, h) => Some((w, h)),
     };
-    Ok(JobSettings { spp: (s.spp != 0).then_some(s.spp), size })
+    let time_limit = match s.time_limit_seconds {
+        0.0 => None,
+        t if t.is_finite() && t > 0.0 && t < 1e9 => Some(Duration::from_secs_f64(t)),
+        t => return Err(format!("time_limit_seconds must be a positive number of seconds, got {t}")),
+    };
+    let noise = match s.noise {
+        0.0 => None,
+        n if n.is_finite() && n > 0.0 && n < 1.0 => Some(n as f32),
+        n => return Err(format!("noise must be a relative error in (0, 1), got {n}")),
+    };
+    Ok(JobSettings { spp: (s.spp != 0).then_some(s.spp), size, time_limit, noise })
 }
 
 fn state_to_wire(s: &JobState) -> pb::JobState {

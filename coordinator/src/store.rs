@@ -267,7 +267,7 @@ impl Store {
                 "CREATE TABLE IF NOT EXISTS jobs (
                     id INTEGER PRIMARY KEY,
                     priority INTEGER NOT NULL,
-                    spp INTEGER, width INTEGER, height INTEGER,
+                    spp INTEGER, width INTEGER, height INTEGER, time_limit REAL, noise REAL,
                     state TEXT NOT NULL, error TEXT,
                     bundle BLOB NOT NULL, bundle_sum BLOB NOT NULL);
                  CREATE TABLE IF NOT EXISTS checkpoint_parts (
@@ -362,14 +362,26 @@ impl Store {
                 |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?, r.get(6)?, r.get(7)?)),
             )?;
         let (priority, spp, width, height, state, error, bundle, sum) = row;
+        let (time_limit, noise): (Option<f64>, Option<f64>) =
+            self.conn.query_row("SELECT time_limit, noise FROM jobs WHERE id = ?1", [id], |r| {
+                Ok((r.get(0)?, r.get(1)?))
+            })?;
+        let time_limit =
+            time_limit.filter(|t| t.is_finite() && *t > 0.0).map(std::time::Duration::from_secs_f64);
+        let noise = noise.map(|n| n as f32);
         let bundle = (blake3_of(&bundle) == sum).then(|| decode_bundle(&bundle)).flatten();
         let (Some(bundle), Some(state)) = (bundle, state_from_columns(&state, error)) else {
             problems.push(format!("job {id}: its stored scene fails its checksum; it is lost"));
             return Ok(None);
         };
         let size = width.zip(height);
-        let record =
-            JobRecord { id: JobId(id as u64), bundle, settings: JobSettings { spp, size }, priority, state };
+        let record = JobRecord {
+            id: JobId(id as u64),
+            bundle,
+            settings: JobSettings { spp, size, time_limit, noise },
+            priority,
+            state,
+        };
         let generations: Vec<i64> = self
             .conn
             .prepare(
@@ -435,8 +447,8 @@ impl Store {
         let (width, height) = job.settings.size.unzip();
         self.conn
             .execute(
-                "INSERT INTO jobs (id, priority, spp, width, height, state, error, bundle, bundle_sum)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+                "INSERT INTO jobs (id, priority, spp, width, height, state, error, bundle, bundle_sum, time_limit, noise)
+                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
                 params![
                     job.id.0 as i64,
                     job.priority,
@@ -446,7 +458,9 @@ impl Store {
                     state,
                     error,
                     bundle,
-                    blake3_of(&bundle)
+                    blake3_of(&bundle),
+                    job.settings.time_limit.map(|t| t.as_secs_f64()),
+                    job.settings.noise.map(f64::from)
                 ],
             )
             .map_err(self.write_err())?;
@@ -529,7 +543,12 @@ mod tests {
                 text: "# a scene".into(),
                 assets: vec![("mesh.obj".into(), vec![1, 2, 3])],
             },
-            settings: JobSettings { spp: Some(4), size: Some((40, 30)) },
+            settings: JobSettings {
+                spp: Some(4),
+                size: Some((40, 30)),
+                time_limit: Some(std::time::Duration::from_millis(1500)),
+                noise: Some(0.02),
+            },
             priority: -2,
             state: JobState::Running,
         }
@@ -547,6 +566,8 @@ mod tests {
             samples_done: n as u64,
             sums: vec![[below, 2, 3]; n],
             counts: vec![1; n],
+            even: vec![below; n],
+            spent: std::time::Duration::from_millis(1234),
         }
     }
 

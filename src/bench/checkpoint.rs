@@ -32,7 +32,7 @@ pub fn run(scene: &Path, spp: u32, runs: usize) -> Result<()> {
     for (w, h) in [(640, 480), (1920, 1080), (3840, 2160)] {
         let _ = std::fs::remove_dir_all(&dir);
         let mut farm = Farm::new();
-        let settings = JobSettings { spp: Some(spp), size: Some((w, h)) };
+        let settings = JobSettings::sized(Some(spp), Some((w, h)));
         let id = farm.submit(bundle.clone(), settings, 0).map_err(|e| anyhow!(e))?;
         // Complete half the samples with plausible sums, as workers would.
         let worker = farm.add_worker("bench".into(), 1, Instant::now());

@@ -191,6 +191,8 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
                         threads,
                         spp,
                         size: None,
+                        time_limit: None,
+                        noise: None,
                         progress_bar: false,
                         view: false,
                         output: None,

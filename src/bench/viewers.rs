@@ -69,7 +69,7 @@ async fn case(
         .submit(pb::SubmitRequest {
             protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
             bundle: Some(tessera_coordinator::service::bundle_to_wire(&bundle)),
-            settings: Some(pb::RenderSettings { spp: spp.unwrap_or(0), width: 0, height: 0 }),
+            settings: Some(pb::RenderSettings { spp: spp.unwrap_or(0), ..Default::default() }),
             priority: 0,
         })
         .await?

@@ -14,16 +14,26 @@ pub struct BatchSums {
     pub sums: Vec<u64>,
     /// Samples whose radiance was NaN or infinite (counted as black).
     pub nonfinite: u64,
+    /// Per pixel, the sum of the fixed-point luminance ((r + g + b) / 3, rounded down) of
+    /// the samples with an even index; empty unless asked for (jobs with a noise target).
+    pub even: Vec<u64>,
 }
 
 /// Renders samples `samples` of each pixel. The result depends only on the scene and the
 /// arguments: fixed-point sums make it independent of how the work is split.
 pub fn render_batch(scene: &Scene, pixels: &[UVec2], samples: Range<u32>) -> BatchSums {
+    render_batch_split(scene, pixels, samples, false)
+}
+
+/// `render_batch`, also summing the luminance of even-indexed samples when `even` is set.
+pub fn render_batch_split(scene: &Scene, pixels: &[UVec2], samples: Range<u32>, even: bool) -> BatchSums {
     let mut sampler = scene.sampler();
     let mut sums = Vec::with_capacity(pixels.len() * 3);
+    let mut evens = Vec::with_capacity(if even { pixels.len() } else { 0 });
     let mut nonfinite = 0;
     for &pixel in pixels {
         let mut acc = [0u64; 3];
+        let mut acc_even = 0u64;
         for index in samples.clone() {
             let l = scene.render_sample(&mut sampler, pixel, index);
             match (fixed::to_fixed(l.x), fixed::to_fixed(l.y), fixed::to_fixed(l.z)) {
@@ -31,11 +41,17 @@ pub fn render_batch(scene: &Scene, pixels: &[UVec2], samples: Range<u32>) -> Bat
                     acc[0] += r;
                     acc[1] += g;
                     acc[2] += b;
+                    if index % 2 == 0 {
+                        acc_even += (r + g + b) / 3;
+                    }
                 }
                 _ => nonfinite += 1,
             }
         }
         sums.extend_from_slice(&acc);
+        if even {
+            evens.push(acc_even);
+        }
     }
-    BatchSums { sums, nonfinite }
+    BatchSums { sums, nonfinite, even: evens }
 }

@@ -17,7 +17,7 @@ use tokio_stream::wrappers::ReceiverStream;
 use tonic::transport::{Channel, Endpoint};
 use tracing::{debug, info, warn};
 
-use crate::batch::render_batch;
+use crate::batch::render_batch_split;
 use crate::bundle::Bundle;
 use crate::render::Scene;
 
@@ -101,7 +101,8 @@ impl Pool {
                         }
                         let start = Instant::now();
                         let b = &task.batch;
-                        let sums = render_batch(&task.scene, &task.pixels, b.sample_start..b.sample_end);
+                        let range = b.sample_start..b.sample_end;
+                        let sums = render_batch_split(&task.scene, &task.pixels, range, b.even_sums);
                         let _ = task.reply.send(pb::BatchResult {
                             job_id: b.job_id,
                             batch_id: b.batch_id,
@@ -109,6 +110,7 @@ impl Pool {
                             sums: sums.sums,
                             nonfinite_samples: sums.nonfinite,
                             render_micros: start.elapsed().as_micros() as u64,
+                            even_sums: sums.even,
                         });
                     }
                 })
