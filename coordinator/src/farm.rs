@@ -895,7 +895,7 @@ mod tests {
     /// Per-sample values of a fake scene: flat pixels (they reach any noise target) and
     /// noisy ones (they do not), as fixed-point r = g = b.
     fn fake_sample(q: &Quad, i: u32) -> u64 {
-        if (q.x + q.y) % 2 == 0 {
+        if (q.x + q.y).is_multiple_of(2) {
             5 << 22
         } else {
             (u64::from(i).wrapping_mul(2_654_435_761) % 1000) << 14
@@ -948,7 +948,7 @@ mod tests {
         let counts = done.framebuffer().accumulators().1;
         let flat = counts.iter().enumerate().filter(|(i, _)| (i % 40 + i / 40) % 2 == 0).map(|(_, &c)| c);
         assert!(flat.clone().all(|c| c == NOISE_MIN_SAMPLES), "flat pixels stop at the minimum");
-        assert!(counts.iter().any(|&c| c == 256), "noisy pixels take every sample");
+        assert!(counts.contains(&256), "noisy pixels take every sample");
 
         let mut shuffled = Farm::new();
         shuffled.submit(bundle(), adaptive.clone(), 0).unwrap();
