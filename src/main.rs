@@ -417,7 +417,7 @@ pub fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
         total += number.parse::<f64>().map_err(|_| bad())?;
         any = true;
     }
-    if !any || !(total.is_finite() && total > 0.0 && total < 1e9) {
+    if !(any && total.is_finite() && total > 0.0 && total < 1e9) {
         return Err(bad());
     }
     Ok(std::time::Duration::from_secs_f64(total))
