@@ -17,13 +17,17 @@ pub const TILE: u32 = 32;
 /// early rounds are quick and late ones never leave the image uneven by more than this.
 pub const ROUND_MAX_SAMPLES: u32 = 64;
 
-/// One past the last sample index taken after `round` rounds (round 0 is pass one).
+/// One past the last sample index taken after `round` rounds (round 0 is pass one):
+/// 2^round while rounds double (up to `ROUND_MAX_SAMPLES`), then `ROUND_MAX_SAMPLES` more
+/// a round; never past `spp`. O(1): budgets come with caps of a million samples.
 pub fn round_end(round: u32, spp: u32) -> u32 {
-    let mut end = 1u32;
-    for r in 1..=round {
-        end = end.saturating_add((1u32 << (r - 1).min(30)).min(ROUND_MAX_SAMPLES));
-    }
-    end.min(spp)
+    let doubling = ROUND_MAX_SAMPLES.trailing_zeros() + 1;
+    let end = if round <= doubling {
+        1u64 << round
+    } else {
+        (1u64 << doubling) + u64::from(round - doubling) * u64::from(ROUND_MAX_SAMPLES)
+    };
+    end.min(u64::from(spp)) as u32
 }
 
 /// The sample indices round `round` (≥ 1) takes.
@@ -31,13 +35,30 @@ pub fn round_samples(round: u32, spp: u32) -> Range<u32> {
     round_end(round - 1, spp)..round_end(round, spp)
 }
 
+/// The round after which a pixel holds `count` samples, if some round ends there.
+pub fn round_reaching(count: u32, spp: u32) -> Option<u32> {
+    if count == spp {
+        return Some(last_round(spp));
+    }
+    let doubling = ROUND_MAX_SAMPLES.trailing_zeros() + 1;
+    let r = if count.is_power_of_two() && count <= 1 << doubling {
+        count.trailing_zeros()
+    } else if count > 1 << doubling && (count - (1 << doubling)).is_multiple_of(ROUND_MAX_SAMPLES) {
+        doubling + (count - (1 << doubling)) / ROUND_MAX_SAMPLES
+    } else {
+        return None;
+    };
+    (round_end(r, spp) == count).then_some(r)
+}
+
 /// The number of rounds after pass one that reach `spp`.
 pub fn last_round(spp: u32) -> u32 {
-    let mut r = 0;
-    while round_end(r, spp) < spp {
-        r += 1;
+    let doubling = ROUND_MAX_SAMPLES.trailing_zeros() + 1;
+    if spp <= 1 << doubling {
+        spp.next_power_of_two().trailing_zeros()
+    } else {
+        doubling + (spp - (1 << doubling)).div_ceil(ROUND_MAX_SAMPLES)
     }
-    r
 }
 
 /// The tiles and which of them have a round ready to hand out.
@@ -146,6 +167,17 @@ mod tests {
         assert_eq!(last_round(2), 1);
         assert_eq!(round_samples(3, 5), 4..5);
         assert_eq!(last_round(5), 3);
+        // Every round ends where the next begins, and the last one at spp, for every spp.
+        for spp in (1..700).chain([1 << 20, u32::MAX]) {
+            let last = last_round(spp);
+            assert_eq!(round_end(last, spp), spp, "spp {spp}");
+            assert!(last == 0 || round_end(last - 1, spp) < spp, "spp {spp}");
+            for r in (0..=last.min(40)).chain([last]) {
+                assert_eq!(round_reaching(round_end(r, spp), spp), Some(r), "spp {spp}, round {r}");
+            }
+        }
+        assert_eq!(round_reaching(3, 100), None);
+        assert_eq!(round_reaching(150, 1000), None);
     }
 
     #[test]

@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 
 use crate::ids::{BatchId, WorkerId};
 use crate::quadtree::{Quad, Walk};
-use crate::rounds::{round_end, Rounds};
+use crate::rounds::Rounds;
 
 /// Pixels in the first pass-one batch: small, so that the first mosaic shows at once.
 pub const PASS_ONE_FIRST: usize = 16;
@@ -253,8 +253,7 @@ impl PassQueue {
             let tile = rounds.tile_pixels(t);
             let count = |p: &Quad| counts[(p.y * width + p.x) as usize];
             let most = tile.iter().map(count).max().unwrap_or(1);
-            let round = (0..=crate::rounds::last_round(spp))
-                .find(|&r| round_end(r, spp) == most)
+            let round = crate::rounds::round_reaching(most, spp)
                 .ok_or(RestoreError::Rounds { tile: t, count: most })?;
             extra += tile.iter().map(|p| u64::from(count(p) - 1)).sum::<u64>();
             let next = match (round, active) {

@@ -228,3 +228,97 @@ pub fn default_out(scene: &Path) -> PathBuf {
     let name = scene.file_stem().map_or("scene".into(), |s| s.to_string_lossy().into_owned());
     PathBuf::from("docs/accuracy").join(name)
 }
+
+/// `tessera bench halt`: for each time budget, the error reached by the farm with pass two
+/// in even rounds, with adaptive sampling to a noise target within the same budget, and by
+/// the paper's single pass two given the same number of samples (its walk-ordered pass two
+/// stopped where those samples run out: the first pixels finished, the rest at 1 spp).
+pub async fn halt(
+    scene_path: &Path,
+    size: Option<(u32, u32)>,
+    budgets: &[f64],
+    noise: f32,
+    paper_spp: u32,
+    reference_spp: u32,
+) -> Result<()> {
+    use crate::local::{render_local, LocalOptions};
+    let scene = load(scene_path, size)?;
+    let (w, h) = (scene.width, scene.height);
+    let n = f64::from(w) * f64::from(h);
+    let cores = crate::cores();
+    println!(
+        "scene {} at {w}x{h}, {cores} cores, farm of {cores} local workers; errors against a {reference_spp}-spp render",
+        scene_path.display()
+    );
+    let reference = reference(&scene, reference_spp, None)?;
+    // The paper's pass two at `paper_spp`: each pixel either finished or at its first sample.
+    let mut paper = scene.clone();
+    paper.spp = paper_spp;
+    let full = render_image(&paper, 0..paper_spp);
+    let first = render_image(&paper, 0..1);
+    let walk = fifo_walk_in(w, h, ChildOrder::Paper).0;
+    let dir = std::env::temp_dir().join(format!("tessera-bench-halt-{}", std::process::id()));
+    std::fs::create_dir_all(&dir)?;
+    let mut table = String::from(
+        "| budget | method | samples per pixel | RMSE | relMSE |\n| --- | --- | --- | --- | --- |\n",
+    );
+    for &budget in budgets {
+        let mut uniform_spp = 0.0;
+        for (name, adaptive) in [("rounds, uniform", None), ("rounds, adaptive", Some(noise))] {
+            let out = dir.join("halt.exr");
+            let r = render_local(
+                scene_path,
+                LocalOptions {
+                    workers: cores,
+                    threads: 1,
+                    spp: Some(1 << 20),
+                    size,
+                    time_limit: Some(std::time::Duration::from_secs_f64(budget)),
+                    noise: adaptive,
+                    progress_bar: false,
+                    view: false,
+                    output: Some(out.clone()),
+                    checkpoints: None,
+                },
+            )
+            .await?;
+            let (_, _, rgb) = crate::compare::read_linear(&out)?;
+            let e = errors(w, h, &rgb, &reference);
+            let spp = r.progress.samples_done as f64 / n;
+            if adaptive.is_none() {
+                uniform_spp = spp;
+            }
+            let label = match adaptive {
+                Some(t) => format!("{name} (noise {t})"),
+                None => name.to_string(),
+            };
+            println!("{budget:>6} s  {label:<30} {spp:>8.1} spp  rmse {:.5}  relmse {:.5}", e.rmse, e.relmse);
+            table.push_str(&format!(
+                "| {budget} s | {label} | {spp:.1} | {:.5} | {:.5} |\n",
+                e.rmse, e.relmse
+            ));
+        }
+        // The paper's single pass two with the uniform run's samples.
+        let finished = (((uniform_spp - 1.0) * n) / f64::from(paper_spp - 1)).clamp(0.0, n) as usize;
+        let mut img = first.clone();
+        for q in &walk[..finished.min(walk.len())] {
+            let i = (((h - 1 - q.y) * w + q.x) * 3) as usize;
+            img[i..i + 3].copy_from_slice(&full[i..i + 3]);
+        }
+        let e = errors(w, h, &img, &reference);
+        let label = format!("paper's pass two at {paper_spp} spp, same samples");
+        println!(
+            "{budget:>6} s  {label:<30} {uniform_spp:>8.1} spp  rmse {:.5}  relmse {:.5}  ({finished} of {} pixels finished)",
+            e.rmse,
+            e.relmse,
+            walk.len()
+        );
+        table.push_str(&format!(
+            "| {budget} s | {label} | {uniform_spp:.1} | {:.5} | {:.5} |\n",
+            e.rmse, e.relmse
+        ));
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    println!("\n{table}");
+    Ok(())
+}

@@ -95,6 +95,28 @@ pub enum BenchCommand {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// Halt conditions, measured: for each time budget, the error reached with pass two in
+    /// even rounds, with adaptive sampling to a noise target in the same budget, and by the
+    /// paper's single pass two given the same samples.
+    Halt {
+        /// The scene file.
+        scene: PathBuf,
+        /// Image size WIDTHxHEIGHT [default: the scene's].
+        #[arg(long, value_parser = crate::parse_size)]
+        size: Option<(u32, u32)>,
+        /// Time budgets in seconds, comma-separated [default: 2,8].
+        #[arg(long, value_delimiter = ',', default_value = "2,8")]
+        budgets: Vec<f64>,
+        /// The adaptive runs' noise target [default: 0.01].
+        #[arg(long, default_value_t = 0.01)]
+        noise: f32,
+        /// The paper's pass two: samples per pixel of a finished pixel [default: 256].
+        #[arg(long, default_value_t = 256)]
+        paper_spp: u32,
+        /// Samples per pixel of the reference [default: 1024].
+        #[arg(long, default_value_t = 1024)]
+        reference_spp: u32,
+    },
     /// The BVH at scale: build time and traversal speed for meshes of 10k to 1M triangles.
     Bvh {
         /// The largest triangle count [default: 1000000].
@@ -136,6 +158,16 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             let reference_spp = reference_spp.unwrap_or(max_spp.saturating_mul(16)).clamp(1, 1 << 20);
             let out = out.unwrap_or_else(|| convergence::default_out(&scene));
             convergence::convergence(&scene, size, max_spp, reference_spp, reference.as_deref(), &out)?;
+            Ok(ExitCode::SUCCESS)
+        }
+        BenchCommand::Halt { scene, size, budgets, noise, paper_spp, reference_spp } => {
+            if budgets.iter().any(|b| !(b.is_finite() && *b > 0.0)) || budgets.is_empty() {
+                anyhow::bail!("--budgets must be positive numbers of seconds");
+            }
+            if paper_spp < 2 || reference_spp == 0 {
+                anyhow::bail!("--paper-spp must be at least 2 and --reference-spp at least 1");
+            }
+            convergence::halt(&scene, size, &budgets, noise, paper_spp, reference_spp).await?;
             Ok(ExitCode::SUCCESS)
         }
         BenchCommand::Preview { scene, size, out } => {
