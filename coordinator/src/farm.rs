@@ -56,6 +56,8 @@ pub const NOISE_FLOOR: f64 = 0.05;
 /// Samples a pixel takes before its noise estimate may stop it: fewer give estimates too
 /// rough to trust.
 pub const NOISE_MIN_SAMPLES: u32 = 16;
+/// The radius of the window over which pixels' error estimates are pooled (5×5).
+const NOISE_WINDOW: u32 = 2;
 
 /// Where a job stands.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -744,10 +746,33 @@ impl Farm {
 }
 
 /// Whether pixel `q` has reached the noise target (never without one).
+///
+/// One pixel's estimate (half the difference of its even and odd halves) is a single draw
+/// of the error, often far below it by chance; stopping on it would stop noisy pixels
+/// early. So the relative errors of the pixels around it, within its own tile (whose
+/// samples are all merged when its round ends, which keeps the decision deterministic), are
+/// averaged in square: an estimate with about 25 degrees of freedom instead of one.
 fn converged(fb: &Framebuffer, q: Quad, target: Option<f32>) -> bool {
     let Some(target) = target else { return false };
     let count = fb.accumulators().1[(q.y * fb.width() + q.x) as usize];
-    count >= NOISE_MIN_SAMPLES && fb.noise(q.x, q.y, NOISE_FLOOR).is_some_and(|n| n <= f64::from(target))
+    if count < NOISE_MIN_SAMPLES {
+        return false;
+    }
+    let tile = |v: u32, size: u32| {
+        let start = v / crate::rounds::TILE * crate::rounds::TILE;
+        (start, (start + crate::rounds::TILE).min(size))
+    };
+    let ((x0, x1), (y0, y1)) = (tile(q.x, fb.width()), tile(q.y, fb.height()));
+    let (mut sum, mut n) = (0.0f64, 0u32);
+    for y in q.y.saturating_sub(NOISE_WINDOW).max(y0)..(q.y + NOISE_WINDOW + 1).min(y1) {
+        for x in q.x.saturating_sub(NOISE_WINDOW).max(x0)..(q.x + NOISE_WINDOW + 1).min(x1) {
+            if let Some(e) = fb.noise(x, y, NOISE_FLOOR) {
+                sum += e * e;
+                n += 1;
+            }
+        }
+    }
+    n > 0 && (sum / f64::from(n)).sqrt() <= f64::from(target)
 }
 
 impl Job {
@@ -892,10 +917,10 @@ mod tests {
         assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{e:?}");
     }
 
-    /// Per-sample values of a fake scene: flat pixels (they reach any noise target) and
-    /// noisy ones (they do not), as fixed-point r = g = b.
+    /// Per-sample values of a fake scene: a flat left part (it reaches any noise target)
+    /// and a noisy right part (it does not), as fixed-point r = g = b.
     fn fake_sample(q: &Quad, i: u32) -> u64 {
-        if (q.x + q.y).is_multiple_of(2) {
+        if q.x < 20 {
             5 << 22
         } else {
             (u64::from(i).wrapping_mul(2_654_435_761) % 1000) << 14
@@ -946,9 +971,11 @@ mod tests {
         assert_eq!(done.state, JobState::Done);
         assert_eq!(done.progress(Instant::now()).halted, Some("noise target"));
         let counts = done.framebuffer().accumulators().1;
-        let flat = counts.iter().enumerate().filter(|(i, _)| (i % 40 + i / 40) % 2 == 0).map(|(_, &c)| c);
+        // Flat pixels stop at the minimum, but for those whose window reaches the noise.
+        let flat = counts.iter().enumerate().filter(|(i, _)| i % 40 < 18).map(|(_, &c)| c);
         assert!(flat.clone().all(|c| c == NOISE_MIN_SAMPLES), "flat pixels stop at the minimum");
-        assert!(counts.contains(&256), "noisy pixels take every sample");
+        let noisy = counts.iter().enumerate().filter(|(i, _)| i % 40 >= 20).map(|(_, &c)| c);
+        assert!(noisy.clone().all(|c| c == 256), "noisy pixels take every sample");
 
         let mut shuffled = Farm::new();
         shuffled.submit(bundle(), adaptive.clone(), 0).unwrap();

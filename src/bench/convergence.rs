@@ -288,11 +288,15 @@ pub async fn halt(
             if adaptive.is_none() {
                 uniform_spp = spp;
             }
-            let label = match adaptive {
-                Some(t) => format!("{name} (noise {t})"),
-                None => name.to_string(),
+            let ended = match r.progress.halted {
+                Some(why) => format!("{why}, {:.1} s", r.progress.elapsed.as_secs_f64()),
+                None => format!("spp cap, {:.1} s", r.progress.elapsed.as_secs_f64()),
             };
-            println!("{budget:>6} s  {label:<30} {spp:>8.1} spp  rmse {:.5}  relmse {:.5}", e.rmse, e.relmse);
+            let label = match adaptive {
+                Some(t) => format!("{name} (noise {t}; ended by {ended})"),
+                None => format!("{name} (ended by {ended})"),
+            };
+            println!("{budget:>6} s  {label:<58} {spp:>8.1} spp  rmse {:.5}  relmse {:.5}", e.rmse, e.relmse);
             table.push_str(&format!(
                 "| {budget} s | {label} | {spp:.1} | {:.5} | {:.5} |\n",
                 e.rmse, e.relmse

@@ -110,8 +110,9 @@ pub enum BenchCommand {
         /// The adaptive runs' noise target [default: 0.01].
         #[arg(long, default_value_t = 0.01)]
         noise: f32,
-        /// The paper's pass two: samples per pixel of a finished pixel [default: 256].
-        #[arg(long, default_value_t = 256)]
+        /// The paper's pass two: samples per pixel of a finished pixel, the quality a
+        /// final render would ask for [default: 1024].
+        #[arg(long, default_value_t = 1024)]
         paper_spp: u32,
         /// Samples per pixel of the reference [default: 1024].
         #[arg(long, default_value_t = 1024)]
