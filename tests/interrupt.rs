@@ -130,3 +130,30 @@ fn sigint_then_resume_gives_the_uninterrupted_bytes() {
     assert_eq!(read(&out), read(&reference), "resumed render differs from the uninterrupted one");
     assert!(!checkpoint.exists(), "the checkpoint outlived the finished render");
 }
+
+/// The same with a noise target: an adaptive render interrupted and resumed ends in the
+/// bytes of an uninterrupted one (its decisions depend on merged samples only, and the
+/// checkpoint keeps the even-sample sums they are made from).
+#[test]
+fn adaptive_render_resumes_to_the_same_bytes() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = root().join("scenes/showcase.toml");
+    let settings = ["--size", "240x135", "--spp", "32", "--noise", "0.02"];
+    let reference = dir.path().join("reference.png");
+    render_local(&scene, &reference, 2, &settings);
+
+    let out = dir.path().join("out.png");
+    let mut args = vec!["render", scene.to_str().unwrap(), "-o", out.to_str().unwrap(), "--workers", "1"];
+    args.extend_from_slice(&["--threads", "1", "--checkpoint-interval", "0.3"]);
+    args.extend_from_slice(&settings);
+    let mut first = Proc::spawn(&args);
+    std::thread::sleep(Duration::from_millis(2500));
+    first.signal(2);
+    let status = first.wait(Duration::from_secs(30));
+    assert_eq!(status.code(), Some(130), "finished before the interrupt: {}", first.stderr.lock().unwrap());
+    let mut resume = args.clone();
+    resume.push("--resume");
+    let o = run(&resume);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(read(&out), read(&reference), "resumed adaptive render differs");
+}
