@@ -268,8 +268,9 @@ impl Store {
                     id INTEGER PRIMARY KEY,
                     priority INTEGER NOT NULL,
                     spp INTEGER, width INTEGER, height INTEGER, time_limit REAL, noise REAL,
-                    state TEXT NOT NULL, error TEXT,
-                    bundle BLOB NOT NULL, bundle_sum BLOB NOT NULL);
+                    state TEXT NOT NULL, error TEXT);
+                 CREATE TABLE IF NOT EXISTS scenes (
+                    job INTEGER PRIMARY KEY, bundle BLOB NOT NULL, bundle_sum BLOB NOT NULL);
                  CREATE TABLE IF NOT EXISTS checkpoint_parts (
                     job INTEGER NOT NULL, generation INTEGER NOT NULL, part INTEGER NOT NULL,
                     data BLOB NOT NULL, sum BLOB NOT NULL,
@@ -355,20 +356,28 @@ impl Store {
 
     #[allow(clippy::type_complexity)]
     fn read_job(&mut self, id: i64, problems: &mut Vec<String>) -> rusqlite::Result<Option<LoadedJob>> {
-        let row: (i32, Option<u32>, Option<u32>, Option<u32>, String, Option<String>, Vec<u8>, Vec<u8>) =
-            self.conn.query_row(
-                "SELECT priority, spp, width, height, state, error, bundle, bundle_sum FROM jobs WHERE id = ?1",
-                [id],
-                |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?, r.get(6)?, r.get(7)?)),
-            )?;
-        let (priority, spp, width, height, state, error, bundle, sum) = row;
-        let (time_limit, noise): (Option<f64>, Option<f64>) =
-            self.conn.query_row("SELECT time_limit, noise FROM jobs WHERE id = ?1", [id], |r| {
-                Ok((r.get(0)?, r.get(1)?))
-            })?;
+        let row: (
+            i32,
+            Option<u32>,
+            Option<u32>,
+            Option<u32>,
+            Option<f64>,
+            Option<f64>,
+            String,
+            Option<String>,
+        ) = self.conn.query_row(
+            "SELECT priority, spp, width, height, time_limit, noise, state, error FROM jobs WHERE id = ?1",
+            [id],
+            |r| Ok((r.get(0)?, r.get(1)?, r.get(2)?, r.get(3)?, r.get(4)?, r.get(5)?, r.get(6)?, r.get(7)?)),
+        )?;
+        let (priority, spp, width, height, time_limit, noise, state, error) = row;
         let time_limit =
             time_limit.filter(|t| t.is_finite() && *t > 0.0).map(std::time::Duration::from_secs_f64);
         let noise = noise.map(|n| n as f32);
+        let (bundle, sum): (Vec<u8>, Vec<u8>) =
+            self.conn.query_row("SELECT bundle, bundle_sum FROM scenes WHERE job = ?1", [id], |r| {
+                Ok((r.get(0)?, r.get(1)?))
+            })?;
         let bundle = (blake3_of(&bundle) == sum).then(|| decode_bundle(&bundle)).flatten();
         let (Some(bundle), Some(state)) = (bundle, state_from_columns(&state, error)) else {
             problems.push(format!("job {id}: its stored scene fails its checksum; it is lost"));
@@ -440,30 +449,39 @@ impl Store {
         |source| StoreError::Write { path: self.path.clone(), source }
     }
 
-    /// Records a new job; durable when this returns.
+    /// Records a new job; durable when this returns. The scene goes in a table of its own,
+    /// written once: state changes rewrite only the small row in `jobs`, so the scene's
+    /// pages stay where they were first written (early in the file), and a file truncated
+    /// later loses checkpoints before it loses scenes.
     pub fn add_job(&mut self, job: &JobRecord) -> Result<(), StoreError> {
         let bundle = encode_bundle(&job.bundle);
         let (state, error) = state_columns(&job.state);
         let (width, height) = job.settings.size.unzip();
-        self.conn
-            .execute(
-                "INSERT INTO jobs (id, priority, spp, width, height, state, error, bundle, bundle_sum, time_limit, noise)
-                 VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
-                params![
-                    job.id.0 as i64,
-                    job.priority,
-                    job.settings.spp,
-                    width,
-                    height,
-                    state,
-                    error,
-                    bundle,
-                    blake3_of(&bundle),
-                    job.settings.time_limit.map(|t| t.as_secs_f64()),
-                    job.settings.noise.map(f64::from)
-                ],
-            )
-            .map_err(self.write_err())?;
+        let path = self.path.clone();
+        let err = |source| StoreError::Write { path: path.clone(), source };
+        let tx = self.conn.transaction().map_err(err)?;
+        tx.execute(
+            "INSERT INTO scenes (job, bundle, bundle_sum) VALUES (?1, ?2, ?3)",
+            params![job.id.0 as i64, bundle, blake3_of(&bundle)],
+        )
+        .map_err(err)?;
+        tx.execute(
+            "INSERT INTO jobs (id, priority, spp, width, height, time_limit, noise, state, error)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+            params![
+                job.id.0 as i64,
+                job.priority,
+                job.settings.spp,
+                width,
+                height,
+                job.settings.time_limit.map(|t| t.as_secs_f64()),
+                job.settings.noise.map(f64::from),
+                state,
+                error
+            ],
+        )
+        .map_err(err)?;
+        tx.commit().map_err(err)?;
         Ok(())
     }
 
