@@ -5,29 +5,10 @@
 //! 65 536 samples, degenerate triangles, coincident surfaces, the camera inside an object.
 //! Every render of this file is scanned: no pixel is NaN or infinite, and no sample was.
 
-use glam::UVec2;
-use tessera_worker::batch::render_batch;
+mod common;
+
+use common::{lum, render};
 use tessera_worker::fixed;
-use tessera_worker::scene::parse_scene;
-
-/// Renders a scene text; linear RGB, top row first. Fails on any non-finite sample.
-fn render(text: &str) -> (u32, u32, Vec<[f32; 3]>) {
-    let scene = parse_scene("extreme.toml", text).unwrap_or_else(|e| panic!("{e}\n{text}"));
-    let (w, h) = (scene.width, scene.height);
-    let mut out = Vec::with_capacity((w * h) as usize);
-    for row in 0..h {
-        let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, h - 1 - row)).collect();
-        let r = render_batch(&scene, &pixels, 0..scene.spp);
-        assert_eq!(r.nonfinite, 0, "non-finite samples in row {row} of\n{text}");
-        out.extend(r.sums.chunks(3).map(|s| [0, 1, 2].map(|c| fixed::mean(s[c], scene.spp))));
-    }
-    assert!(out.iter().flatten().all(|v| v.is_finite() && *v >= 0.0), "a pixel is not finite");
-    (w, h, out)
-}
-
-fn lum(p: [f32; 3]) -> f32 {
-    (p[0] + p[1] + p[2]) / 3.0
-}
 
 /// Mean absolute luminance difference, and the fraction of pixels differing by more than
 /// `threshold`.

@@ -2,27 +2,9 @@
 //! thin-lens circle of confusion, penumbra widths, motion smear, roughness 0 as a mirror,
 //! a known radiance, and convergence with the sample count.
 
-use glam::UVec2;
-use tessera_worker::batch::render_batch;
-use tessera_worker::fixed;
-use tessera_worker::scene::parse_scene;
+mod common;
 
-/// Renders a scene text; returns width and linear RGB rows, top row first.
-fn render(text: &str) -> (u32, u32, Vec<[f32; 3]>) {
-    let scene = parse_scene("test.toml", text).unwrap_or_else(|e| panic!("{e}"));
-    let (w, h) = (scene.width, scene.height);
-    let mut out = Vec::with_capacity((w * h) as usize);
-    for row in 0..h {
-        let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, h - 1 - row)).collect();
-        let sums = render_batch(&scene, &pixels, 0..scene.spp);
-        out.extend(sums.sums.chunks(3).map(|s| [0, 1, 2].map(|c| fixed::mean(s[c], scene.spp))));
-    }
-    (w, h, out)
-}
-
-fn lum(p: [f32; 3]) -> f32 {
-    (p[0] + p[1] + p[2]) / 3.0
-}
+use common::{lum, render};
 
 /// The lit extent (first and last pixel above `threshold`) of row `row`.
 fn lit_extent(w: u32, img: &[[f32; 3]], row: u32, threshold: f32) -> Option<(u32, u32)> {
