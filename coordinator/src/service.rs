@@ -233,14 +233,13 @@ impl CoordinatorService {
     pub async fn checkpoint(&self, all: bool) -> Result<usize, StoreError> {
         let Some(durable) = self.durable.clone() else { return Ok(0) };
         let now = Instant::now();
-        let due: Vec<_> = {
+        let due: Vec<JobId> = {
             let farm = self.farm();
             let saved = lock(&durable.saved);
             farm.jobs()
-                .filter_map(|j| {
-                    let version = j.framebuffer().version();
+                .filter(|j| {
                     let last = saved.get(&j.id);
-                    let changed = last.is_none_or(|s| s.version != version);
+                    let changed = last.is_none_or(|s| s.version != j.framebuffer().version());
                     let ended = j.is_over() && last.is_none_or(|s| s.state != j.state);
                     let due = all
                         || ended
@@ -248,33 +247,37 @@ impl CoordinatorService {
                             now.saturating_duration_since(s.at) >= durable.interval
                                 || (j.pass_one_complete() && !s.pass_one_complete)
                         });
-                    ((changed || ended) && due).then(|| {
-                        let saved = Saved {
-                            version,
-                            state: j.state.clone(),
-                            pass_one_complete: j.pass_one_complete(),
-                            at: now,
-                        };
-                        (j.checkpoint(), saved)
-                    })
+                    (changed || ended) && due
                 })
+                .map(|j| j.id)
                 .collect()
         };
-        if due.is_empty() {
-            return Ok(0);
-        }
-        tokio::task::spawn_blocking(move || {
-            let n = due.len();
-            for (checkpoint, saved) in due {
+        // One job at a time: a snapshot is the size of its framebuffer, and memory stays
+        // bounded by the largest job, not by all of them at once.
+        for &id in &due {
+            let Some((checkpoint, saved)) = self.farm().job(id).map(|j| {
+                let saved = Saved {
+                    version: j.framebuffer().version(),
+                    state: j.state.clone(),
+                    pass_one_complete: j.pass_one_complete(),
+                    at: now,
+                };
+                (j.checkpoint(), saved)
+            }) else {
+                continue;
+            };
+            let durable = durable.clone();
+            tokio::task::spawn_blocking(move || {
                 let started = Instant::now();
                 let generation = lock(&durable.store).save(&checkpoint, &saved.state)?;
                 debug!(job = %checkpoint.job, generation, samples = checkpoint.samples_done, took = ?started.elapsed(), "checkpoint written");
                 lock(&durable.saved).insert(checkpoint.job, saved);
-            }
-            Ok(n)
-        })
-        .await
-        .expect("checkpoint writing does not panic")
+                Ok::<_, StoreError>(())
+            })
+            .await
+            .expect("checkpoint writing does not panic")?;
+        }
+        Ok(due.len())
     }
 
     /// Checkpoints jobs as they fall due, until the service is dropped.
