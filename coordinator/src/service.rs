@@ -18,7 +18,7 @@ use tokio_stream::Stream;
 use tonic::{Request, Response, Status, Streaming};
 use tracing::{debug, info, warn};
 
-use crate::farm::{Farm, JobSettings, JobState, ResultError, SubmitError};
+use crate::farm::{Farm, JobSettings, JobState, RestoreJobError, ResultError, SubmitError};
 use crate::ids::{BatchId, JobId, WorkerId};
 use crate::store::{Store, StoreError};
 
@@ -137,7 +137,17 @@ impl CoordinatorService {
             let now = Instant::now();
             for job in loaded.jobs {
                 let id = job.record.id;
-                match farm.restore(job, now) {
+                let record = job.record.clone();
+                let restored = match farm.restore(job, now) {
+                    // A checkpoint that does not fit its job is not resumed from: the job
+                    // starts over, its last good state.
+                    Err(e @ (RestoreJobError::Mismatch { .. } | RestoreJobError::Batches(_))) => {
+                        recovery.problems.push(format!("{id}: {e}; it restarts from the beginning"));
+                        farm.restore(crate::store::LoadedJob { record, checkpoint: None }, now)
+                    }
+                    other => other,
+                };
+                match restored {
                     Ok(id) => {
                         let j = farm.job(id).expect("just restored");
                         let p = j.progress(now);
@@ -851,5 +861,73 @@ impl Coordinator for CoordinatorService {
         self.notify();
         self.persist_state(id).await?;
         Ok(Response::new(pb::CancelResponse {}))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::checkpoint::Checkpoint;
+    use crate::scheduler::Completed;
+    use crate::store::JobRecord;
+
+    /// A checkpoint that does not fit its job (here: another spp) is reported and the job
+    /// starts over, instead of being resumed from or dropped.
+    #[test]
+    fn a_checkpoint_that_does_not_fit_restarts_its_job() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let (mut store, _) = Store::open(dir.path()).unwrap();
+            let bundle = Bundle {
+                name: "small.toml".into(),
+                text: include_str!("../../tests/scenes/small.toml").into(),
+                assets: vec![],
+            };
+            let settings = JobSettings::sized(Some(4), Some((8, 8)));
+            let record = JobRecord { id: JobId(3), bundle, settings, priority: 0, state: JobState::Running };
+            store.add_job(&record).unwrap();
+            let wrong = Checkpoint {
+                job: JobId(3),
+                width: 8,
+                height: 8,
+                spp: 3,
+                completed: Completed { below: 1, above: vec![] },
+                nonfinite_samples: 0,
+                samples_done: 16,
+                sums: vec![[0; 3]; 64],
+                counts: [vec![1; 16], vec![0; 48]].concat(),
+                even: vec![],
+                spent: Duration::ZERO,
+            };
+            store.save(&wrong, &JobState::Running).unwrap();
+        }
+        let (service, recovery) =
+            CoordinatorService::open(Timing::default(), dir.path(), Duration::from_secs(1)).unwrap();
+        assert!(
+            recovery.problems.iter().any(|p| p.contains("restarts from the beginning")),
+            "{:?}",
+            recovery.problems
+        );
+        assert_eq!(recovery.resumed.len(), 1);
+        assert_eq!(recovery.resumed[0].samples_kept, 0);
+        let farm = service.farm();
+        assert_eq!(farm.job(JobId(3)).unwrap().state, JobState::Queued);
+        drop(farm);
+        // Ids go on above the stored ones.
+        assert!(
+            service
+                .farm()
+                .submit(
+                    Bundle {
+                        name: "s".into(),
+                        text: include_str!("../../tests/scenes/small.toml").into(),
+                        assets: vec![]
+                    },
+                    JobSettings::default(),
+                    0
+                )
+                .unwrap()
+                > JobId(3)
+        );
     }
 }
