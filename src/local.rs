@@ -155,7 +155,7 @@ async fn start_job(
         ([(id, hash, stored)], true) => {
             if *hash != bundle.hash() || *stored != settings {
                 bail!(
-                    "the checkpoint in {} is of a different scene or settings (the scene file, its assets, --spp or --size changed); render without --resume after deleting it",
+                    "the checkpoint in {} is of a different scene or settings (the scene file, its assets, --spp, --size, --time or --noise changed); render without --resume after deleting it",
                     c.dir.display()
                 );
             }
