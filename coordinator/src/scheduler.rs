@@ -206,11 +206,6 @@ impl PassQueue {
         q
     }
 
-    /// Whether pass two runs in rounds.
-    pub fn in_rounds(&self) -> bool {
-        self.rounds.is_some()
-    }
-
     /// The (round, tile) of a pass-two batch of a job in rounds.
     pub fn round_of(&self, batch: BatchId) -> Option<(u32, u32)> {
         let (rounds, first) = (self.rounds.as_ref()?, self.pass_one_batches?);
