@@ -440,15 +440,6 @@ impl Store {
         Ok(Checkpoint::decode(&parts))
     }
 
-    /// The database file.
-    pub fn path(&self) -> &Path {
-        &self.path
-    }
-
-    fn write_err(&self) -> impl Fn(rusqlite::Error) -> StoreError + '_ {
-        |source| StoreError::Write { path: self.path.clone(), source }
-    }
-
     /// Records a new job; durable when this returns. The scene goes in a table of its own,
     /// written once: state changes rewrite only the small row in `jobs`, so the scene's
     /// pages stay where they were first written (early in the file), and a file truncated
@@ -493,7 +484,7 @@ impl Store {
                 "UPDATE jobs SET state = ?2, error = ?3 WHERE id = ?1",
                 params![job.0 as i64, name, error],
             )
-            .map_err(self.write_err())?;
+            .map_err(|source| StoreError::Write { path: self.path.clone(), source })?;
         Ok(())
     }
 
