@@ -28,9 +28,12 @@ fn submit(url: &str) {
     assert!(o.status.success(), "submit failed: {}", String::from_utf8_lossy(&o.stderr));
 }
 
-fn fetch(url: &str, out: &Path) {
+/// Fetches job 1's image into `dir` and compares it byte for byte with `reference`.
+fn assert_fetched_image_is(url: &str, dir: &Path, reference: &Path, what: &str) {
+    let out = dir.join("out.png");
     let o = run(&["fetch", "1", "-o", out.to_str().unwrap(), "--coordinator", url]);
     assert!(o.status.success(), "fetch failed: {}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(read(&out), read(reference), "image differs {what}");
 }
 
 /// "resumed job 1 (...) from DIR: 12.5% done, K of T samples kept" → K.
@@ -111,9 +114,7 @@ fn coordinator_killed_three_times_resumes_to_the_same_bytes() {
     assert!(redone_3 <= bound, "mid-checkpoint: {redone_3:.2} s of work redone, bound {bound} s");
 
     coord.wait_until(1, Duration::from_secs(120), "job done", |s| s.state == "done");
-    let out = dir.path().join("out.png");
-    fetch(&coord.url, &out);
-    assert_eq!(read(&out), read(&reference), "image differs after three coordinator crashes");
+    assert_fetched_image_is(&coord.url, dir.path(), &reference, "after three coordinator crashes");
 }
 
 /// Workers failing every way at once: one joins mid-render, one is frozen with SIGSTOP
@@ -145,9 +146,7 @@ fn workers_frozen_killed_and_joining_leave_the_image_unchanged() {
     killed.signal(9);
     killed.wait(Duration::from_secs(10));
     coord.wait_until(1, Duration::from_secs(120), "job done", |s| s.state == "done");
-    let out = dir.path().join("out.png");
-    fetch(&coord.url, &out);
-    assert_eq!(read(&out), read(&reference), "image differs after worker faults");
+    assert_fetched_image_is(&coord.url, dir.path(), &reference, "after worker faults");
     let log = coord.proc.stderr.lock().unwrap().clone();
     assert!(log.contains("worker left"), "the killed worker's leaving was not noticed:\n{log}");
 }
@@ -169,9 +168,7 @@ fn stragglers_are_duplicated_at_the_end_of_a_job() {
     coord.wait_until(1, Duration::from_secs(120), "job done without the straggler", |s| s.state == "done");
     eprintln!("job finished {:.2} s after its straggler froze", frozen.elapsed().as_secs_f64());
     straggler.signal(18);
-    let out = dir.path().join("out.png");
-    fetch(&coord.url, &out);
-    assert_eq!(read(&out), read(&reference));
+    assert_fetched_image_is(&coord.url, dir.path(), &reference, "after a straggler froze");
     let log = coord.proc.stderr.lock().unwrap().clone();
     assert!(log.contains("speculative duplicate"), "no speculative duplicate was leased:\n{log}");
 }
@@ -226,9 +223,12 @@ fn a_damaged_data_directory_resumes_from_its_last_good_state() {
     coord.proc.wait_for("was damaged: moved to", Duration::from_secs(30));
     samples_kept(&coord);
     coord.wait_until(1, Duration::from_secs(120), "job done", |s| s.state == "done");
-    let out = dir.path().join("out.png");
-    fetch(&coord.url, &out);
-    assert_eq!(read(&out), read(&reference), "image differs after resuming from a damaged data directory");
+    assert_fetched_image_is(
+        &coord.url,
+        dir.path(),
+        &reference,
+        "after resuming from a damaged data directory",
+    );
     assert!(std::fs::read_dir(&data).unwrap().any(|e| e
         .unwrap()
         .file_name()

@@ -200,26 +200,37 @@ mod queue_tests {
     use std::time::Instant;
 
     use crate::ids::WorkerId;
-    use crate::scheduler::PassQueue;
+    use crate::scheduler::{BatchSpec, PassQueue};
+
+    /// Leases and completes up to `limit` batches of a queue in rounds on one worker,
+    /// scheduling every tile's next round for all its pixels; adds each batch's samples to
+    /// `counts` (row-major, `width` wide) and returns the batches in order.
+    fn run(q: &mut PassQueue, width: u32, counts: &mut [u32], limit: usize) -> Vec<BatchSpec> {
+        let now = Instant::now();
+        let mut out = Vec::new();
+        while out.len() < limit {
+            let Some(l) = q.lease_next(WorkerId(1), now) else { break };
+            let b = l.spec.clone();
+            for p in &b.quads {
+                counts[(p.y * width + p.x) as usize] += b.samples.end - b.samples.start;
+            }
+            q.complete(b.id, now).unwrap();
+            if let Some((round, tile)) = q.round_of(b.id) {
+                q.schedule_round(tile, round + 1, None);
+            }
+            out.push(b);
+        }
+        out
+    }
 
     /// Without a noise target, rounds give every pixel exactly spp samples, in rounds that
     /// each cover the whole image before the next begins for the same tile.
     #[test]
     fn rounds_cover_every_pixel_with_spp_samples() {
-        let now = Instant::now();
         for (w, h, spp) in [(1, 1, 1), (40, 33, 5), (64, 64, 130), (7, 70, 2)] {
             let mut q = PassQueue::with_rounds(w, h, spp);
             let mut samples = vec![0u32; (w * h) as usize];
-            while let Some(l) = q.lease_next(WorkerId(1), now) {
-                let b = l.spec.clone();
-                for p in &b.quads {
-                    samples[(p.y * w + p.x) as usize] += b.samples.end - b.samples.start;
-                }
-                q.complete(b.id, now).unwrap();
-                if let Some((round, tile)) = q.round_of(b.id) {
-                    q.schedule_round(tile, round + 1, None);
-                }
-            }
+            run(&mut q, w, &mut samples, usize::MAX);
             assert!(samples.iter().all(|&s| s == spp), "{w}x{h}@{spp}");
             assert!(q.is_finished(), "{w}x{h}@{spp}");
             assert_eq!(q.samples_done(), q.samples_total());
@@ -230,37 +241,20 @@ mod queue_tests {
     /// were left, with the same ids.
     #[test]
     fn restored_rounds_continue_with_the_same_batches() {
-        let now = Instant::now();
         let (w, h, spp) = (70, 40, 20);
-        let run = |q: &mut PassQueue, counts: &mut Vec<u32>, limit: usize| {
-            let mut out = Vec::new();
-            while out.len() < limit {
-                let Some(l) = q.lease_next(WorkerId(1), now) else { break };
-                let b = l.spec.clone();
-                for p in &b.quads {
-                    counts[(p.y * w + p.x) as usize] += b.samples.end - b.samples.start;
-                }
-                q.complete(b.id, now).unwrap();
-                if let Some((round, tile)) = q.round_of(b.id) {
-                    q.schedule_round(tile, round + 1, None);
-                }
-                out.push((b.id, b.quads, b.samples));
-            }
-            out
-        };
         let mut whole = PassQueue::with_rounds(w, h, spp);
         let mut c = vec![0; (w * h) as usize];
-        let all = run(&mut whole, &mut c, usize::MAX);
+        let all = run(&mut whole, w, &mut c, usize::MAX);
         for stop in [1, 5, 17, 30] {
             let mut q = PassQueue::with_rounds(w, h, spp);
             let mut counts = vec![0; (w * h) as usize];
-            run(&mut q, &mut counts, stop);
+            run(&mut q, w, &mut counts, stop);
             let mut r = PassQueue::restore_rounds(w, h, spp, &q.completed(), &counts, None).unwrap();
             assert_eq!(r.samples_done(), q.samples_done(), "stop {stop}");
-            let rest = run(&mut r, &mut counts, usize::MAX);
-            let mut got: Vec<_> = rest.iter().map(|b| b.0).collect();
+            let rest = run(&mut r, w, &mut counts, usize::MAX);
+            let mut got: Vec<_> = rest.iter().map(|b| b.id).collect();
             got.sort();
-            let mut want: Vec<_> = all[stop..].iter().map(|b| b.0).collect();
+            let mut want: Vec<_> = all[stop..].iter().map(|b| b.id).collect();
             want.sort();
             assert_eq!(got, want, "stop {stop}");
             assert!(counts.iter().all(|&n| n == spp));
