@@ -8,9 +8,9 @@ use std::time::{Duration, Instant};
 use anyhow::{anyhow, bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
 use tessera_coordinator::farm::{JobProgress, JobSettings, JobState};
-use tessera_coordinator::ids::JobId;
 use tessera_coordinator::{CoordinatorService, Timing};
-use tessera_worker::bundle::Bundle;
+use tessera_description::bundle::Bundle;
+use tessera_description::ids::JobId;
 use tokio::net::TcpListener;
 use tokio::process::{Child, Command};
 use tokio_stream::wrappers::TcpListenerStream;
@@ -299,7 +299,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         service.checkpoint(true).await.context("writing the checkpoint")?;
     }
     if let Some(out) = &opts.output {
-        tessera_coordinator::output::write_image(out, width, height, &rgb)?;
+        tessera_film::output::write_image(out, width, height, &rgb)?;
     }
     if let (Ending::Done, Some(c)) = (&ending, &opts.checkpoints) {
         // The image is written: the checkpoint has served its purpose.

@@ -262,7 +262,7 @@ async fn run(command: Command) -> Result<ExitCode> {
             check_output(&output)?;
             let mut client = remote::connect(&coordinator).await?;
             let (w, h, rgb) = remote::fetch_image(&mut client, job).await?;
-            tessera_coordinator::output::write_image(&output, w, h, &rgb)?;
+            tessera_film::output::write_image(&output, w, h, &rgb)?;
             eprintln!("wrote {} ({w}x{h}) of job {job}", output.display());
             Ok(ExitCode::SUCCESS)
         }
@@ -272,7 +272,7 @@ async fn run(command: Command) -> Result<ExitCode> {
             use std::io::Write;
             let stdout = std::io::stdout();
             let mut out = std::io::BufWriter::new(stdout.lock());
-            for q in tessera_coordinator::quadtree::Walk::new(width, height) {
+            for q in tessera_film::quadtree::Walk::new(width, height) {
                 if let Err(e) = writeln!(out, "{} {} {} {}", q.x, q.y, q.w, q.h) {
                     // A closed pipe (`| head`) is a normal way to stop reading.
                     if e.kind() == std::io::ErrorKind::BrokenPipe {
@@ -354,7 +354,7 @@ async fn view(args: ViewArgs) -> Result<ExitCode> {
 /// Checks an output path before any work is done: a known extension and a directory
 /// that exists.
 pub fn check_output(path: &std::path::Path) -> Result<()> {
-    tessera_coordinator::output::Format::from_path(path)?;
+    tessera_film::output::Format::from_path(path)?;
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
     if !dir.is_dir() {
         anyhow::bail!("cannot write {}: directory {} does not exist", path.display(), dir.display());

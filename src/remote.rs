@@ -9,9 +9,9 @@ use std::time::Duration;
 use anyhow::{anyhow, bail, Context, Result};
 use tessera_coordinator::service::{bundle_to_wire, MAX_MESSAGE_BYTES};
 use tessera_coordinator::{CoordinatorService, Recovery, Timing};
+use tessera_description::bundle::Bundle;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_client::CoordinatorClient;
-use tessera_worker::bundle::Bundle;
 use tonic::transport::{Channel, Endpoint};
 
 /// Arguments of `tessera submit`.
@@ -124,7 +124,7 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
     }
     let bundle = Bundle::read(&args.scene)?;
     // Refuse a bad scene here, with its location, before any network traffic.
-    bundle.parse()?;
+    tessera_worker::scene::parse_bundle(&bundle)?;
     let mut client = connect(&args.coordinator).await?;
     let response = client
         .submit(pb::SubmitRequest {
@@ -156,7 +156,7 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
     }
     if let Some(out) = &args.output {
         let (w, h, rgb) = fetch_image(&mut client, job).await?;
-        tessera_coordinator::output::write_image(out, w, h, &rgb)?;
+        tessera_film::output::write_image(out, w, h, &rgb)?;
         eprintln!("wrote {} ({w}x{h}), job {}", out.display(), state.as_str_name());
     }
     Ok(if state == pb::JobState::Done { ExitCode::SUCCESS } else { ExitCode::FAILURE })

@@ -6,8 +6,8 @@
 //! are a deterministic cut of the walk, so the merged set names exactly which samples the
 //! sums hold. Together they make a resumed job end in the same bytes as an uninterrupted one.
 
-use crate::ids::JobId;
 use crate::scheduler::Completed;
+use tessera_description::ids::JobId;
 
 /// Identifies the header part and its layout.
 const MAGIC: &[u8; 8] = b"TSRCKPT2";

@@ -5,14 +5,15 @@ use std::collections::{BTreeMap, HashMap, HashSet, VecDeque};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use tessera_worker::bundle::Bundle;
+use tessera_description::bundle::Bundle;
+pub use tessera_description::job::{JobProgress, JobSettings, JobState};
 
 use crate::checkpoint::Checkpoint;
-use crate::framebuffer::{Framebuffer, MergeError};
-use crate::ids::{BatchId, JobId, WorkerId};
-use crate::quadtree::Quad;
 use crate::scheduler::{BatchSpec, CompleteError, PassQueue, RestoreError};
 use crate::store::{JobRecord, LoadedJob};
+use tessera_description::ids::{BatchId, JobId, WorkerId};
+use tessera_film::framebuffer::{Framebuffer, MergeError};
+use tessera_film::quadtree::Quad;
 
 /// A batch failing this many times fails its job: the problem is not the worker.
 pub const MAX_BATCH_FAILURES: u32 = 3;
@@ -24,32 +25,6 @@ const SPECULATE_PATIENCE: u32 = 3;
 /// ...and never sooner than this: duplicating work costs a worker's time too.
 const SPECULATE_MIN_AGE: Duration = Duration::from_secs(1);
 
-/// Settings a submission may override.
-#[derive(Debug, Clone, Default, PartialEq)]
-pub struct JobSettings {
-    /// Samples per pixel (the most, with a time budget or noise target); `None` keeps the
-    /// scene's.
-    pub spp: Option<u32>,
-    /// Image size; `None` keeps the scene's.
-    pub size: Option<(u32, u32)>,
-    /// Stop after this much rendering time, wherever the job is.
-    pub time_limit: Option<Duration>,
-    /// Stop sampling each pixel once its estimated relative error is below this.
-    pub noise: Option<f32>,
-}
-
-impl JobSettings {
-    /// Only spp and size: a job that runs to its sample count in the paper's two passes.
-    pub fn sized(spp: Option<u32>, size: Option<(u32, u32)>) -> Self {
-        JobSettings { spp, size, ..JobSettings::default() }
-    }
-
-    /// Whether pass two runs in rounds over the image (a time budget or a noise target).
-    pub fn in_rounds(&self) -> bool {
-        self.time_limit.is_some() || self.noise.is_some()
-    }
-}
-
 /// Luminance below which a pixel's noise is measured against this floor instead: black
 /// pixels would otherwise never reach a relative target.
 pub const NOISE_FLOOR: f64 = 0.05;
@@ -58,23 +33,6 @@ pub const NOISE_FLOOR: f64 = 0.05;
 pub const NOISE_MIN_SAMPLES: u32 = 16;
 /// The radius of the window over which pixels' error estimates are pooled (5×5).
 const NOISE_WINDOW: u32 = 2;
-
-/// Where a job stands.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub enum JobState {
-    /// Waiting for its first batch to be leased.
-    Queued,
-    /// Batches are out.
-    Running,
-    /// Every sample is merged.
-    Done,
-    /// Stopped by a client.
-    Cancelled,
-    /// Stopped by an error.
-    Failed(String),
-    /// Paused by a client: no new batches until resumed.
-    Paused,
-}
 
 /// A job: its scene, its batches and its framebuffer.
 #[derive(Debug)]
@@ -199,53 +157,6 @@ impl Job {
     }
 }
 
-/// Progress figures of a job.
-#[derive(Debug, Clone, PartialEq)]
-pub struct JobProgress {
-    /// The job.
-    pub id: JobId,
-    /// Scene name.
-    pub scene: String,
-    /// State.
-    pub state: JobState,
-    /// Width in pixels.
-    pub width: u32,
-    /// Height in pixels.
-    pub height: u32,
-    /// Samples per pixel.
-    pub spp: u32,
-    /// The pass being handed out.
-    pub pass: u32,
-    /// Samples merged.
-    pub samples_done: u64,
-    /// Samples in the job.
-    pub samples_total: u64,
-    /// Recent samples per second.
-    pub samples_per_second: f64,
-    /// Time since the first lease (to the end, once over).
-    pub elapsed: Duration,
-    /// Pass-one pixels merged.
-    pub pass_one_done: u64,
-    /// Samples that came back NaN or infinite (counted as black).
-    pub nonfinite_samples: u64,
-    /// The job's priority.
-    pub priority: i32,
-    /// Why the job ended before its sample count: "time budget", or "noise target" when
-    /// every pixel reached it.
-    pub halted: Option<&'static str>,
-}
-
-impl JobProgress {
-    /// Fraction done, 0..=1.
-    pub fn fraction(&self) -> f64 {
-        if self.samples_total == 0 {
-            1.0
-        } else {
-            self.samples_done as f64 / self.samples_total as f64
-        }
-    }
-}
-
 /// A connected worker.
 #[derive(Debug, Clone)]
 pub struct WorkerInfo {
@@ -285,7 +196,7 @@ pub struct Assignment {
 pub enum SubmitError {
     /// The scene does not parse or validate.
     #[error(transparent)]
-    Scene(#[from] tessera_worker::scene::SceneError),
+    Scene(#[from] tessera_description::SceneError),
     /// spp override out of range.
     #[error("spp must be 1..={max}, got {got}")]
     Spp {
@@ -461,8 +372,8 @@ impl Farm {
     }
 
     fn prepare(id: JobId, bundle: Bundle, settings: JobSettings, priority: i32) -> Result<Job, SubmitError> {
-        let mut scene = bundle.parse()?;
-        use tessera_worker::scene::limits;
+        let mut scene = tessera_worker::scene::parse_bundle(&bundle)?;
+        use tessera_description::limits;
         if let Some(s) = settings.spp.filter(|&s| s == 0 || s > limits::MAX_SPP) {
             return Err(SubmitError::Spp { got: s, max: limits::MAX_SPP });
         }

@@ -5,10 +5,6 @@
 
 pub mod checkpoint;
 pub mod farm;
-pub mod framebuffer;
-pub mod ids;
-pub mod output;
-pub mod quadtree;
 pub mod rounds;
 pub mod scheduler;
 pub mod service;

@@ -9,7 +9,7 @@
 use std::collections::BTreeMap;
 use std::ops::Range;
 
-use crate::quadtree::{Quad, Walk};
+use tessera_film::quadtree::{Quad, Walk};
 
 /// Tile side in pixels.
 pub const TILE: u32 = 32;
@@ -199,8 +199,8 @@ mod tests {
 mod queue_tests {
     use std::time::Instant;
 
-    use crate::ids::WorkerId;
     use crate::scheduler::{BatchSpec, PassQueue};
+    use tessera_description::ids::WorkerId;
 
     /// Leases and completes up to `limit` batches of a queue in rounds on one worker,
     /// scheduling every tile's next round for all its pixels; adds each batch's samples to

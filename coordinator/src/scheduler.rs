@@ -6,9 +6,9 @@ use std::collections::{BTreeMap, BTreeSet, HashMap};
 use std::ops::Range;
 use std::time::{Duration, Instant};
 
-use crate::ids::{BatchId, WorkerId};
-use crate::quadtree::{Quad, Walk};
 use crate::rounds::Rounds;
+use tessera_description::ids::{BatchId, WorkerId};
+use tessera_film::quadtree::{Quad, Walk};
 
 /// Pixels in the first pass-one batch: small, so that the first mosaic shows at once.
 pub const PASS_ONE_FIRST: usize = 16;

@@ -7,11 +7,11 @@ use std::pin::Pin;
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
+use tessera_description::bundle::Bundle;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_message::Msg as Out;
 use tessera_proto::v1::coordinator_server::{Coordinator, CoordinatorServer};
 use tessera_proto::v1::worker_message::Msg as In;
-use tessera_worker::bundle::Bundle;
 use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::Stream;
@@ -19,8 +19,8 @@ use tonic::{Request, Response, Status, Streaming};
 use tracing::{debug, info, warn};
 
 use crate::farm::{Farm, JobSettings, JobState, RestoreJobError, ResultError, SubmitError};
-use crate::ids::{BatchId, JobId, WorkerId};
 use crate::store::{Store, StoreError};
+use tessera_description::ids::{BatchId, JobId, WorkerId};
 
 /// Timing of the worker protocol.
 #[derive(Debug, Clone, Copy)]
@@ -374,11 +374,11 @@ impl CoordinatorService {
             let _ = tx.send(Ok(refuse(reason))).await;
             return;
         }
-        if hello.renderer_version != tessera_worker::RENDERER_VERSION {
+        if hello.renderer_version != tessera_description::RENDERER_VERSION {
             let reason = format!(
                 "worker runs renderer {}, coordinator {}: images would not be bit-identical; run the same tessera build everywhere",
                 hello.renderer_version,
-                tessera_worker::RENDERER_VERSION
+                tessera_description::RENDERER_VERSION
             );
             warn!(name = %hello.name, "{reason}");
             let _ = tx.send(Ok(refuse(reason))).await;
@@ -597,7 +597,7 @@ fn status_to_wire(p: &crate::farm::JobProgress) -> pb::JobStatus {
 }
 
 /// Consecutive pixels grouped into runs.
-fn runs(pixels: &[crate::framebuffer::PixelState]) -> Vec<pb::PixelRun> {
+fn runs(pixels: &[tessera_film::framebuffer::PixelState]) -> Vec<pb::PixelRun> {
     let mut out: Vec<pb::PixelRun> = Vec::new();
     for p in pixels {
         match out.last_mut() {

@@ -10,12 +10,12 @@
 use std::path::{Path, PathBuf};
 
 use rusqlite::{params, Connection, OptionalExtension};
-use tessera_worker::bundle::Bundle;
+use tessera_description::bundle::Bundle;
 use tracing::warn;
 
 use crate::checkpoint::{Checkpoint, Part};
 use crate::farm::{JobSettings, JobState};
-use crate::ids::JobId;
+use tessera_description::ids::JobId;
 
 /// The database file in a data directory.
 pub const DB_FILE: &str = "jobs.db";

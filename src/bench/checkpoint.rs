@@ -8,7 +8,7 @@ use std::time::{Duration, Instant};
 use anyhow::{anyhow, Context, Result};
 use tessera_coordinator::farm::{Farm, JobSettings};
 use tessera_coordinator::store::Store;
-use tessera_worker::bundle::Bundle;
+use tessera_description::bundle::Bundle;
 
 fn fastest(runs: usize, mut f: impl FnMut() -> Result<()>) -> Result<Duration> {
     let mut best = Duration::MAX;

@@ -10,11 +10,12 @@ use std::time::Instant;
 use anyhow::{bail, Context, Result};
 use glam::UVec2;
 use rayon::prelude::*;
-use tessera_coordinator::quadtree::{fifo_walk_in, ChildOrder};
+use tessera_description::bundle::Bundle;
+use tessera_film::fixed;
+use tessera_film::quadtree::{fifo_walk_in, ChildOrder};
 use tessera_worker::batch::render_batch;
-use tessera_worker::bundle::Bundle;
-use tessera_worker::fixed;
 use tessera_worker::render::{SamplerKind, Scene};
+use tessera_worker::scene::parse_bundle;
 
 use super::plot::{write_png, Plot, Series};
 use crate::compare::errors;
@@ -35,7 +36,7 @@ pub fn render_image(scene: &Scene, samples: std::ops::Range<u32>) -> Vec<f32> {
 }
 
 fn load(scene: &Path, size: Option<(u32, u32)>) -> Result<Scene> {
-    let mut s = Bundle::read(scene)?.parse()?;
+    let mut s = parse_bundle(&Bundle::read(scene)?)?;
     s.apply(None, size);
     Ok(s)
 }
@@ -141,7 +142,7 @@ pub fn convergence(
 fn mosaic_preview(
     w: u32,
     h: u32,
-    order: &[tessera_coordinator::quadtree::Quad],
+    order: &[tessera_film::quadtree::Quad],
     k: usize,
     first: &[f32],
 ) -> Vec<f32> {
@@ -183,7 +184,7 @@ pub fn preview(scene_path: &Path, size: Option<(u32, u32)>, out: &Path) -> Resul
     // Scanline: the top row first, left to right, one pixel each (its own 1×1 block).
     let scanline: Vec<_> = (0..h)
         .rev()
-        .flat_map(|y| (0..w).map(move |x| tessera_coordinator::quadtree::Quad { x, y, w: 1, h: 1 }))
+        .flat_map(|y| (0..w).map(move |x| tessera_film::quadtree::Quad { x, y, w: 1, h: 1 }))
         .collect();
     let orders = [("paper", &paper), ("sequential", &sequential), ("scanline", &scanline)];
     let fractions = [0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0];
@@ -201,7 +202,7 @@ pub fn preview(scene_path: &Path, size: Option<(u32, u32)>, out: &Path) -> Resul
             if [0.01, 0.05, 0.25, 1.0].contains(&f) {
                 row.push_str(&format!(" {:.4} |", e.rmse));
                 let file = out.join(format!("preview-{name}-{:03}.png", (f * 100.0) as u32));
-                tessera_coordinator::output::write_image(&file, w, h, &img)?;
+                tessera_film::output::write_image(&file, w, h, &img)?;
             }
         }
         table.push_str(&row);

@@ -7,8 +7,9 @@ use std::time::{Duration, Instant};
 use anyhow::{anyhow, Result};
 use glam::UVec2;
 use rayon::prelude::*;
+use tessera_description::bundle::Bundle;
 use tessera_worker::batch::render_batch;
-use tessera_worker::bundle::Bundle;
+use tessera_worker::scene::parse_bundle;
 
 use crate::local::{render_local, LocalOptions};
 
@@ -192,7 +193,7 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             let workers = workers.unwrap_or(cores).max(1);
             let threads = (cores / workers).max(1);
             let bundle = Bundle::read(&scene)?;
-            let mut parsed = bundle.parse()?;
+            let mut parsed = parse_bundle(&bundle)?;
             if let Some(s) = spp {
                 parsed.spp = s;
             }
@@ -277,7 +278,7 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
 }
 
 fn whitted(path: &std::path::Path, runs: usize) -> Result<ExitCode> {
-    let scene = Bundle::read(path)?.parse()?;
+    let scene = parse_bundle(&Bundle::read(path)?)?;
     let reference = reference::Whitted::new(&scene).ok_or_else(|| {
         anyhow!(
             "{} is not a plain Whitted scene (classic spheres and planes, point lights only)",
@@ -301,7 +302,7 @@ fn whitted(path: &std::path::Path, runs: usize) -> Result<ExitCode> {
                 for i in 0..n {
                     let l = reference.sample(&mut sampler, p, i);
                     for (c, v) in acc.iter_mut().zip([l.x, l.y, l.z]) {
-                        *c += tessera_worker::fixed::to_fixed(v).unwrap_or(0);
+                        *c += tessera_film::fixed::to_fixed(v).unwrap_or(0);
                     }
                 }
                 acc
@@ -313,7 +314,7 @@ fn whitted(path: &std::path::Path, runs: usize) -> Result<ExitCode> {
     let max_diff = a
         .iter()
         .zip(&b)
-        .map(|(x, y)| (tessera_worker::fixed::mean(*x, n) - tessera_worker::fixed::mean(*y, n)).abs())
+        .map(|(x, y)| (tessera_film::fixed::mean(*x, n) - tessera_film::fixed::mean(*y, n)).abs())
         .fold(0.0f32, f32::max);
     println!("scene {} ({w}x{h}, {n} spp), one thread, fastest of {runs}", path.display());
     println!(

@@ -63,7 +63,7 @@ async fn case(
         }
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    let bundle = tessera_worker::bundle::Bundle::read(scene)?;
+    let bundle = tessera_description::bundle::Bundle::read(scene)?;
     let start = Instant::now();
     let job = client
         .submit(pb::SubmitRequest {

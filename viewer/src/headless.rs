@@ -45,7 +45,7 @@ pub enum HeadlessError {
     Update(#[from] UpdateError),
     /// Writing the image.
     #[error(transparent)]
-    Output(#[from] tessera_coordinator::output::OutputError),
+    Output(#[from] tessera_film::output::OutputError),
     /// The stream ended before anything arrived.
     #[error("the coordinator closed the stream before sending an image")]
     Empty,
@@ -67,7 +67,7 @@ pub struct Outcome {
 
 fn write(r: &Replica, save: &std::path::Path) -> Result<(), HeadlessError> {
     let (w, h, rgb) = r.image().ok_or(HeadlessError::Empty)?;
-    tessera_coordinator::output::write_image(save, w, h, &rgb)?;
+    tessera_film::output::write_image(save, w, h, &rgb)?;
     info!("{}: wrote {}", r.status_line(), save.display());
     Ok(())
 }

@@ -1,7 +1,7 @@
 //! The replica of a job's framebuffer: updates from the watch stream applied to the same
 //! `Framebuffer` the coordinator keeps, so that it resolves to the same bits.
 
-use tessera_coordinator::framebuffer::{Framebuffer, PixelState};
+use tessera_film::framebuffer::{Framebuffer, PixelState};
 use tessera_proto::v1 as pb;
 
 /// Why an update could not be applied (a coordinator speaking nonsense).

@@ -125,7 +125,7 @@ fn draw(buffer: &mut [u32], w: usize, h: usize, iw: usize, ih: usize, rgb: &[f32
         for x in 0..dw.min(w) {
             let sx = ((x as f32 / scale) as usize).min(iw - 1);
             let p = &rgb[(sy * iw + sx) * 3..][..3];
-            let c = |v: f32| u32::from(tessera_coordinator::output::srgb8(v * gain));
+            let c = |v: f32| u32::from(tessera_film::output::srgb8(v * gain));
             buffer[(oy + y) * w + ox + x] = (c(p[0]) << 16) | (c(p[1]) << 8) | c(p[2]);
         }
     }
@@ -136,7 +136,7 @@ fn save(image: Option<&(u32, u32, Vec<f32>)>, job: u64) -> String {
     let mut saved = Vec::new();
     for ext in ["png", "exr"] {
         let path = PathBuf::from(format!("tessera-job{job}.{ext}"));
-        match tessera_coordinator::output::write_image(&path, *w, *h, rgb) {
+        match tessera_film::output::write_image(&path, *w, *h, rgb) {
             Ok(()) => saved.push(path.display().to_string()),
             Err(e) => return format!(" — {e}"),
         }

@@ -4,8 +4,8 @@ use std::ops::Range;
 
 use glam::UVec2;
 
-use crate::fixed;
 use crate::render::Scene;
+use tessera_film::fixed;
 
 /// The per-pixel sums of a rendered batch.
 #[derive(Debug, Clone, PartialEq, Eq)]

@@ -18,8 +18,8 @@ use tonic::transport::{Channel, Endpoint};
 use tracing::{debug, info, warn};
 
 use crate::batch::render_batch_split;
-use crate::bundle::Bundle;
 use crate::render::Scene;
+use tessera_description::bundle::Bundle;
 
 /// Scenes a worker keeps at once (one per recent job); older ones are dropped.
 const SCENE_CACHE: usize = 8;
@@ -298,7 +298,7 @@ impl SceneCache {
                             "scene content hashes to {actual}, but the coordinator named it {claimed}: refusing a scene that differs from the submitted one"
                         ));
                     }
-                    let mut scene = bundle.parse().map_err(|e| e.to_string())?;
+                    let mut scene = crate::scene::parse_bundle(&bundle).map_err(|e| e.to_string())?;
                     scene.apply(spp, size);
                     Ok(Arc::new(scene))
                 })

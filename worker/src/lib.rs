@@ -6,13 +6,11 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod batch;
-pub mod bundle;
 pub mod client;
-pub mod fixed;
 pub mod obj;
 pub mod render;
 pub mod scene;
 
 /// The renderer's build. Workers and coordinators refuse each other when it differs, since
 /// images are only bit-identical when every worker runs the same renderer.
-pub const RENDERER_VERSION: &str = env!("CARGO_PKG_VERSION");
+pub const RENDERER_VERSION: &str = tessera_description::RENDERER_VERSION;

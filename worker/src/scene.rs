@@ -23,75 +23,9 @@ use crate::render::shape::{Mesh, Primitive, Rect, Shape};
 use crate::render::texture::{CheckerSpace, Tex, Texture};
 use crate::render::transform::{Motion, Trs};
 use crate::render::Scene;
-
-/// A scene error with its location.
-#[derive(Debug, Clone, PartialEq, thiserror::Error)]
-#[error("{file}:{line}:{column}: {message}")]
-pub struct SceneError {
-    /// The scene file's name as given.
-    pub file: String,
-    /// 1-based line.
-    pub line: usize,
-    /// 1-based column.
-    pub column: usize,
-    /// What is wrong and what was expected.
-    pub message: String,
-}
-
-/// Limits that keep a hostile scene from exhausting a worker.
-pub mod limits {
-    /// The longest image side, in pixels.
-    pub const MAX_SIDE: u32 = 65_536;
-    /// The most pixels an image may have (256 Mpixel).
-    pub const MAX_PIXELS: u64 = 1 << 28;
-    /// The most samples per pixel.
-    pub const MAX_SPP: u32 = 1 << 20;
-    /// The most path segments / classic recursion depth.
-    pub const MAX_DEPTH: u32 = 64;
-    /// The most triangles in a scene.
-    pub const MAX_TRIANGLES: usize = 1 << 26;
-}
-
-/// Where a scene's assets (meshes, images) come from: by the relative path the scene
-/// uses. A bundle provides them, so workers never touch their file system.
-pub trait Assets {
-    /// The bytes of the asset at `path`, if the bundle has it.
-    fn get(&self, path: &str) -> Option<&[u8]>;
-}
-
-/// No assets at all.
-pub struct NoAssets;
-
-impl Assets for NoAssets {
-    fn get(&self, _: &str) -> Option<&[u8]> {
-        None
-    }
-}
-
-/// Checks that an asset path stays inside the scene's folder: relative, and never
-/// climbing above its start. Returns the normalised path.
-pub fn check_asset_path(path: &str) -> Result<String, String> {
-    if path.is_empty() {
-        return Err("asset path is empty".into());
-    }
-    let p = std::path::Path::new(path);
-    if p.is_absolute() || path.starts_with('/') || path.starts_with('\\') || path.contains(':') {
-        return Err(format!("asset path {path:?} must be relative to the scene's folder"));
-    }
-    let mut parts: Vec<&str> = Vec::new();
-    for c in path.split(['/', '\\']) {
-        match c {
-            "" | "." => {}
-            ".." => {
-                if parts.pop().is_none() {
-                    return Err(format!("asset path {path:?} escapes the scene's folder"));
-                }
-            }
-            c => parts.push(c),
-        }
-    }
-    Ok(parts.join("/"))
-}
+pub use tessera_description::bundle::{check_asset_path, Assets, NoAssets};
+pub use tessera_description::error::SceneError;
+pub use tessera_description::limits;
 
 /// A colour given as one number (grey) or as `[r, g, b]`.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -858,6 +792,11 @@ impl Builder<'_> {
         self.meshes.push(mesh);
         Ok(())
     }
+}
+
+/// Parses and validates a bundle's scene, with its assets.
+pub fn parse_bundle(bundle: &tessera_description::Bundle) -> Result<Scene, SceneError> {
+    parse_scene_with_assets(&bundle.name, &bundle.text, bundle)
 }
 
 /// Parses and validates a scene without assets. `file` names the scene in messages.

@@ -8,7 +8,7 @@
 mod common;
 
 use common::{lum, render};
-use tessera_worker::fixed;
+use tessera_film::fixed;
 
 /// Mean absolute luminance difference, and the fraction of pixels differing by more than
 /// `threshold`.

@@ -5,9 +5,9 @@
 use std::path::{Path, PathBuf};
 
 use glam::UVec2;
+use tessera_description::bundle::Bundle;
+use tessera_film::fixed;
 use tessera_worker::batch::render_batch;
-use tessera_worker::bundle::Bundle;
-use tessera_worker::fixed;
 
 const SIZE: (u32, u32) = (64, 40);
 const SPP: u32 = 8;
@@ -20,7 +20,7 @@ fn srgb8(v: f32) -> u8 {
 
 fn render_tiny(path: &Path) -> Vec<u8> {
     let bundle = Bundle::read(path).unwrap();
-    let mut scene = bundle.parse().unwrap_or_else(|e| panic!("{e}"));
+    let mut scene = tessera_worker::scene::parse_bundle(&bundle).unwrap_or_else(|e| panic!("{e}"));
     scene.apply(Some(SPP), Some(SIZE));
     let (w, h) = SIZE;
     let mut out = Vec::with_capacity((w * h * 3) as usize);

@@ -1,8 +1,8 @@
 //! Rendering a scene text in this process, for the renderer's tests.
 
 use glam::UVec2;
+use tessera_film::fixed;
 use tessera_worker::batch::render_batch;
-use tessera_worker::fixed;
 use tessera_worker::scene::parse_scene;
 
 /// Renders a scene text; returns width, height and linear RGB, top row first. Fails on any

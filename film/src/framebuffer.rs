@@ -2,7 +2,7 @@
 //! averages), resolved into an image on demand, with the pass-one mosaic for pixels that
 //! have no sample yet.
 
-use tessera_worker::fixed;
+use crate::fixed;
 
 use crate::quadtree::{mosaic_source, Quad};
 

@@ -44,7 +44,7 @@ impl Bundle {
         let dir = path.parent().unwrap_or(Path::new("."));
         let mut assets: Vec<(String, Vec<u8>)> = Vec::new();
         for reference in asset_references(&text) {
-            let Ok(rel) = crate::scene::check_asset_path(&reference) else { continue };
+            let Ok(rel) = check_asset_path(&reference) else { continue };
             if assets.iter().any(|(p, _)| *p == rel) {
                 continue;
             }
@@ -72,18 +72,54 @@ impl Bundle {
         }
         h.finalize().to_hex().to_string()
     }
+}
 
-    /// Parses the scene.
-    pub fn parse(&self) -> Result<crate::render::Scene, crate::scene::SceneError> {
-        crate::scene::parse_scene_with_assets(&self.name, &self.text, self)
+impl Assets for Bundle {
+    fn get(&self, path: &str) -> Option<&[u8]> {
+        let rel = check_asset_path(path).ok()?;
+        self.assets.binary_search_by(|(p, _)| p.as_str().cmp(&rel)).ok().map(|i| self.assets[i].1.as_slice())
     }
 }
 
-impl crate::scene::Assets for Bundle {
-    fn get(&self, path: &str) -> Option<&[u8]> {
-        let rel = crate::scene::check_asset_path(path).ok()?;
-        self.assets.binary_search_by(|(p, _)| p.as_str().cmp(&rel)).ok().map(|i| self.assets[i].1.as_slice())
+/// Where a scene's assets (meshes, images) come from: by the relative path the scene
+/// uses. A bundle provides them, so workers never touch their file system.
+pub trait Assets {
+    /// The bytes of the asset at `path`, if the bundle has it.
+    fn get(&self, path: &str) -> Option<&[u8]>;
+}
+
+/// No assets at all.
+pub struct NoAssets;
+
+impl Assets for NoAssets {
+    fn get(&self, _: &str) -> Option<&[u8]> {
+        None
     }
+}
+
+/// Checks that an asset path stays inside the scene's folder: relative, and never
+/// climbing above its start. Returns the normalised path.
+pub fn check_asset_path(path: &str) -> Result<String, String> {
+    if path.is_empty() {
+        return Err("asset path is empty".into());
+    }
+    let p = std::path::Path::new(path);
+    if p.is_absolute() || path.starts_with('/') || path.starts_with('\\') || path.contains(':') {
+        return Err(format!("asset path {path:?} must be relative to the scene's folder"));
+    }
+    let mut parts: Vec<&str> = Vec::new();
+    for c in path.split(['/', '\\']) {
+        match c {
+            "" | "." => {}
+            ".." => {
+                if parts.pop().is_none() {
+                    return Err(format!("asset path {path:?} escapes the scene's folder"));
+                }
+            }
+            c => parts.push(c),
+        }
+    }
+    Ok(parts.join("/"))
 }
 
 /// The asset paths a scene text names: `file` of every mesh and texture. A text that is
