@@ -138,8 +138,7 @@ async fn start_job(
     }
     let (service, recovery) = CoordinatorService::open(Timing::default(), &c.dir, c.interval)
         .with_context(|| format!("checkpoint directory {}", c.dir.display()))?;
-    let found: Vec<_> =
-        service.farm().jobs().map(|j| (j.id, j.scene_hash.clone(), j.settings.clone())).collect();
+    let found: Vec<_> = service.jobs().into_iter().map(|j| (j.id, j.scene_hash, j.settings)).collect();
     match (found.as_slice(), c.resume) {
         ([], _) => {
             if c.resume {
@@ -167,7 +166,7 @@ async fn start_job(
             c.dir.display()
         ),
         (_, false) => {
-            let p = service.farm().job(found[0].0).expect("listed").progress(Instant::now());
+            let p = service.progress(found[0].0).expect("listed");
             bail!(
                 "{} holds an interrupted render ({:.1}% done); continue it with --resume, or delete the directory to start over",
                 c.dir.display(),
@@ -286,11 +285,8 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         bar.finish_and_clear();
     }
     let progress = progress(&service, job);
-    let (width, height, rgb) = {
-        let farm = service.farm();
-        let fb = farm.job(job).expect("job exists").framebuffer();
-        (fb.width(), fb.height(), fb.resolve())
-    };
+    let image = service.image(job).expect("job exists");
+    let (width, height, rgb) = (image.width, image.height, image.rgb);
     workers.shutdown().await;
     if let Some(c) = checkpointer {
         c.abort();
@@ -319,7 +315,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
 }
 
 fn progress(service: &CoordinatorService, job: JobId) -> JobProgress {
-    service.farm().job(job).expect("job exists").progress(Instant::now())
+    service.progress(job).expect("job exists")
 }
 
 fn progress_bar() -> ProgressBar {

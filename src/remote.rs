@@ -7,7 +7,8 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{anyhow, bail, Context, Result};
-use tessera_coordinator::service::{bundle_to_wire, MAX_MESSAGE_BYTES};
+use tessera_coordinator::service::convert::bundle_to_wire;
+use tessera_coordinator::service::MAX_MESSAGE_BYTES;
 use tessera_coordinator::{CoordinatorService, Recovery, Timing};
 use tessera_description::bundle::Bundle;
 use tessera_proto::v1 as pb;
@@ -130,7 +131,7 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
         .submit(pb::SubmitRequest {
             protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
             bundle: Some(bundle_to_wire(&bundle)),
-            settings: Some(tessera_coordinator::service::settings_to_wire(
+            settings: Some(tessera_coordinator::service::convert::settings_to_wire(
                 &tessera_coordinator::farm::JobSettings {
                     spp: args.spp,
                     size: args.size,

@@ -5,6 +5,7 @@
 
 pub mod checkpoint;
 pub mod farm;
+pub mod persist;
 pub mod rounds;
 pub mod scheduler;
 pub mod service;

@@ -14,8 +14,10 @@ use tessera_description::bundle::Bundle;
 use tracing::warn;
 
 use crate::checkpoint::{Checkpoint, Part};
-use crate::farm::{JobSettings, JobState};
 use tessera_description::ids::JobId;
+use tessera_description::job::{JobSettings, JobState};
+
+pub use crate::persist::{JobRecord, JobStore, Loaded, LoadedJob, StoreError};
 
 /// The database file in a data directory.
 pub const DB_FILE: &str = "jobs.db";
@@ -26,84 +28,6 @@ const SCHEMA_VERSION: i64 = 1;
 /// Test hook: a checkpoint write stops this many milliseconds before its commit, so a test
 /// can kill the coordinator in the middle of a write.
 pub const FAULT_STALL_ENV: &str = "TESSERA_FAULT_STALL_CHECKPOINT_MS";
-
-/// Why the data directory cannot be used.
-#[derive(Debug, thiserror::Error)]
-pub enum StoreError {
-    /// The directory or the database file cannot be created or opened.
-    #[error("cannot open {path}: {source}")]
-    Open {
-        /// The file.
-        path: PathBuf,
-        /// What went wrong.
-        source: Box<dyn std::error::Error + Send + Sync>,
-    },
-    /// Another coordinator (or render) holds the database.
-    #[error("{path} is in use by another coordinator or render; one process per data directory")]
-    InUse {
-        /// The file.
-        path: PathBuf,
-    },
-    /// The database is damaged beyond reading its list of jobs.
-    #[error("{path} is damaged beyond reading its jobs ({detail}); move it aside to start with no jobs")]
-    Damaged {
-        /// The file.
-        path: PathBuf,
-        /// SQLite's account.
-        detail: String,
-    },
-    /// The database is from a different version of tessera.
-    #[error("{path} has table layout {found}, this tessera reads layout {SCHEMA_VERSION}")]
-    Version {
-        /// The file.
-        path: PathBuf,
-        /// The layout found.
-        found: i64,
-    },
-    /// A write failed; the previous state stays.
-    #[error("writing {path}: {source}")]
-    Write {
-        /// The file.
-        path: PathBuf,
-        /// SQLite's error.
-        source: rusqlite::Error,
-    },
-}
-
-/// A job as stored.
-#[derive(Debug, Clone, PartialEq)]
-pub struct JobRecord {
-    /// The id.
-    pub id: JobId,
-    /// The scene as submitted.
-    pub bundle: Bundle,
-    /// The settings.
-    pub settings: JobSettings,
-    /// Higher runs first.
-    pub priority: i32,
-    /// The state last recorded.
-    pub state: JobState,
-}
-
-/// A job read back, with its newest good checkpoint (`None`: start from scratch).
-#[derive(Debug)]
-pub struct LoadedJob {
-    /// The job.
-    pub record: JobRecord,
-    /// The checkpoint to resume from.
-    pub checkpoint: Option<Checkpoint>,
-}
-
-/// Everything read from a data directory, and what was wrong with it.
-#[derive(Debug, Default)]
-pub struct Loaded {
-    /// Jobs, oldest first.
-    pub jobs: Vec<LoadedJob>,
-    /// Damage found and how it was handled, one line each (also logged).
-    pub problems: Vec<String>,
-    /// Where a damaged database was moved before being rebuilt from what read back.
-    pub moved_aside: Option<PathBuf>,
-}
 
 /// Removes a file when dropped.
 struct Removal<'a>(&'a Path);
@@ -260,7 +184,8 @@ impl Store {
                 return Ok(None);
             }
         }
-        let write_err = |source| StoreError::Write { path: path.to_owned(), source };
+        let write_err =
+            |source: rusqlite::Error| StoreError::Write { path: path.to_owned(), source: Box::new(source) };
         let version: i64 = conn.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(write_err)?;
         if version == 0 {
             conn.execute_batch(&format!(
@@ -279,7 +204,11 @@ impl Store {
             ))
             .map_err(write_err)?;
         } else if version != SCHEMA_VERSION {
-            return Err(StoreError::Version { path: path.to_owned(), found: version });
+            return Err(StoreError::Version {
+                expected: SCHEMA_VERSION,
+                path: path.to_owned(),
+                found: version,
+            });
         }
         let mut store = Store { conn, path: path.to_owned(), stall: None };
         match store.read_jobs(problems) {
@@ -386,7 +315,7 @@ impl Store {
         let size = width.zip(height);
         let record = JobRecord {
             id: JobId(id as u64),
-            bundle,
+            bundle: std::sync::Arc::new(bundle),
             settings: JobSettings { spp, size, time_limit, noise },
             priority,
             state,
@@ -439,17 +368,20 @@ impl Store {
             .collect::<Result<_, _>>()?;
         Ok(Checkpoint::decode(&parts))
     }
+}
 
+impl JobStore for Store {
     /// Records a new job; durable when this returns. The scene goes in a table of its own,
     /// written once: state changes rewrite only the small row in `jobs`, so the scene's
     /// pages stay where they were first written (early in the file), and a file truncated
     /// later loses checkpoints before it loses scenes.
-    pub fn add_job(&mut self, job: &JobRecord) -> Result<(), StoreError> {
+    fn add_job(&mut self, job: &JobRecord) -> Result<(), StoreError> {
         let bundle = encode_bundle(&job.bundle);
         let (state, error) = state_columns(&job.state);
         let (width, height) = job.settings.size.unzip();
         let path = self.path.clone();
-        let err = |source| StoreError::Write { path: path.clone(), source };
+        let err =
+            |source: rusqlite::Error| StoreError::Write { path: path.clone(), source: Box::new(source) };
         let tx = self.conn.transaction().map_err(err)?;
         tx.execute(
             "INSERT INTO scenes (job, bundle, bundle_sum) VALUES (?1, ?2, ?3)",
@@ -477,25 +409,26 @@ impl Store {
     }
 
     /// Records a job's state (paused, resumed, cancelled, ...).
-    pub fn set_state(&mut self, job: JobId, state: &JobState) -> Result<(), StoreError> {
+    fn set_state(&mut self, job: JobId, state: &JobState) -> Result<(), StoreError> {
         let (name, error) = state_columns(state);
         self.conn
             .execute(
                 "UPDATE jobs SET state = ?2, error = ?3 WHERE id = ?1",
                 params![job.0 as i64, name, error],
             )
-            .map_err(|source| StoreError::Write { path: self.path.clone(), source })?;
+            .map_err(|source| StoreError::Write { path: self.path.clone(), source: Box::new(source) })?;
         Ok(())
     }
 
     /// Writes a checkpoint and the job's state in one transaction, keeping the previous
     /// checkpoint to fall back on; returns the new checkpoint's generation.
-    pub fn save(&mut self, checkpoint: &Checkpoint, state: &JobState) -> Result<i64, StoreError> {
+    fn save(&mut self, checkpoint: &Checkpoint, state: &JobState) -> Result<i64, StoreError> {
         let parts = checkpoint.encode();
         let job = checkpoint.job.0 as i64;
         let (name, error) = state_columns(state);
         let path = self.path.clone();
-        let err = |source| StoreError::Write { path: path.clone(), source };
+        let err =
+            |source: rusqlite::Error| StoreError::Write { path: path.clone(), source: Box::new(source) };
         let tx = self.conn.transaction().map_err(err)?;
         let generation: i64 = tx
             .query_row(
@@ -528,7 +461,7 @@ impl Store {
     }
 
     /// The highest job id ever stored, so that ids are never reused.
-    pub fn max_job_id(&self) -> u64 {
+    fn max_job_id(&self) -> u64 {
         self.conn
             .query_row("SELECT MAX(id) FROM jobs", [], |r| r.get::<_, Option<i64>>(0))
             .optional()
@@ -547,11 +480,11 @@ mod tests {
     fn record(id: u64) -> JobRecord {
         JobRecord {
             id: JobId(id),
-            bundle: Bundle {
+            bundle: std::sync::Arc::new(Bundle {
                 name: "scene.toml".into(),
                 text: "# a scene".into(),
                 assets: vec![("mesh.obj".into(), vec![1, 2, 3])],
-            },
+            }),
             settings: JobSettings {
                 spp: Some(4),
                 size: Some((40, 30)),
@@ -705,7 +638,7 @@ mod tests {
     fn bundles_round_trip_and_refuse_truncation() {
         let b = record(1).bundle;
         let bytes = encode_bundle(&b);
-        assert_eq!(decode_bundle(&bytes), Some(b));
+        assert_eq!(decode_bundle(&bytes).as_ref(), Some(&*b));
         for n in [0, 5, bytes.len() - 1] {
             assert_eq!(decode_bundle(&bytes[..n]), None);
         }

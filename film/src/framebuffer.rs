@@ -2,6 +2,8 @@
 //! averages), resolved into an image on demand, with the pass-one mosaic for pixels that
 //! have no sample yet.
 
+use std::sync::Arc;
+
 use crate::fixed;
 
 use crate::quadtree::{mosaic_source, Quad};
@@ -39,11 +41,16 @@ pub enum MergeError {
     },
 }
 
-/// Accumulated samples of a `width × height` image, in the paper's coordinates.
-#[derive(Debug, Clone)]
-pub struct Framebuffer {
-    width: u32,
-    height: u32,
+/// The side of a tile, in pixels: the unit of copy-on-write and of the dirty set. 16×16
+/// pixels are about 10 KB, so a merge that touches a tile still held by a snapshot copies
+/// a few microseconds' worth (pass two's batches are runs of the walk, local in the image,
+/// and touch a handful of tiles), while a 4K frame has 32 400 tiles, so a snapshot clones
+/// that many pointers (about 0.1 ms) instead of copying 300 MB.
+pub const TILE: u32 = 16;
+
+/// One tile's accumulators, pixel index `ly · tile width + lx` within the tile.
+#[derive(Debug, Clone, PartialEq)]
+struct Tile {
     sums: Vec<[u64; 3]>,
     counts: Vec<u32>,
     /// Per pixel, the sum of the luminance of its even-numbered samples, for jobs with a
@@ -52,8 +59,48 @@ pub struct Framebuffer {
     even: Vec<u64>,
     /// Per pixel, the version of the merge that last changed it (for viewers' deltas).
     versions: Vec<u64>,
+    /// The newest of `versions`: a tile not changed since a version is skipped whole.
+    version: u64,
+}
+
+impl Tile {
+    fn new(pixels: usize, even: bool) -> Self {
+        Tile {
+            sums: vec![[0; 3]; pixels],
+            counts: vec![0; pixels],
+            even: if even { vec![0; pixels] } else { Vec::new() },
+            versions: vec![0; pixels],
+            version: 0,
+        }
+    }
+}
+
+/// Accumulated samples of a `width × height` image, in the paper's coordinates.
+///
+/// Stored in tiles behind `Arc`s, so that `clone` is a snapshot that costs a pointer per
+/// tile, not a copy of the image: the coordinator clones under its lock and resolves,
+/// encodes deltas or writes checkpoints from the clone outside it, while merges go on
+/// (copying only the tiles they touch that a snapshot still holds).
+#[derive(Debug, Clone)]
+pub struct Framebuffer {
+    width: u32,
+    height: u32,
+    tiles_x: u32,
+    has_even: bool,
+    tiles: Vec<Arc<Tile>>,
     /// Merges so far.
     version: u64,
+}
+
+impl PartialEq for Framebuffer {
+    fn eq(&self, other: &Self) -> bool {
+        (self.width, self.height, self.has_even) == (other.width, other.height, other.has_even)
+            && self
+                .tiles
+                .iter()
+                .zip(&other.tiles)
+                .all(|(a, b)| (&a.sums, &a.counts, &a.even) == (&b.sums, &b.counts, &b.even))
+    }
 }
 
 /// The state of one pixel as it travels to viewers.
@@ -70,33 +117,44 @@ pub struct PixelState {
 impl Framebuffer {
     /// An empty framebuffer.
     pub fn new(width: u32, height: u32) -> Self {
-        let n = width as usize * height as usize;
-        Framebuffer {
-            width,
-            height,
-            sums: vec![[0; 3]; n],
-            counts: vec![0; n],
-            even: Vec::new(),
-            versions: vec![0; n],
-            version: 0,
-        }
+        Self::empty(width, height, false)
     }
 
     /// An empty framebuffer that also keeps even-sample luminance sums (noise targets).
     pub fn with_even(width: u32, height: u32) -> Self {
-        let mut fb = Framebuffer::new(width, height);
-        fb.even = vec![0; fb.counts.len()];
-        fb
+        Self::empty(width, height, true)
+    }
+
+    fn empty(width: u32, height: u32, has_even: bool) -> Self {
+        let (tiles_x, tiles_y) = (width.div_ceil(TILE), height.div_ceil(TILE));
+        let mut tiles = Vec::with_capacity(tiles_x as usize * tiles_y as usize);
+        for ty in 0..tiles_y {
+            for tx in 0..tiles_x {
+                let (w, h) = tile_extent(width, height, tx, ty);
+                tiles.push(Arc::new(Tile::new(w as usize * h as usize, has_even)));
+            }
+        }
+        Framebuffer { width, height, tiles_x, has_even, tiles, version: 0 }
     }
 
     /// Whether it keeps even-sample sums.
     pub fn has_even(&self) -> bool {
-        !self.even.is_empty()
+        self.has_even
     }
 
-    /// The even-sample luminance sums (empty unless `with_even`).
-    pub fn even(&self) -> &[u64] {
-        &self.even
+    /// Tile index and index within the tile of pixel `(x, y)`.
+    #[inline]
+    fn locate(&self, x: u32, y: u32) -> (usize, usize) {
+        let (tx, ty) = (x / TILE, y / TILE);
+        let tw = (self.width - tx * TILE).min(TILE);
+        ((ty * self.tiles_x + tx) as usize, ((y % TILE) * tw + x % TILE) as usize)
+    }
+
+    /// The samples of pixel `(x, y)`.
+    #[inline]
+    pub fn count(&self, x: u32, y: u32) -> u32 {
+        let (t, i) = self.locate(x, y);
+        self.tiles[t].counts[i]
     }
 
     /// The estimated relative standard error of pixel `(x, y)`'s mean luminance: half the
@@ -105,13 +163,14 @@ impl Framebuffer {
     /// relative to the mean, which is floored at `floor` so that black pixels converge too.
     /// `None` before two samples, or without even sums.
     pub fn noise(&self, x: u32, y: u32, floor: f64) -> Option<f64> {
-        let i = self.index(x, y);
-        let n = self.counts[i];
-        if n < 2 || self.even.is_empty() {
+        let (t, i) = self.locate(x, y);
+        let tile = &self.tiles[t];
+        let n = tile.counts[i];
+        if n < 2 || !self.has_even {
             return None;
         }
-        let total = self.sums[i].iter().map(|&s| s as f64).sum::<f64>() / 3.0;
-        let even = self.even[i] as f64;
+        let total = tile.sums[i].iter().map(|&s| s as f64).sum::<f64>() / 3.0;
+        let even = tile.even[i] as f64;
         let (n_even, n_odd) = (f64::from(n.div_ceil(2)), f64::from(n / 2));
         let (m_even, m_odd) = (even / n_even, (total - even).max(0.0) / n_odd);
         let mean = total / f64::from(n);
@@ -119,8 +178,9 @@ impl Framebuffer {
         Some((m_even - m_odd).abs() / 2.0 / (mean / scale).max(floor) / scale)
     }
 
-    /// A framebuffer holding these accumulators (a checkpoint read back), or `None` if
-    /// their lengths do not fit the size. Every pixel with samples is new to viewers.
+    /// A framebuffer holding these accumulators (a checkpoint read back), pixel index
+    /// y · width + x, or `None` if their lengths do not fit the size. Every pixel with
+    /// samples is new to viewers.
     pub fn from_accumulators(
         width: u32,
         height: u32,
@@ -132,13 +192,60 @@ impl Framebuffer {
         if sums.len() != n || counts.len() != n || !(even.is_empty() || even.len() == n) {
             return None;
         }
-        let versions = counts.iter().map(|&c| u64::from(c > 0)).collect();
-        Some(Framebuffer { width, height, sums, counts, even, versions, version: 1 })
+        let mut fb = Self::empty(width, height, !even.is_empty());
+        fb.version = 1;
+        for y in 0..height {
+            for x in 0..width {
+                let g = y as usize * width as usize + x as usize;
+                let (t, i) = fb.locate(x, y);
+                let tile = Arc::get_mut(&mut fb.tiles[t]).expect("not shared yet");
+                tile.sums[i] = sums[g];
+                tile.counts[i] = counts[g];
+                if let Some(e) = even.get(g) {
+                    tile.even[i] = *e;
+                }
+                if counts[g] > 0 {
+                    tile.versions[i] = 1;
+                    tile.version = 1;
+                }
+            }
+        }
+        Some(fb)
     }
 
-    /// The per-pixel sums and sample counts, pixel index y · width + x.
-    pub fn accumulators(&self) -> (&[[u64; 3]], &[u32]) {
-        (&self.sums, &self.counts)
+    /// Copies of the per-pixel sums and sample counts, pixel index y · width + x (for
+    /// checkpoints, written from a snapshot).
+    pub fn accumulators(&self) -> (Vec<[u64; 3]>, Vec<u32>) {
+        let n = self.width as usize * self.height as usize;
+        let (mut sums, mut counts) = (Vec::with_capacity(n), Vec::with_capacity(n));
+        self.each_row(|tile, range| {
+            sums.extend_from_slice(&tile.sums[range.clone()]);
+            counts.extend_from_slice(&tile.counts[range]);
+        });
+        (sums, counts)
+    }
+
+    /// A copy of the even-sample luminance sums, pixel index y · width + x (empty unless
+    /// `with_even`).
+    pub fn even(&self) -> Vec<u64> {
+        let mut even = Vec::new();
+        if self.has_even {
+            self.each_row(|tile, range| even.extend_from_slice(&tile.even[range]));
+        }
+        even
+    }
+
+    /// Calls `f` with each image row's pieces in pixel-index order: the tile and the range
+    /// of its pixel indices that lie on that row.
+    fn each_row(&self, mut f: impl FnMut(&Tile, std::ops::Range<usize>)) {
+        for y in 0..self.height {
+            let ty = y / TILE;
+            for tx in 0..self.tiles_x {
+                let (tw, _) = tile_extent(self.width, self.height, tx, ty);
+                let start = ((y % TILE) * tw) as usize;
+                f(&self.tiles[(ty * self.tiles_x + tx) as usize], start..start + tw as usize);
+            }
+        }
     }
 
     /// Width in pixels.
@@ -151,49 +258,48 @@ impl Framebuffer {
         self.height
     }
 
-    fn index(&self, x: u32, y: u32) -> usize {
-        y as usize * self.width as usize + x as usize
-    }
-
-    /// Adds `samples` samples to each of `quads`' pixels. Checks everything before
-    /// changing anything, so a refused result leaves the framebuffer as it was. Integer
-    /// addition makes the result independent of merge order (DESIGN contract 1).
-    pub fn merge(&mut self, quads: &[Quad], samples: u32, sums: &[u64]) -> Result<(), MergeError> {
-        self.merge_split(quads, samples, sums, &[])
-    }
-
-    /// `merge`, with the batch's even-sample luminance sums `even` (one per pixel) when the
-    /// framebuffer keeps them; ignored otherwise.
-    pub fn merge_split(
+    /// Adds `samples` samples to each of `quads`' pixels, with the batch's even-sample
+    /// luminance sums (one per pixel) when the framebuffer keeps them. Checks everything
+    /// before changing anything, so a refused result leaves the framebuffer as it was.
+    /// Integer addition makes the result independent of merge order (DESIGN contract 1).
+    pub fn merge(
         &mut self,
         quads: &[Quad],
         samples: u32,
         sums: &[u64],
-        even: &[u64],
+        even: Option<&[u64]>,
     ) -> Result<(), MergeError> {
-        Self::check(quads, samples, sums)?;
-        if self.has_even() {
-            Self::check_even(quads, samples, even)?;
-            for (q, e) in quads.iter().zip(even) {
-                let i = self.index(q.x, q.y);
-                self.even[i] = self.even[i].saturating_add(*e);
-            }
-        }
+        self.check(quads, samples, sums, even)?;
         self.version += 1;
-        for (q, s) in quads.iter().zip(sums.chunks_exact(3)) {
-            let i = self.index(q.x, q.y);
-            self.versions[i] = self.version;
-            for (acc, v) in self.sums[i].iter_mut().zip(s) {
+        let version = self.version;
+        let even = even.filter(|_| self.has_even);
+        for (k, (q, s)) in quads.iter().zip(sums.chunks_exact(3)).enumerate() {
+            let (t, i) = self.locate(q.x, q.y);
+            // Copies the tile only if a snapshot still holds it.
+            let tile = Arc::make_mut(&mut self.tiles[t]);
+            tile.versions[i] = version;
+            tile.version = version;
+            for (acc, v) in tile.sums[i].iter_mut().zip(s) {
                 // Saturating: only a scene far beyond the documented limits can get here.
                 *acc = acc.saturating_add(*v);
             }
-            self.counts[i] = self.counts[i].saturating_add(samples);
+            tile.counts[i] = tile.counts[i].saturating_add(samples);
+            if let Some(e) = even {
+                tile.even[i] = tile.even[i].saturating_add(e[k]);
+            }
         }
         Ok(())
     }
 
-    /// Checks that `sums` can be the result of `samples` samples of each of `quads`.
-    pub fn check(quads: &[Quad], samples: u32, sums: &[u64]) -> Result<(), MergeError> {
+    /// Checks that `sums` (and `even`, when this framebuffer keeps even sums) can be the
+    /// result of `samples` samples of each of `quads`.
+    pub fn check(
+        &self,
+        quads: &[Quad],
+        samples: u32,
+        sums: &[u64],
+        even: Option<&[u64]>,
+    ) -> Result<(), MergeError> {
         if sums.len() != quads.len() * 3 {
             return Err(MergeError::WrongLength { expected: quads.len() * 3, got: sums.len() });
         }
@@ -203,20 +309,18 @@ impl Framebuffer {
                 return Err(MergeError::OutOfRange { x: q.x, y: q.y, value, samples });
             }
         }
+        if self.has_even {
+            // The even samples are at most half of them, rounded up.
+            let even = even.unwrap_or(&[]);
+            if even.len() != quads.len() {
+                return Err(MergeError::EvenLength { expected: quads.len(), got: even.len() });
+            }
+            let max = fixed::max_sum(samples.div_ceil(2));
+            if let Some((q, &value)) = quads.iter().zip(even).find(|(_, &v)| v > max) {
+                return Err(MergeError::OutOfRange { x: q.x, y: q.y, value, samples });
+            }
+        }
         Ok(())
-    }
-
-    /// Checks even-sample sums: one per pixel, each within what the batch's even samples
-    /// (at most half of them, rounded up) can produce.
-    pub fn check_even(quads: &[Quad], samples: u32, even: &[u64]) -> Result<(), MergeError> {
-        if even.len() != quads.len() {
-            return Err(MergeError::EvenLength { expected: quads.len(), got: even.len() });
-        }
-        let max = fixed::max_sum(samples.div_ceil(2));
-        match quads.iter().zip(even).find(|(_, &v)| v > max) {
-            Some((q, &value)) => Err(MergeError::OutOfRange { x: q.x, y: q.y, value, samples }),
-            None => Ok(()),
-        }
     }
 
     /// Merges so far: the framebuffer's version.
@@ -224,45 +328,32 @@ impl Framebuffer {
         self.version
     }
 
-    /// Up to `limit` pixels changed after version `since` and not after `until`, from
-    /// pixel index `from` on; returns them and the index to continue from (`None` at the
-    /// end). Bounded, so that a viewer's update never holds more than `limit` pixels.
-    pub fn changes(
-        &self,
-        since: u64,
-        until: u64,
-        from: usize,
-        limit: usize,
-    ) -> (Vec<PixelState>, Option<usize>) {
-        let mut out = Vec::new();
-        for i in from..self.versions.len() {
-            let v = self.versions[i];
-            if v > since && v <= until {
-                if out.len() == limit {
-                    return (out, Some(i));
-                }
-                out.push(PixelState { index: i as u32, sums: self.sums[i], count: self.counts[i] });
-            }
-        }
-        (out, None)
+    /// The pixels changed after version `since`, in chunks of at most `limit`. Only the
+    /// tiles changed since then are scanned (the dirty set), so a delta costs what changed,
+    /// not the image; a snapshot taken under the lock serves it outside the lock.
+    pub fn changes(&self, since: u64, limit: usize) -> Changes<'_> {
+        Changes { fb: self, since, limit: limit.max(1), tile: 0, pixel: 0 }
     }
 
     /// Sets a pixel's state (a viewer's replica applying an update).
     pub fn set(&mut self, p: &PixelState) -> bool {
-        let i = p.index as usize;
-        if i >= self.counts.len() {
+        if p.index as u64 >= u64::from(self.width) * u64::from(self.height) {
             return false;
         }
-        self.sums[i] = p.sums;
-        self.counts[i] = p.count;
+        let (x, y) = (p.index % self.width, p.index / self.width);
+        let (t, i) = self.locate(x, y);
+        let tile = Arc::make_mut(&mut self.tiles[t]);
+        tile.sums[i] = p.sums;
+        tile.counts[i] = p.count;
         true
     }
 
     /// The mean radiance of pixel `(x, y)`, or `None` before its first sample.
     pub fn mean(&self, x: u32, y: u32) -> Option<[f32; 3]> {
-        let i = self.index(x, y);
-        let n = self.counts[i];
-        (n > 0).then(|| self.sums[i].map(|s| fixed::mean(s, n)))
+        let (t, i) = self.locate(x, y);
+        let tile = &self.tiles[t];
+        let n = tile.counts[i];
+        (n > 0).then(|| tile.sums[i].map(|s| fixed::mean(s, n)))
     }
 
     /// The image as linear RGB, top row first (image order, ready to encode). A pixel
@@ -274,13 +365,65 @@ impl Framebuffer {
             let y = h - 1 - row;
             for x in 0..w {
                 let rgb = self.mean(x, y).or_else(|| {
-                    mosaic_source(w, h, x, y, |sx, sy| self.counts[self.index(sx, sy)] > 0)
+                    mosaic_source(w, h, x, y, |sx, sy| self.count(sx, sy) > 0)
                         .and_then(|(sx, sy)| self.mean(sx, sy))
                 });
                 out.extend_from_slice(&rgb.unwrap_or([0.0; 3]));
             }
         }
         out
+    }
+}
+
+/// The width and height of tile `(tx, ty)`: `TILE`, less at the right and top edges.
+fn tile_extent(width: u32, height: u32, tx: u32, ty: u32) -> (u32, u32) {
+    ((width - tx * TILE).min(TILE), (height - ty * TILE).min(TILE))
+}
+
+/// The chunks of a delta: see `Framebuffer::changes`.
+#[derive(Debug)]
+pub struct Changes<'a> {
+    fb: &'a Framebuffer,
+    since: u64,
+    limit: usize,
+    tile: usize,
+    pixel: usize,
+}
+
+impl Iterator for Changes<'_> {
+    type Item = Vec<PixelState>;
+
+    fn next(&mut self) -> Option<Vec<PixelState>> {
+        let fb = self.fb;
+        let mut out = Vec::new();
+        while self.tile < fb.tiles.len() {
+            let tile = &fb.tiles[self.tile];
+            if tile.version <= self.since {
+                self.tile += 1;
+                self.pixel = 0;
+                continue;
+            }
+            let (tx, ty) = (self.tile as u32 % fb.tiles_x, self.tile as u32 / fb.tiles_x);
+            let (tw, _) = tile_extent(fb.width, fb.height, tx, ty);
+            while self.pixel < tile.versions.len() {
+                let i = self.pixel;
+                if tile.versions[i] > self.since {
+                    if out.len() == self.limit {
+                        return Some(out);
+                    }
+                    let (x, y) = (tx * TILE + i as u32 % tw, ty * TILE + i as u32 / tw);
+                    out.push(PixelState {
+                        index: y * fb.width + x,
+                        sums: tile.sums[i],
+                        count: tile.counts[i],
+                    });
+                }
+                self.pixel += 1;
+            }
+            self.tile += 1;
+            self.pixel = 0;
+        }
+        (!out.is_empty()).then_some(out)
     }
 }
 
@@ -299,11 +442,11 @@ mod tests {
         let sums_a: Vec<u64> = (0..48).map(|i| one(0.1 * i as f32 + 0.013)).collect();
         let sums_b: Vec<u64> = (0..48).map(|i| one(1.7 / (i as f32 + 1.0))).collect();
         let mut ab = Framebuffer::new(4, 4);
-        ab.merge(&quads, 1, &sums_a).unwrap();
-        ab.merge(&quads, 1, &sums_b).unwrap();
+        ab.merge(&quads, 1, &sums_a, None).unwrap();
+        ab.merge(&quads, 1, &sums_b, None).unwrap();
         let mut ba = Framebuffer::new(4, 4);
-        ba.merge(&quads, 1, &sums_b).unwrap();
-        ba.merge(&quads, 1, &sums_a).unwrap();
+        ba.merge(&quads, 1, &sums_b, None).unwrap();
+        ba.merge(&quads, 1, &sums_a, None).unwrap();
         let bits = |f: &Framebuffer| f.resolve().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
         assert_eq!(bits(&ab), bits(&ba));
     }
@@ -317,16 +460,13 @@ mod tests {
         let mut sent = 0;
         for (k, chunk) in quads.chunks(5).enumerate() {
             let sums: Vec<u64> = (0..chunk.len() * 3).map(|i| one((i + k) as f32 * 0.01)).collect();
-            fb.merge(chunk, 1, &sums).unwrap();
+            fb.merge(chunk, 1, &sums, None).unwrap();
             if k % 3 == 0 {
-                let until = fb.version();
-                let mut from = Some(0);
-                while let Some(f) = from {
-                    let (px, next) = fb.changes(sent, until, f, 4);
+                for px in fb.changes(sent, 4) {
+                    assert!(px.len() <= 4);
                     px.iter().for_each(|p| assert!(replica.set(p)));
-                    from = next;
                 }
-                sent = until;
+                sent = fb.version();
                 let bits = |f: &Framebuffer| f.resolve().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
                 assert_eq!(bits(&replica), bits(&fb));
             }
@@ -337,10 +477,10 @@ mod tests {
     fn bad_results_are_refused_without_change() {
         let quads: Vec<Quad> = Walk::new(2, 2).collect();
         let mut fb = Framebuffer::new(2, 2);
-        assert!(matches!(fb.merge(&quads, 1, &[0; 5]), Err(MergeError::WrongLength { .. })));
+        assert!(matches!(fb.merge(&quads, 1, &[0; 5], None), Err(MergeError::WrongLength { .. })));
         let mut sums = vec![0; 12];
         sums[4] = u64::MAX;
-        assert!(matches!(fb.merge(&quads, 1, &sums), Err(MergeError::OutOfRange { .. })));
+        assert!(matches!(fb.merge(&quads, 1, &sums, None), Err(MergeError::OutOfRange { .. })));
         assert!(fb.mean(0, 0).is_none());
     }
 
@@ -349,8 +489,71 @@ mod tests {
     fn mosaic_fills_the_frame_from_the_first_pixel() {
         let mut fb = Framebuffer::new(8, 8);
         let root = Walk::new(8, 8).next().unwrap();
-        fb.merge(&[root], 1, &[one(0.5), one(0.25), one(1.0)]).unwrap();
+        fb.merge(&[root], 1, &[one(0.5), one(0.25), one(1.0)], None).unwrap();
         let img = fb.resolve();
         assert!(img.chunks(3).all(|p| p == [0.5, 0.25, 1.0]));
+    }
+
+    fn px(x: u32, y: u32) -> Quad {
+        Quad { x, y, w: 1, h: 1 }
+    }
+
+    /// A clone is a snapshot: merges after it change the original only, and only the
+    /// tiles they touch are copied (so a snapshot under the farm's lock is cheap).
+    #[test]
+    fn a_clone_is_a_snapshot() {
+        let mut fb = Framebuffer::new(200, 130);
+        fb.merge(&[px(3, 4)], 1, &[one(0.5); 3], None).unwrap();
+        let snap = fb.clone();
+        fb.merge(&[px(3, 4), px(199, 129)], 1, &[one(0.25); 6], None).unwrap();
+        assert_eq!(snap.count(3, 4), 1);
+        assert_eq!(snap.count(199, 129), 0);
+        assert_eq!(fb.count(3, 4), 2);
+        assert_eq!(fb.count(199, 129), 1);
+        let shared = fb.tiles.iter().zip(&snap.tiles).filter(|(a, b)| Arc::ptr_eq(a, b)).count();
+        assert_eq!(shared, fb.tiles.len() - 2, "only the two touched tiles were copied");
+    }
+
+    /// Accumulators in pixel-index order survive the trip through a checkpoint, for a
+    /// size that is not a multiple of the tile, with even sums.
+    #[test]
+    fn accumulators_round_trip_in_pixel_order() {
+        let (w, h) = (131, 67);
+        let mut fb = Framebuffer::with_even(w, h);
+        let quads: Vec<Quad> = (0..w * h).step_by(7).map(|i| px(i % w, i / w)).collect();
+        let sums: Vec<u64> = (0..quads.len() * 3).map(|i| i as u64).collect();
+        let even: Vec<u64> = (0..quads.len()).map(|i| i as u64 / 2).collect();
+        fb.merge(&quads, 2, &sums, Some(&even)).unwrap();
+        let (s, c) = fb.accumulators();
+        assert_eq!(c[(7 * 5) as usize], 2);
+        assert_eq!(s[7][0], 3);
+        let back = Framebuffer::from_accumulators(w, h, s, c, fb.even()).unwrap();
+        assert_eq!(back, fb);
+        assert_eq!(back.resolve(), fb.resolve());
+    }
+
+    /// A delta scans only what changed since the version asked for, and holds exactly the
+    /// pixels changed after it.
+    #[test]
+    fn changes_hold_exactly_the_pixels_changed_since() {
+        let mut fb = Framebuffer::new(300, 200);
+        fb.merge(&[px(0, 0), px(299, 199)], 1, &[one(1.0); 6], None).unwrap();
+        let since = fb.version();
+        fb.merge(&[px(150, 100), px(151, 100)], 1, &[one(1.0); 6], None).unwrap();
+        let got: Vec<u32> = fb.changes(since, 1).flatten().map(|p| p.index).collect();
+        assert_eq!(got, vec![100 * 300 + 150, 100 * 300 + 151]);
+        assert_eq!(fb.changes(fb.version(), 10).count(), 0);
+        assert_eq!(fb.changes(0, 3).flatten().count(), 4);
+    }
+
+    /// Even sums are required exactly when the framebuffer keeps them.
+    #[test]
+    fn even_sums_are_checked_when_kept() {
+        let mut fb = Framebuffer::with_even(2, 1);
+        let q = [px(0, 0), px(1, 0)];
+        assert!(matches!(fb.merge(&q, 1, &[0; 6], None), Err(MergeError::EvenLength { .. })));
+        assert!(matches!(fb.merge(&q, 1, &[0; 6], Some(&[u64::MAX, 0])), Err(MergeError::OutOfRange { .. })));
+        fb.merge(&q, 1, &[0; 6], Some(&[0, 0])).unwrap();
+        Framebuffer::new(2, 1).merge(&q, 1, &[0; 6], None).unwrap();
     }
 }

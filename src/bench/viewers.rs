@@ -68,7 +68,7 @@ async fn case(
     let job = client
         .submit(pb::SubmitRequest {
             protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
-            bundle: Some(tessera_coordinator::service::bundle_to_wire(&bundle)),
+            bundle: Some(tessera_coordinator::service::convert::bundle_to_wire(&bundle)),
             settings: Some(pb::RenderSettings { spp: spp.unwrap_or(0), ..Default::default() }),
             priority: 0,
         })

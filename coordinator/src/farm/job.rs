@@ -1,0 +1,269 @@
+//! One job: its scene, its batches, its framebuffer, and the figures of its progress.
+
+use std::collections::{HashMap, VecDeque};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tessera_description::bundle::Bundle;
+use tessera_description::ids::{BatchId, JobId, WorkerId};
+use tessera_description::job::{JobProgress, JobSettings, JobState};
+use tessera_film::Framebuffer;
+
+use crate::checkpoint::Checkpoint;
+use crate::persist::JobRecord;
+use crate::scheduler::{Completed, PassQueue};
+
+use super::SubmitError;
+
+/// The window over which samples per second are measured.
+const RATE_WINDOW: Duration = Duration::from_secs(5);
+
+/// A job: its scene, its batches and its framebuffer.
+#[derive(Debug)]
+pub struct Job {
+    /// The id.
+    pub id: JobId,
+    /// The scene as submitted.
+    pub bundle: Arc<Bundle>,
+    /// The bundle's content hash.
+    pub scene_hash: String,
+    /// The settings.
+    pub settings: JobSettings,
+    /// Higher priorities are served first; equal ones oldest first.
+    pub priority: i32,
+    /// Samples per pixel in effect.
+    pub spp: u32,
+    /// State.
+    pub state: JobState,
+    pub(super) queue: PassQueue,
+    pub(super) framebuffer: Framebuffer,
+    pub(super) started: Option<Instant>,
+    pub(super) finished: Option<Instant>,
+    /// (time, samples done) points for the recent rate.
+    pub(super) rate: VecDeque<(Instant, u64)>,
+    pub(super) failures: HashMap<BatchId, u32>,
+    pub(super) nonfinite_samples: u64,
+    /// Rendering time before a restart, counted against a time budget.
+    pub(super) spent_before: Duration,
+    pub(super) halted: Option<&'static str>,
+}
+
+impl Job {
+    /// The framebuffer.
+    pub fn framebuffer(&self) -> &Framebuffer {
+        &self.framebuffer
+    }
+
+    /// Whether the job will hand out no more batches.
+    pub fn is_over(&self) -> bool {
+        matches!(self.state, JobState::Done | JobState::Cancelled | JobState::Failed(_))
+    }
+
+    /// A snapshot of progress.
+    pub fn progress(&self, now: Instant) -> JobProgress {
+        let rate = match (self.rate.front(), self.rate.back()) {
+            (Some(&(t0, s0)), Some(&(t1, s1))) if t1 > t0 => (s1 - s0) as f64 / (t1 - t0).as_secs_f64(),
+            _ => 0.0,
+        };
+        let end = self.finished.unwrap_or(now);
+        JobProgress {
+            id: self.id,
+            scene: self.bundle.name.clone(),
+            state: self.state.clone(),
+            width: self.framebuffer.width(),
+            height: self.framebuffer.height(),
+            spp: self.spp,
+            pass: self.queue.pass().number(),
+            samples_done: self.queue.samples_done(),
+            samples_total: self.queue.samples_total(),
+            samples_per_second: rate,
+            elapsed: self.started.map_or(Duration::ZERO, |s| end.saturating_duration_since(s)),
+            pass_one_done: self.queue.pass_one_pixels_done(),
+            nonfinite_samples: self.nonfinite_samples,
+            priority: self.priority,
+            halted: self.halted,
+        }
+    }
+
+    /// Rendering time so far, across restarts.
+    pub fn spent(&self, now: Instant) -> Duration {
+        let end = self.finished.unwrap_or(now);
+        self.spent_before + self.started.map_or(Duration::ZERO, |s| end.saturating_duration_since(s))
+    }
+
+    /// Ends the job if its time budget is spent; returns whether it did.
+    pub(super) fn enforce_deadline(&mut self, now: Instant) -> bool {
+        let Some(limit) = self.settings.time_limit else { return false };
+        if self.is_over() || self.state == JobState::Paused || self.spent(now) < limit {
+            return false;
+        }
+        self.queue.abandon();
+        self.state = JobState::Done;
+        self.finished = Some(now);
+        self.halted = Some("time budget");
+        true
+    }
+
+    /// Whether every pixel has its pass-one sample.
+    pub fn pass_one_complete(&self) -> bool {
+        let fb = &self.framebuffer;
+        self.queue.pass_one_pixels_done() == u64::from(fb.width()) * u64::from(fb.height())
+    }
+
+    /// The job's state now, for a checkpoint: merged batches and accumulators. Leased
+    /// batches are not in it; a restart renders them again. Cheap (the framebuffer is
+    /// shared, copy-on-write), so it is taken under the farm's lock; the copying and the
+    /// writing happen outside it, from the snapshot.
+    pub fn snapshot(&self, now: Instant) -> Snapshot {
+        Snapshot {
+            job: self.id,
+            spp: self.spp,
+            spent: self.spent(now),
+            completed: self.queue.completed(),
+            nonfinite_samples: self.nonfinite_samples,
+            samples_done: self.queue.samples_done(),
+            framebuffer: self.framebuffer.clone(),
+        }
+    }
+
+    /// The job as stored.
+    pub fn record(&self) -> JobRecord {
+        JobRecord {
+            id: self.id,
+            bundle: self.bundle.clone(),
+            settings: self.settings.clone(),
+            priority: self.priority,
+            state: self.state.clone(),
+        }
+    }
+}
+
+impl Job {
+    /// Validates a submission and makes its job: the costly part of submitting (reading
+    /// the scene, allocating the framebuffer), done before the farm is touched so that
+    /// nobody waits for it.
+    pub fn prepare(
+        id: JobId,
+        bundle: Arc<Bundle>,
+        settings: JobSettings,
+        priority: i32,
+    ) -> Result<Job, SubmitError> {
+        let mut scene = tessera_worker::scene::parse_bundle(&bundle)?;
+        use tessera_description::limits;
+        if let Some(s) = settings.spp.filter(|&s| s == 0 || s > limits::MAX_SPP) {
+            return Err(SubmitError::Spp { got: s, max: limits::MAX_SPP });
+        }
+        if let Some((width, height)) = settings.size {
+            let pixels = u64::from(width) * u64::from(height);
+            if width == 0
+                || height == 0
+                || width > limits::MAX_SIDE
+                || height > limits::MAX_SIDE
+                || pixels > limits::MAX_PIXELS
+            {
+                let (max_side, max_pixels) = (limits::MAX_SIDE, limits::MAX_PIXELS);
+                return Err(SubmitError::Size { width, height, max_side, max_pixels });
+            }
+        }
+        scene.apply(settings.spp, settings.size);
+        if let Some(n) = settings.noise.filter(|n| !(n.is_finite() && *n > 0.0 && *n < 1.0)) {
+            return Err(SubmitError::Noise(n));
+        }
+        if settings.time_limit.is_some_and(|t| t.is_zero()) {
+            return Err(SubmitError::TimeLimit);
+        }
+        let spp = scene.spp;
+        let (queue, framebuffer) = match (settings.in_rounds(), settings.noise.is_some()) {
+            (false, _) => {
+                (PassQueue::new(scene.width, scene.height, spp), Framebuffer::new(scene.width, scene.height))
+            }
+            (true, adaptive) => (
+                PassQueue::with_rounds(scene.width, scene.height, spp),
+                if adaptive {
+                    Framebuffer::with_even(scene.width, scene.height)
+                } else {
+                    Framebuffer::new(scene.width, scene.height)
+                },
+            ),
+        };
+        Ok(Job {
+            id,
+            scene_hash: bundle.hash(),
+            bundle,
+            settings,
+            priority,
+            spp,
+            state: JobState::Queued,
+            queue,
+            framebuffer,
+            started: None,
+            finished: None,
+            rate: VecDeque::new(),
+            failures: HashMap::new(),
+            nonfinite_samples: 0,
+            spent_before: Duration::ZERO,
+            halted: None,
+        })
+    }
+
+    pub(super) fn queue_leases_of(&self, worker: WorkerId) -> usize {
+        self.queue.leased_by(worker)
+    }
+
+    pub(super) fn after_merge(&mut self, nonfinite: u64, now: Instant) {
+        self.nonfinite_samples += nonfinite;
+        self.rate.push_back((now, self.queue.samples_done()));
+        while self.rate.len() > 2 && now.saturating_duration_since(self.rate[1].0) > RATE_WINDOW {
+            self.rate.pop_front();
+        }
+        if self.queue.is_finished() {
+            self.state = JobState::Done;
+            self.finished = Some(now);
+            if self.settings.noise.is_some() && self.queue.samples_done() < self.queue.samples_total() {
+                self.halted = Some("noise target");
+            }
+        }
+    }
+}
+
+/// A job's merged state at one moment, taken under the farm's lock in microseconds: what a
+/// checkpoint is made of.
+#[derive(Debug, Clone)]
+pub struct Snapshot {
+    /// The job.
+    pub job: JobId,
+    /// Samples per pixel in effect.
+    pub spp: u32,
+    /// Rendering time so far, across restarts.
+    pub spent: Duration,
+    /// The merged batches.
+    pub completed: Completed,
+    /// Samples that came back NaN or infinite.
+    pub nonfinite_samples: u64,
+    /// Samples merged.
+    pub samples_done: u64,
+    /// The framebuffer as it was (a copy-on-write clone).
+    pub framebuffer: Framebuffer,
+}
+
+impl Snapshot {
+    /// The checkpoint: the accumulators copied out in pixel order. O(pixels): call it
+    /// outside the farm's lock.
+    pub fn checkpoint(&self) -> Checkpoint {
+        let fb = &self.framebuffer;
+        let (sums, counts) = fb.accumulators();
+        Checkpoint {
+            even: fb.even(),
+            spent: self.spent,
+            job: self.job,
+            width: fb.width(),
+            height: fb.height(),
+            spp: self.spp,
+            completed: self.completed.clone(),
+            nonfinite_samples: self.nonfinite_samples,
+            samples_done: self.samples_done,
+            sums,
+            counts,
+        }
+    }
+}

@@ -1,0 +1,311 @@
+//! The coordinator's state: jobs, workers, and who renders what. Pure: no I/O, no clock
+//! (every function that needs the time takes it), no wire types and no storage; the
+//! service wraps it and does those.
+
+mod adaptive;
+mod assign;
+mod job;
+mod restore;
+#[cfg(test)]
+mod tests;
+
+use std::collections::{BTreeMap, HashSet};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use tessera_description::bundle::Bundle;
+use tessera_description::ids::{BatchId, JobId, WorkerId};
+pub use tessera_description::job::{JobProgress, JobSettings, JobState};
+use tessera_film::MergeError;
+
+pub use adaptive::{NOISE_FLOOR, NOISE_MIN_SAMPLES};
+pub use job::{Job, Snapshot};
+
+use crate::scheduler::{BatchSpec, CompleteError, RestoreError};
+
+/// A batch failing this many times fails its job: the problem is not the worker.
+pub const MAX_BATCH_FAILURES: u32 = 3;
+/// A lease becomes a straggler, worth a speculative duplicate, after this many mean batch
+/// times...
+const SPECULATE_PATIENCE: u32 = 3;
+/// ...and never sooner than this: duplicating work costs a worker's time too.
+const SPECULATE_MIN_AGE: Duration = Duration::from_secs(1);
+
+/// A connected worker.
+#[derive(Debug, Clone)]
+pub struct WorkerInfo {
+    /// Name it gave.
+    pub name: String,
+    /// Render threads.
+    pub threads: u32,
+    /// Jobs whose scene it has received.
+    scenes: HashSet<JobId>,
+    /// Batches done.
+    pub batches_done: u64,
+    /// Last message received.
+    last_seen: Instant,
+}
+
+/// What a worker is handed: the job's scene first if it lacks it, then a batch.
+#[derive(Debug, Clone)]
+pub struct Assignment {
+    /// The job.
+    pub job: JobId,
+    /// The scene, when this worker has not had it.
+    pub scene: Option<(Arc<Bundle>, String, JobSettings)>,
+    /// The scene hash the batch needs.
+    pub scene_hash: String,
+    /// The batch.
+    pub batch: BatchSpec,
+    /// Its attempt number.
+    pub attempt: u32,
+    /// A duplicate of a straggler's batch, leased to another worker too.
+    pub speculative: bool,
+    /// The job wants even-sample sums back (it has a noise target).
+    pub even_sums: bool,
+}
+
+/// A worker's result for one batch, as the farm merges it.
+#[derive(Debug, Clone, Copy)]
+pub struct BatchResult<'a> {
+    /// The job.
+    pub job: JobId,
+    /// The batch.
+    pub batch: BatchId,
+    /// Three fixed-point sums per pixel, in the batch's pixel order.
+    pub sums: &'a [u64],
+    /// One even-sample luminance sum per pixel, for jobs with a noise target.
+    pub even: Option<&'a [u64]>,
+    /// Samples that came back NaN or infinite (counted as black).
+    pub nonfinite: u64,
+}
+
+/// Why a submission was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum SubmitError {
+    /// The submission could not be processed (a bug, reported rather than a crash).
+    #[error("the coordinator could not process the submission: {0}")]
+    Internal(String),
+    /// The scene does not parse or validate.
+    #[error(transparent)]
+    Scene(#[from] tessera_description::SceneError),
+    /// spp override out of range.
+    #[error("spp must be 1..={max}, got {got}")]
+    Spp {
+        /// Requested.
+        got: u32,
+        /// Limit.
+        max: u32,
+    },
+    /// Noise target out of range.
+    #[error("the noise target must be a relative error in (0, 1), e.g. 0.01, got {0}")]
+    Noise(f32),
+    /// A zero time budget.
+    #[error("the time budget must be positive")]
+    TimeLimit,
+    /// Size override out of range.
+    #[error("image size must be 1..={max_side} on each side and at most {max_pixels} pixels, got {width}x{height}")]
+    Size {
+        /// Requested width.
+        width: u32,
+        /// Requested height.
+        height: u32,
+        /// Limit per side.
+        max_side: u32,
+        /// Limit of pixels.
+        max_pixels: u64,
+    },
+}
+
+/// Why a stored job could not be taken up again.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum RestoreJobError {
+    /// The stored scene no longer parses (a different tessera version?).
+    #[error(transparent)]
+    Scene(#[from] SubmitError),
+    /// The checkpoint does not fit the job.
+    #[error("its checkpoint is {got}, the job is {expected}")]
+    Mismatch {
+        /// What the job's scene and settings give, `WxH@spp`.
+        expected: String,
+        /// What the checkpoint holds.
+        got: String,
+    },
+    /// The checkpoint's batches are not the job's.
+    #[error(transparent)]
+    Batches(#[from] RestoreError),
+}
+
+/// Why a worker's result was refused.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum ResultError {
+    /// No such job.
+    #[error("unknown {0}")]
+    UnknownJob(JobId),
+    /// Already merged or never cut (harmless: a duplicate).
+    #[error(transparent)]
+    Duplicate(#[from] CompleteError),
+    /// The sums are malformed; the batch goes back to the queue.
+    #[error("{job} {batch}: {source}")]
+    Malformed {
+        /// The job.
+        job: JobId,
+        /// The batch.
+        batch: BatchId,
+        /// What is wrong.
+        source: MergeError,
+    },
+}
+
+/// Everything the coordinator knows.
+#[derive(Debug, Default)]
+pub struct Farm {
+    jobs: BTreeMap<JobId, Job>,
+    workers: BTreeMap<WorkerId, WorkerInfo>,
+    next_job: u64,
+    next_worker: u64,
+}
+
+impl Farm {
+    /// An empty farm.
+    pub fn new() -> Self {
+        Farm::default()
+    }
+
+    /// Validates and queues a job, in one step (tests and in-process tools; the service
+    /// prepares outside its lock and then inserts).
+    pub fn submit(
+        &mut self,
+        bundle: Bundle,
+        settings: JobSettings,
+        priority: i32,
+    ) -> Result<JobId, SubmitError> {
+        let job = Job::prepare(JobId(0), Arc::new(bundle), settings, priority)?;
+        Ok(self.insert(job))
+    }
+
+    /// Queues a prepared job under the next id, which it gets now.
+    pub fn insert(&mut self, mut job: Job) -> JobId {
+        self.next_job += 1;
+        job.id = JobId(self.next_job);
+        let id = job.id;
+        self.jobs.insert(id, job);
+        id
+    }
+
+    /// Drops a job that could not be stored (its submission failed).
+    pub fn remove_job(&mut self, id: JobId) {
+        self.jobs.remove(&id);
+        for w in self.workers.values_mut() {
+            w.scenes.remove(&id);
+        }
+    }
+
+    /// Ends every job whose time budget is spent; returns them.
+    pub fn enforce_deadlines(&mut self, now: Instant) -> Vec<JobId> {
+        self.jobs.values_mut().filter_map(|j| j.enforce_deadline(now).then_some(j.id)).collect()
+    }
+
+    /// Makes sure ids stay above `id` (one that was used, even if its job is lost).
+    pub fn reserve_ids_through(&mut self, id: u64) {
+        self.next_job = self.next_job.max(id);
+    }
+
+    /// A job.
+    pub fn job(&self, id: JobId) -> Option<&Job> {
+        self.jobs.get(&id)
+    }
+
+    /// Every job, oldest first.
+    pub fn jobs(&self) -> impl Iterator<Item = &Job> {
+        self.jobs.values()
+    }
+
+    /// Job ids in the order they are served: highest priority first, then oldest first.
+    fn service_order(&self) -> Vec<JobId> {
+        let mut ids: Vec<(i32, JobId)> = self
+            .jobs
+            .values()
+            .filter(|j| !j.is_over() && j.state != JobState::Paused)
+            .map(|j| (j.priority, j.id))
+            .collect();
+        ids.sort_by_key(|&(p, id)| (std::cmp::Reverse(p), id));
+        ids.into_iter().map(|(_, id)| id).collect()
+    }
+
+    /// Registers a worker.
+    pub fn add_worker(&mut self, name: String, threads: u32, now: Instant) -> WorkerId {
+        self.next_worker += 1;
+        let id = WorkerId(self.next_worker);
+        let info = WorkerInfo { name, threads, scenes: HashSet::new(), batches_done: 0, last_seen: now };
+        self.workers.insert(id, info);
+        id
+    }
+
+    /// The connected workers.
+    pub fn workers(&self) -> impl Iterator<Item = (WorkerId, &WorkerInfo)> {
+        self.workers.iter().map(|(id, w)| (*id, w))
+    }
+
+    /// Batches leased to `worker` now.
+    pub fn in_flight(&self, worker: WorkerId) -> usize {
+        self.jobs.values().map(|j| j.queue_leases_of(worker)).sum()
+    }
+
+    /// Notes that `worker` is alive.
+    pub fn touch(&mut self, worker: WorkerId, now: Instant) {
+        if let Some(w) = self.workers.get_mut(&worker) {
+            w.last_seen = now;
+        }
+    }
+
+    /// A worker left: its leases go back to the queue at once.
+    pub fn remove_worker(&mut self, worker: WorkerId) -> usize {
+        self.workers.remove(&worker);
+        self.jobs.values_mut().map(|j| j.queue.take_back_worker(worker).len()).sum()
+    }
+
+    /// Takes back the leases of workers silent for longer than `timeout` (frozen, or cut
+    /// off without the connection noticing). They stay connected: should they wake up,
+    /// their results are still taken once.
+    pub fn expire_silent(&mut self, now: Instant, timeout: Duration) -> Vec<(WorkerId, usize)> {
+        let silent: Vec<WorkerId> = self
+            .workers
+            .iter()
+            .filter(|(_, w)| now.saturating_duration_since(w.last_seen) > timeout)
+            .map(|(id, _)| *id)
+            .collect();
+        silent
+            .into_iter()
+            .filter_map(|id| {
+                let n: usize = self.jobs.values_mut().map(|j| j.queue.take_back_worker(id).len()).sum();
+                (n > 0).then_some((id, n))
+            })
+            .collect()
+    }
+
+    /// Pauses or resumes a job; `false` if there is no such job. A job that is over stays
+    /// as it is.
+    pub fn set_paused(&mut self, job_id: JobId, paused: bool) -> bool {
+        let Some(job) = self.jobs.get_mut(&job_id) else { return false };
+        match (&job.state, paused) {
+            (JobState::Queued | JobState::Running, true) => job.state = JobState::Paused,
+            (JobState::Paused, false) => {
+                job.state = if job.started.is_some() { JobState::Running } else { JobState::Queued }
+            }
+            _ => {}
+        }
+        true
+    }
+
+    /// Stops a job; its image stays.
+    pub fn cancel(&mut self, job_id: JobId, now: Instant) -> bool {
+        let Some(job) = self.jobs.get_mut(&job_id) else { return false };
+        if !job.is_over() {
+            job.queue.abandon();
+            job.state = JobState::Cancelled;
+            job.finished = Some(now);
+        }
+        true
+    }
+}

@@ -1,0 +1,88 @@
+//! Taking a stored job up again after a restart: from its newest good checkpoint, or from
+//! the start.
+
+use std::time::Instant;
+
+use tessera_description::job::JobState;
+use tessera_film::{Framebuffer, Quad};
+
+use super::adaptive::converged;
+use super::{Farm, Job, RestoreJobError};
+use crate::persist::LoadedJob;
+use crate::scheduler::PassQueue;
+use tessera_description::ids::JobId;
+
+impl Farm {
+    /// Takes up a stored job again: from its checkpoint if it has one, else from the start.
+    /// Its id is kept, and later jobs get higher ones.
+    pub fn restore(&mut self, stored: LoadedJob, now: Instant) -> Result<JobId, RestoreJobError> {
+        Ok(self.insert_restored(Job::restore(stored, now)?))
+    }
+
+    /// Queues a job taken up again, under its own id; later jobs get higher ones.
+    pub fn insert_restored(&mut self, job: Job) -> JobId {
+        let id = job.id;
+        self.next_job = self.next_job.max(id.0);
+        self.jobs.insert(id, job);
+        id
+    }
+}
+
+impl Job {
+    /// A stored job made ready to go on, from its checkpoint if it has one. Costly (the
+    /// scene is read, the framebuffer rebuilt): done before the farm is touched.
+    pub fn restore(stored: LoadedJob, now: Instant) -> Result<Job, RestoreJobError> {
+        let LoadedJob { record, checkpoint } = stored;
+        let id = record.id;
+        let mut job = Job::prepare(id, record.bundle, record.settings, record.priority)?;
+        if let Some(c) = checkpoint {
+            let (w, h) = (job.framebuffer.width(), job.framebuffer.height());
+            if (c.width, c.height, c.spp) != (w, h, job.spp) {
+                return Err(RestoreJobError::Mismatch {
+                    expected: format!("{w}x{h}@{}", job.spp),
+                    got: format!("{}x{}@{}", c.width, c.height, c.spp),
+                });
+            }
+            if c.even.is_empty() == job.framebuffer.has_even() {
+                return Err(RestoreJobError::Mismatch {
+                    expected: format!("noise target {:?}", job.settings.noise),
+                    got: "a checkpoint with other accumulators".into(),
+                });
+            }
+            let fb = Framebuffer::from_accumulators(w, h, c.sums, c.counts, c.even)
+                .expect("decode checked lengths");
+            job.queue = if job.settings.in_rounds() {
+                let target = job.settings.noise;
+                let keep = |q: Quad| !converged(&fb, q, target);
+                let decide: Option<&dyn Fn(Quad) -> bool> = if target.is_some() { Some(&keep) } else { None };
+                PassQueue::restore_rounds(w, h, job.spp, &c.completed, &fb.accumulators().1, decide)?
+            } else {
+                PassQueue::restore(w, h, job.spp, &c.completed)?
+            };
+            if job.queue.samples_done() != c.samples_done {
+                return Err(RestoreJobError::Mismatch {
+                    expected: format!("{} samples for its merged batches", job.queue.samples_done()),
+                    got: format!("{} samples", c.samples_done),
+                });
+            }
+            job.framebuffer = fb;
+            job.nonfinite_samples = c.nonfinite_samples;
+            job.spent_before = c.spent;
+        }
+        job.state = match record.state {
+            JobState::Cancelled | JobState::Failed(_) => {
+                job.queue.abandon();
+                job.finished = Some(now);
+                record.state
+            }
+            JobState::Paused => JobState::Paused,
+            // A job recorded as done whose final checkpoint did not survive renders the rest.
+            _ if job.queue.is_finished() => {
+                job.finished = Some(now);
+                JobState::Done
+            }
+            _ => JobState::Queued,
+        };
+        Ok(job)
+    }
+}

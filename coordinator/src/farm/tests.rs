@@ -1,0 +1,233 @@
+//! The farm driven by fake workers: order of service, restore, adaptive sampling, time
+//! budgets.
+
+use std::time::{Duration, Instant};
+
+use tessera_description::bundle::Bundle;
+use tessera_description::ids::WorkerId;
+use tessera_film::Quad;
+
+use super::*;
+use crate::persist::LoadedJob;
+use crate::scheduler::BatchSpec;
+
+/// The result a fake worker sends for an assignment.
+fn result<'a>(a: &Assignment, sums: &'a [u64], even: Option<&'a [u64]>) -> BatchResult<'a> {
+    BatchResult { job: a.job, batch: a.batch.id, sums, even, nonfinite: 0 }
+}
+
+const SCENE: &str = include_str!("../../../tests/scenes/small.toml");
+
+fn bundle() -> Bundle {
+    Bundle { name: "small.toml".into(), text: SCENE.into(), assets: vec![] }
+}
+
+fn settings(w: u32, h: u32, spp: u32) -> JobSettings {
+    JobSettings::sized(Some(spp), Some((w, h)))
+}
+
+/// What a worker would send: sums that depend on pixel and samples only.
+fn fake_sums(spec: &BatchSpec) -> Vec<u64> {
+    let n = u64::from(spec.samples.end - spec.samples.start);
+    spec.quads.iter().flat_map(|q| [1, 2, 3].map(|c| u64::from((q.x * 7 + q.y * 3 + c) % 11) * n)).collect()
+}
+
+/// Leases and completes up to `limit` batches for one worker; returns how many.
+fn work(farm: &mut Farm, worker: WorkerId, limit: usize) -> usize {
+    let now = Instant::now();
+    let mut n = 0;
+    while n < limit {
+        let Some(a) = farm.assign(worker, now) else { break };
+        farm.complete(worker, &result(&a, &fake_sums(&a.batch), None), now).unwrap();
+        n += 1;
+    }
+    n
+}
+
+#[test]
+fn higher_priorities_are_served_first_then_the_oldest() {
+    let mut farm = Farm::new();
+    let low = farm.submit(bundle(), settings(16, 16, 2), -1).unwrap();
+    let normal_old = farm.submit(bundle(), settings(16, 16, 2), 0).unwrap();
+    let high = farm.submit(bundle(), settings(16, 16, 2), 5).unwrap();
+    let normal_new = farm.submit(bundle(), settings(16, 16, 2), 0).unwrap();
+    let w = farm.add_worker("w".into(), 1, Instant::now());
+    let mut served = Vec::new();
+    while let Some(a) = farm.assign(w, Instant::now()) {
+        if served.last() != Some(&a.job) {
+            served.push(a.job);
+        }
+        farm.complete(w, &result(&a, &fake_sums(&a.batch), None), Instant::now()).unwrap();
+    }
+    assert_eq!(served, vec![high, normal_old, normal_new, low]);
+}
+
+/// A job checkpointed mid-pass and restored into a new farm (a restarted coordinator)
+/// ends with exactly the accumulators of a job never interrupted, whatever was leased
+/// and lost at the moment of the checkpoint.
+#[test]
+fn a_restored_job_ends_with_the_uninterrupted_accumulators() {
+    let (w, h, spp) = (37, 23, 5);
+    let mut clean = Farm::new();
+    let id = clean.submit(bundle(), settings(w, h, spp), 0).unwrap();
+    let cw = clean.add_worker("clean".into(), 1, Instant::now());
+    work(&mut clean, cw, usize::MAX);
+    assert_eq!(clean.job(id).unwrap().state, JobState::Done);
+
+    for stop_after in [0, 1, 3, 9, 20] {
+        let mut farm = Farm::new();
+        let id = farm.submit(bundle(), settings(w, h, spp), 0).unwrap();
+        let a = farm.add_worker("a".into(), 1, Instant::now());
+        work(&mut farm, a, stop_after);
+        // Leases in flight at the checkpoint, one of them finished out of order.
+        let now = Instant::now();
+        let held: Vec<_> = (0..3).filter_map(|_| farm.assign(a, now)).collect();
+        if let Some(x) = held.get(1) {
+            farm.complete(a, &result(x, &fake_sums(&x.batch), None), now).unwrap();
+        }
+        let job = farm.job(id).unwrap();
+        let stored = LoadedJob { record: job.record(), checkpoint: Some(job.snapshot(now).checkpoint()) };
+
+        let mut restarted = Farm::new();
+        assert_eq!(restarted.restore(stored, Instant::now()).unwrap(), id);
+        let b = restarted.add_worker("b".into(), 1, Instant::now());
+        work(&mut restarted, b, usize::MAX);
+        let (got, want) = (restarted.job(id).unwrap(), clean.job(id).unwrap());
+        assert_eq!(got.state, JobState::Done, "stopped after {stop_after}");
+        assert_eq!(
+            got.framebuffer().accumulators(),
+            want.framebuffer().accumulators(),
+            "stopped after {stop_after}"
+        );
+        assert_eq!(got.progress(now).samples_done, want.progress(now).samples_done);
+        // New jobs never reuse the restored id.
+        assert!(restarted.submit(bundle(), settings(4, 4, 1), 0).unwrap() > id);
+    }
+}
+
+#[test]
+fn restored_states_are_kept_and_a_mismatched_checkpoint_is_refused() {
+    let mut farm = Farm::new();
+    let id = farm.submit(bundle(), settings(8, 8, 2), 0).unwrap();
+    let job = farm.job(id).unwrap();
+    for (state, want) in [
+        (JobState::Paused, JobState::Paused),
+        (JobState::Cancelled, JobState::Cancelled),
+        (JobState::Running, JobState::Queued),
+    ] {
+        let mut record = job.record();
+        record.state = state;
+        let mut f = Farm::new();
+        f.restore(
+            LoadedJob { record, checkpoint: Some(job.snapshot(Instant::now()).checkpoint()) },
+            Instant::now(),
+        )
+        .unwrap();
+        assert_eq!(f.job(id).unwrap().state, want);
+        let w = f.add_worker("w".into(), 1, Instant::now());
+        assert_eq!(f.assign(w, Instant::now()).is_some(), want == JobState::Queued);
+    }
+    let mut wrong = job.snapshot(Instant::now()).checkpoint();
+    wrong.spp = 3;
+    let e = Farm::new().restore(LoadedJob { record: job.record(), checkpoint: Some(wrong) }, Instant::now());
+    assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{e:?}");
+}
+
+/// Per-sample values of a fake scene: a flat left part (it reaches any noise target)
+/// and a noisy right part (it does not), as fixed-point r = g = b.
+fn fake_sample(q: &Quad, i: u32) -> u64 {
+    if q.x < 20 {
+        5 << 22
+    } else {
+        (u64::from(i).wrapping_mul(2_654_435_761) % 1000) << 14
+    }
+}
+
+/// A worker's result with even-sample sums.
+fn fake_split(spec: &BatchSpec) -> (Vec<u64>, Vec<u64>) {
+    let mut sums = Vec::new();
+    let mut even = Vec::new();
+    for q in &spec.quads {
+        let vals: Vec<u64> = spec.samples.clone().map(|i| fake_sample(q, i)).collect();
+        let total: u64 = vals.iter().sum();
+        sums.extend([total; 3]);
+        even.push(spec.samples.clone().zip(&vals).filter(|(i, _)| i % 2 == 0).map(|(_, v)| *v).sum());
+    }
+    (sums, even)
+}
+
+/// Runs a job to its end, merging each window of `window` leases in reverse order.
+fn run_adaptive(farm: &mut Farm, limit: usize, window: usize) -> usize {
+    let w = farm.add_worker("w".into(), 1, Instant::now());
+    let now = Instant::now();
+    let mut merged = 0;
+    while merged < limit {
+        let held: Vec<Assignment> = (0..window).map_while(|_| farm.assign(w, now)).collect();
+        if held.is_empty() {
+            break;
+        }
+        for a in held.iter().rev() {
+            let (sums, even) = fake_split(&a.batch);
+            farm.complete(w, &result(a, &sums, Some(&even)), now).unwrap();
+            merged += 1;
+        }
+    }
+    merged
+}
+
+/// With a noise target, flat pixels stop early and noisy ones go on; the result is the
+/// same bits whatever the merge order, and after a restore from a mid-run checkpoint.
+#[test]
+fn adaptive_sampling_is_deterministic_and_resumable() {
+    let adaptive = JobSettings { noise: Some(0.02), ..settings(40, 36, 256) };
+    let mut reference = Farm::new();
+    let id = reference.submit(bundle(), adaptive.clone(), 0).unwrap();
+    run_adaptive(&mut reference, usize::MAX, 1);
+    let done = reference.job(id).unwrap();
+    assert_eq!(done.state, JobState::Done);
+    assert_eq!(done.progress(Instant::now()).halted, Some("noise target"));
+    let counts = done.framebuffer().accumulators().1;
+    // Flat pixels stop at the minimum, but for those whose window reaches the noise.
+    let flat = counts.iter().enumerate().filter(|(i, _)| i % 40 < 18).map(|(_, &c)| c);
+    assert!(flat.clone().all(|c| c == NOISE_MIN_SAMPLES), "flat pixels stop at the minimum");
+    let noisy = counts.iter().enumerate().filter(|(i, _)| i % 40 >= 20).map(|(_, &c)| c);
+    assert!(noisy.clone().all(|c| c == 256), "noisy pixels take every sample");
+
+    let mut shuffled = Farm::new();
+    shuffled.submit(bundle(), adaptive.clone(), 0).unwrap();
+    run_adaptive(&mut shuffled, usize::MAX, 7);
+    let got = shuffled.job(id).unwrap().framebuffer();
+    assert_eq!(got.accumulators(), done.framebuffer().accumulators());
+    assert_eq!(got.even(), done.framebuffer().even());
+
+    for stop in [3, 40, 90] {
+        let mut first = Farm::new();
+        first.submit(bundle(), adaptive.clone(), 0).unwrap();
+        run_adaptive(&mut first, stop, 3);
+        let job = first.job(id).unwrap();
+        let stored =
+            LoadedJob { record: job.record(), checkpoint: Some(job.snapshot(Instant::now()).checkpoint()) };
+        let mut restarted = Farm::new();
+        restarted.restore(stored, Instant::now()).unwrap();
+        run_adaptive(&mut restarted, usize::MAX, 2);
+        let got = restarted.job(id).unwrap();
+        assert_eq!(got.state, JobState::Done, "stop {stop}");
+        assert_eq!(got.framebuffer().accumulators(), done.framebuffer().accumulators(), "stop {stop}");
+    }
+}
+
+/// A time budget ends the job wherever it is, even mid-round, and says so.
+#[test]
+fn a_spent_time_budget_ends_the_job() {
+    let mut farm = Farm::new();
+    let timed = JobSettings { time_limit: Some(Duration::from_secs(5)), ..settings(16, 16, 1000) };
+    let id = farm.submit(bundle(), timed, 0).unwrap();
+    let w = farm.add_worker("w".into(), 1, Instant::now());
+    let t0 = Instant::now();
+    let a = farm.assign(w, t0).unwrap();
+    farm.complete(w, &result(&a, &fake_sums(&a.batch), None), t0).unwrap();
+    assert!(farm.enforce_deadlines(t0 + Duration::from_secs(4)).is_empty());
+    assert!(farm.assign(w, t0 + Duration::from_secs(6)).is_none());
+    let job = farm.job(id).unwrap();
+    assert_eq!((job.state.clone(), job.progress(t0).halted), (JobState::Done, Some("time budget")));
+}

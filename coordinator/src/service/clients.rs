@@ -1,0 +1,131 @@
+//! Client RPCs: submit, status, the image, pause and cancel.
+
+use std::time::Instant;
+
+use tessera_description::ids::JobId;
+use tessera_proto::v1 as pb;
+use tonic::{Request, Response, Status};
+use tracing::info;
+
+use super::durability::SubmitFailure;
+use super::rpc::BoxStream;
+use super::{convert, CoordinatorService};
+
+/// Pixels per `ImageChunk`: about 1 MB of floats at most, far below gRPC's message limit.
+const ROWS_PER_CHUNK_PIXELS: usize = 1 << 16;
+
+impl CoordinatorService {
+    pub(super) async fn rpc_submit(
+        &self,
+        request: Request<pb::SubmitRequest>,
+    ) -> Result<Response<pb::SubmitResponse>, Status> {
+        let req = request.into_inner();
+        if req.protocol_version != pb::ProtocolVersion::Current as i32 {
+            return Err(Status::failed_precondition(format!(
+                "client speaks protocol version {}, coordinator {}",
+                req.protocol_version,
+                pb::ProtocolVersion::Current as i32
+            )));
+        }
+        let bundle = req.bundle.ok_or_else(|| Status::invalid_argument("submit without a scene bundle"))?;
+        let settings = convert::settings_from_wire(req.settings.unwrap_or_default())
+            .map_err(Status::invalid_argument)?;
+        let id = self.submit(convert::bundle_from_wire(bundle), settings, req.priority).await.map_err(
+            |e| match e {
+                SubmitFailure::Invalid(e) => Status::invalid_argument(e.to_string()),
+                e @ SubmitFailure::Store(_) => Status::unavailable(e.to_string()),
+            },
+        )?;
+        let p = self.progress(id).ok_or_else(|| Status::not_found(format!("{id} ended before it began")))?;
+        Ok(Response::new(pb::SubmitResponse { job_id: id.0, width: p.width, height: p.height, spp: p.spp }))
+    }
+
+    pub(super) async fn rpc_status(
+        &self,
+        request: Request<pb::StatusRequest>,
+    ) -> Result<Response<pb::StatusResponse>, Status> {
+        let want = request.into_inner().job_id;
+        let farm = self.farm();
+        let now = Instant::now();
+        if want != 0 && farm.job(JobId(want)).is_none() {
+            return Err(Status::not_found(format!("no job {want} on this coordinator")));
+        }
+        let jobs = farm
+            .jobs()
+            .filter(|j| want == 0 || j.id.0 == want)
+            .map(|j| convert::status_to_wire(&j.progress(now)))
+            .collect();
+        let workers = farm
+            .workers()
+            .map(|(id, w)| pb::WorkerStatus {
+                worker_id: id.0,
+                name: w.name.clone(),
+                threads: w.threads,
+                batches_in_flight: farm.in_flight(id) as u32,
+                batches_done: w.batches_done,
+            })
+            .collect();
+        Ok(Response::new(pb::StatusResponse { jobs, workers }))
+    }
+
+    pub(super) async fn rpc_fetch_image(
+        &self,
+        request: Request<pb::FetchImageRequest>,
+    ) -> Result<Response<BoxStream<pb::ImageChunk>>, Status> {
+        let id = JobId(request.into_inner().job_id);
+        // A snapshot under the lock; the image is resolved outside it.
+        let this = self.clone();
+        let image = tokio::task::spawn_blocking(move || this.image(id))
+            .await
+            .map_err(|e| Status::internal(format!("resolving the image failed: {e}")))?
+            .ok_or_else(|| Status::not_found(format!("no {id} on this coordinator")))?;
+        let (width, height, rgb, state) =
+            (image.width, image.height, image.rgb, convert::state_to_wire(&image.state));
+        let rows_per_chunk = (ROWS_PER_CHUNK_PIXELS / width.max(1) as usize).max(1);
+        let row_floats = width as usize * 3;
+        let chunks: Vec<Result<pb::ImageChunk, Status>> = rgb
+            .chunks(rows_per_chunk * row_floats)
+            .enumerate()
+            .map(|(i, rows)| {
+                Ok(pb::ImageChunk {
+                    width,
+                    height,
+                    row_start: (i * rows_per_chunk) as u32,
+                    rows: (rows.len() / row_floats) as u32,
+                    rgb: rows.iter().flat_map(|v| v.to_le_bytes()).collect(),
+                    state: state as i32,
+                })
+            })
+            .collect();
+        Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
+    }
+
+    pub(super) async fn rpc_pause(
+        &self,
+        request: Request<pb::PauseRequest>,
+    ) -> Result<Response<pb::PauseResponse>, Status> {
+        let req = request.into_inner();
+        let id = JobId(req.job_id);
+        if !self.farm().set_paused(id, req.paused) {
+            return Err(Status::not_found(format!("no {id} on this coordinator")));
+        }
+        info!(%id, paused = req.paused, "job paused or resumed");
+        self.notify();
+        self.persist_state(id).await?;
+        Ok(Response::new(pb::PauseResponse {}))
+    }
+
+    pub(super) async fn rpc_cancel(
+        &self,
+        request: Request<pb::CancelRequest>,
+    ) -> Result<Response<pb::CancelResponse>, Status> {
+        let id = JobId(request.into_inner().job_id);
+        if !self.farm().cancel(id, Instant::now()) {
+            return Err(Status::not_found(format!("no {id} on this coordinator")));
+        }
+        info!(%id, "job cancelled");
+        self.notify();
+        self.persist_state(id).await?;
+        Ok(Response::new(pb::CancelResponse {}))
+    }
+}

@@ -1,0 +1,375 @@
+//! Durability: the job store behind the service, submission that is on disk before it is
+//! acknowledged, state changes written before they are acknowledged, the checkpointer, and
+//! jobs taken up again at start.
+
+use std::collections::HashMap;
+use std::path::Path;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use tessera_description::bundle::Bundle;
+use tessera_description::ids::JobId;
+use tessera_description::job::{JobSettings, JobState};
+use tonic::Status;
+use tracing::{debug, info, warn};
+
+use super::{lock, CoordinatorService, Timing};
+use crate::farm::{Job, RestoreJobError, SubmitError};
+use crate::persist::{JobStore, LoadedJob, StoreError};
+use crate::store::Store;
+
+/// The store behind a coordinator with a data directory, and what of each job it holds.
+pub(super) struct Durable {
+    store: Mutex<Box<dyn JobStore>>,
+    /// How often a job with new samples is checkpointed.
+    interval: Duration,
+    saved: Mutex<HashMap<JobId, Saved>>,
+}
+
+/// The last checkpoint written of a job.
+#[derive(Debug, Clone)]
+struct Saved {
+    version: u64,
+    state: JobState,
+    pass_one_complete: bool,
+    at: Instant,
+}
+
+impl Saved {
+    fn of(j: &Job, now: Instant) -> Self {
+        Saved {
+            version: j.framebuffer().version(),
+            state: j.state.clone(),
+            pass_one_complete: j.pass_one_complete(),
+            at: now,
+        }
+    }
+}
+
+/// Why a submission was not queued.
+#[derive(Debug, thiserror::Error)]
+pub enum SubmitFailure {
+    /// The scene or settings are refused.
+    #[error(transparent)]
+    Invalid(#[from] SubmitError),
+    /// The job could not be written to the data directory, so it was not queued.
+    #[error("the job could not be stored: {0}")]
+    Store(#[from] StoreError),
+}
+
+/// A job taken up again from a data directory.
+#[derive(Debug, Clone)]
+pub struct Resumed {
+    /// The job.
+    pub id: JobId,
+    /// Its state.
+    pub state: JobState,
+    /// Samples kept from its checkpoint.
+    pub samples_kept: u64,
+    /// Samples in the job.
+    pub samples_total: u64,
+}
+
+/// What opening a data directory found.
+#[derive(Debug, Default)]
+pub struct Recovery {
+    /// Jobs taken up again, oldest first.
+    pub resumed: Vec<Resumed>,
+    /// Damage found and how it was handled; jobs that could not be taken up.
+    pub problems: Vec<String>,
+}
+
+impl CoordinatorService {
+    /// A coordinator keeping its jobs in `dir`, with every unfinished job found there taken
+    /// up again from its newest good checkpoint. Checkpoints are written every `interval`
+    /// while samples come in, at the end of pass one, and when a job ends.
+    pub fn open(timing: Timing, dir: &Path, interval: Duration) -> Result<(Self, Recovery), StoreError> {
+        let (store, loaded) = Store::open(dir)?;
+        let recovery = Recovery { problems: loaded.problems, ..Recovery::default() };
+        Ok(Self::with_store(timing, Box::new(store), loaded.jobs, interval, recovery))
+    }
+
+    /// A coordinator writing through `store`, taking up `jobs` (what the store read back).
+    pub fn with_store(
+        timing: Timing,
+        store: Box<dyn JobStore>,
+        jobs: Vec<LoadedJob>,
+        interval: Duration,
+        mut recovery: Recovery,
+    ) -> (Self, Recovery) {
+        let mut this = CoordinatorService::new(timing);
+        let mut saved = HashMap::new();
+        let now = Instant::now();
+        // Before the service is shared, so that no request waits for the scenes to parse.
+        let mut taken_up = Vec::new();
+        for job in jobs {
+            let id = job.record.id;
+            let record = job.record.clone();
+            let restored = match Job::restore(job, now) {
+                // A checkpoint that does not fit its job is not resumed from: the job
+                // starts over, its last good state.
+                Err(e @ (RestoreJobError::Mismatch { .. } | RestoreJobError::Batches(_))) => {
+                    recovery.problems.push(format!("{id}: {e}; it restarts from the beginning"));
+                    Job::restore(LoadedJob { record, checkpoint: None }, now)
+                }
+                other => other,
+            };
+            match restored {
+                Ok(j) => taken_up.push(j),
+                Err(e) => recovery.problems.push(format!("{id} cannot be taken up again: {e}")),
+            }
+        }
+        {
+            let mut farm = this.farm();
+            farm.reserve_ids_through(store.max_job_id());
+            for j in taken_up {
+                let id = farm.insert_restored(j);
+                let j = farm.job(id).expect("just restored");
+                let p = j.progress(now);
+                saved.insert(id, Saved::of(j, now));
+                recovery.resumed.push(Resumed {
+                    id,
+                    state: p.state,
+                    samples_kept: p.samples_done,
+                    samples_total: p.samples_total,
+                });
+            }
+        }
+        for r in &recovery.resumed {
+            info!(id = %r.id, kept = r.samples_kept, total = r.samples_total, state = ?r.state, "job taken up from the data directory");
+        }
+        this.durable =
+            Some(Arc::new(Durable { store: Mutex::new(store), interval, saved: Mutex::new(saved) }));
+        (this, recovery)
+    }
+
+    /// Queues a job (also in-process, as `tessera render` does). With a data directory the
+    /// job is on disk before this returns. The scene is read and the job made before the
+    /// farm is touched.
+    pub async fn submit(
+        &self,
+        bundle: Bundle,
+        settings: JobSettings,
+        priority: i32,
+    ) -> Result<JobId, SubmitFailure> {
+        let this = self.clone();
+        let id = tokio::task::spawn_blocking(move || {
+            let job = Job::prepare(JobId(0), Arc::new(bundle), settings, priority)?;
+            // The store's lock is taken first and held until the job's row is written, so
+            // the checkpointer never writes a checkpoint of a job that has no row yet.
+            let mut store = this.durable.as_ref().map(|d| lock(&d.store));
+            let (id, record) = {
+                let mut farm = this.farm();
+                let id = farm.insert(job);
+                (id, farm.job(id).expect("just inserted").record())
+            };
+            if let Some(store) = store.as_mut() {
+                if let Err(e) = store.add_job(&record) {
+                    this.farm().remove_job(id);
+                    return Err(SubmitFailure::Store(e));
+                }
+            }
+            Ok(id)
+        })
+        .await
+        .map_err(|e| SubmitFailure::Invalid(SubmitError::Internal(e.to_string())))??;
+        info!(%id, priority, "job queued");
+        self.notify();
+        Ok(id)
+    }
+
+    /// Records a job's new state on disk (paused, resumed, cancelled).
+    pub(super) async fn persist_state(&self, id: JobId) -> Result<(), Status> {
+        let Some(durable) = self.durable.clone() else { return Ok(()) };
+        let Some(state) = self.farm().job(id).map(|j| j.state.clone()) else { return Ok(()) };
+        tokio::task::spawn_blocking(move || {
+            lock(&durable.store).set_state(id, &state)?;
+            if let Some(s) = lock(&durable.saved).get_mut(&id) {
+                s.state = state;
+            }
+            Ok::<_, StoreError>(())
+        })
+        .await
+        .map_err(|e| Status::internal(format!("writing the state failed: {e}")))?
+        .map_err(|e| Status::unavailable(format!("the change is made but not on disk: {e}")))
+    }
+
+    /// Writes a checkpoint of every job that has new samples and is due: its interval has
+    /// passed, it finished pass one, or it ended; with `all`, of every job with anything
+    /// new (at shutdown). Returns how many were written.
+    pub async fn checkpoint(&self, all: bool) -> Result<usize, StoreError> {
+        let Some(durable) = self.durable.clone() else { return Ok(0) };
+        let now = Instant::now();
+        let due: Vec<JobId> = {
+            let farm = self.farm();
+            let saved = lock(&durable.saved);
+            farm.jobs()
+                .filter(|j| {
+                    let last = saved.get(&j.id);
+                    let changed = last.is_none_or(|s| s.version != j.framebuffer().version());
+                    let ended = j.is_over() && last.is_none_or(|s| s.state != j.state);
+                    let due = all
+                        || ended
+                        || last.is_none_or(|s| {
+                            now.saturating_duration_since(s.at) >= durable.interval
+                                || (j.pass_one_complete() && !s.pass_one_complete)
+                        });
+                    (changed || ended) && due
+                })
+                .map(|j| j.id)
+                .collect()
+        };
+        // One job at a time: a checkpoint is the size of its framebuffer, and memory stays
+        // bounded by the largest job, not by all of them at once. The snapshot is taken
+        // under the lock (copy-on-write, microseconds); the copy and the write are not.
+        for &id in &due {
+            let Some((snapshot, saved)) = self.farm().job(id).map(|j| (j.snapshot(now), Saved::of(j, now)))
+            else {
+                continue;
+            };
+            let durable = durable.clone();
+            tokio::task::spawn_blocking(move || {
+                let started = Instant::now();
+                let checkpoint = snapshot.checkpoint();
+                let generation = lock(&durable.store).save(&checkpoint, &saved.state)?;
+                debug!(job = %checkpoint.job, generation, samples = checkpoint.samples_done, took = ?started.elapsed(), "checkpoint written");
+                lock(&durable.saved).insert(checkpoint.job, saved);
+                Ok::<_, StoreError>(())
+            })
+            .await
+            .map_err(|e| StoreError::Write { path: "checkpoint".into(), source: e.to_string().into() })??;
+        }
+        Ok(due.len())
+    }
+
+    /// Checkpoints jobs as they fall due, until the service shuts down.
+    pub fn spawn_checkpointer(&self) -> Option<tokio::task::JoinHandle<()>> {
+        // A job falls due at most a quarter interval late.
+        let tick = (self.durable.as_ref()?.interval / 4).min(Duration::from_millis(250));
+        let this = self.clone();
+        let mut stop = self.shutting_down();
+        Some(tokio::spawn(async move {
+            loop {
+                tokio::select! {
+                    _ = tokio::time::sleep(tick) => {}
+                    _ = stop.changed() => return,
+                }
+                if let Err(e) = this.checkpoint(false).await {
+                    // The farm goes on; the next tick tries again, and status shows the age.
+                    warn!("checkpoint failed: {e}");
+                }
+            }
+        }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::checkpoint::Checkpoint;
+    use crate::persist::{JobRecord, MemoryStore};
+    use crate::scheduler::Completed;
+
+    fn bundle() -> Bundle {
+        Bundle {
+            name: "small.toml".into(),
+            text: include_str!("../../../tests/scenes/small.toml").into(),
+            assets: vec![],
+        }
+    }
+
+    /// A checkpoint that does not fit its job (here: another spp) is reported and the job
+    /// starts over, instead of being resumed from or dropped.
+    #[test]
+    fn a_checkpoint_that_does_not_fit_restarts_its_job() {
+        let dir = tempfile::tempdir().unwrap();
+        {
+            let (mut store, _) = Store::open(dir.path()).unwrap();
+            let settings = JobSettings::sized(Some(4), Some((8, 8)));
+            let record = JobRecord {
+                id: JobId(3),
+                bundle: Arc::new(bundle()),
+                settings,
+                priority: 0,
+                state: JobState::Running,
+            };
+            store.add_job(&record).unwrap();
+            let wrong = Checkpoint {
+                job: JobId(3),
+                width: 8,
+                height: 8,
+                spp: 3,
+                completed: Completed { below: 1, above: vec![] },
+                nonfinite_samples: 0,
+                samples_done: 16,
+                sums: vec![[0; 3]; 64],
+                counts: [vec![1; 16], vec![0; 48]].concat(),
+                even: vec![],
+                spent: Duration::ZERO,
+            };
+            store.save(&wrong, &JobState::Running).unwrap();
+        }
+        let (service, recovery) =
+            CoordinatorService::open(Timing::default(), dir.path(), Duration::from_secs(1)).unwrap();
+        assert!(
+            recovery.problems.iter().any(|p| p.contains("restarts from the beginning")),
+            "{:?}",
+            recovery.problems
+        );
+        assert_eq!(recovery.resumed.len(), 1);
+        assert_eq!(recovery.resumed[0].samples_kept, 0);
+        assert_eq!(service.progress(JobId(3)).unwrap().state, JobState::Queued);
+        // Ids go on above the stored ones.
+        assert!(service.farm().submit(bundle(), JobSettings::default(), 0).unwrap() > JobId(3));
+    }
+
+    /// The durability path through the store trait, with no database: a submitted job's
+    /// record and checkpoint reach the store, and a service opened on what it holds takes
+    /// the job up with the samples kept.
+    #[tokio::test]
+    async fn jobs_and_checkpoints_go_through_the_store_trait() {
+        let store = Arc::new(Mutex::new(MemoryStore::new()));
+        /// Shares one memory store between two services, as a database file would be.
+        struct Shared(Arc<Mutex<MemoryStore>>);
+        impl JobStore for Shared {
+            fn add_job(&mut self, job: &JobRecord) -> Result<(), StoreError> {
+                lock(&self.0).add_job(job)
+            }
+            fn set_state(&mut self, job: JobId, state: &JobState) -> Result<(), StoreError> {
+                lock(&self.0).set_state(job, state)
+            }
+            fn save(&mut self, c: &Checkpoint, state: &JobState) -> Result<i64, StoreError> {
+                lock(&self.0).save(c, state)
+            }
+            fn max_job_id(&self) -> u64 {
+                lock(&self.0).max_job_id()
+            }
+        }
+        let (service, _) = CoordinatorService::with_store(
+            Timing::default(),
+            Box::new(Shared(store.clone())),
+            vec![],
+            Duration::from_secs(60),
+            Recovery::default(),
+        );
+        let id = service.submit(bundle(), JobSettings::sized(Some(2), Some((8, 8))), 0).await.unwrap();
+        let w = service.farm().add_worker("w".into(), 1, Instant::now());
+        let a = service.farm().assign(w, Instant::now()).unwrap();
+        let sums = vec![0; a.batch.quads.len() * 3];
+        let r =
+            crate::farm::BatchResult { job: id, batch: a.batch.id, sums: &sums, even: None, nonfinite: 0 };
+        service.farm().complete(w, &r, Instant::now()).unwrap();
+        assert_eq!(service.checkpoint(true).await.unwrap(), 1);
+        let loaded = lock(&store).load();
+        assert_eq!(loaded.jobs.len(), 1);
+        let (again, recovery) = CoordinatorService::with_store(
+            Timing::default(),
+            Box::new(MemoryStore::new()),
+            loaded.jobs,
+            Duration::from_secs(60),
+            Recovery::default(),
+        );
+        assert_eq!(recovery.resumed[0].samples_kept, a.batch.sample_count());
+        assert_eq!(again.progress(id).unwrap().samples_done, a.batch.sample_count());
+    }
+}

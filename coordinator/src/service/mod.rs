@@ -1,0 +1,196 @@
+//! The gRPC face of the coordinator: checks every request, turns wire types into the
+//! farm's types and back, and is the only part of this crate that touches prost types.
+//!
+//! One rule holds the farm together: its lock is held only for short, bounded work
+//! (a lease, a merge, a status listing, a copy-on-write snapshot). Parsing scenes,
+//! resolving images, encoding viewer deltas and writing checkpoints happen outside it, on
+//! snapshots. The files here are split by RPC family: `workers.rs` (the work stream),
+//! `clients.rs` (submit, status, images, control), `viewers.rs` (watch streams fed from
+//! one shared delta per job), `durability.rs` (the store, checkpoints, recovery),
+//! `rpc.rs` (the trait impl that routes each RPC) and `convert.rs` (wire ↔ farm types).
+
+mod clients;
+pub mod convert;
+mod durability;
+mod rpc;
+mod viewers;
+mod workers;
+
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant};
+
+use tessera_description::ids::JobId;
+use tessera_description::job::{JobProgress, JobSettings, JobState};
+use tessera_proto::v1::coordinator_server::CoordinatorServer;
+use tokio::sync::watch;
+use tracing::{info, warn};
+
+use crate::farm::Farm;
+
+pub use durability::{Recovery, Resumed, SubmitFailure};
+pub use viewers::{WATCH_CHUNK_PIXELS, WATCH_DEFAULT_RATE};
+pub use workers::MAX_CREDIT;
+
+/// Timing of the worker protocol.
+#[derive(Debug, Clone, Copy)]
+pub struct Timing {
+    /// How often workers must send at least a heartbeat.
+    pub heartbeat: Duration,
+    /// Silence after which a worker's leases are taken back: several heartbeats, so that
+    /// a busy network or a paused scheduler does not cost work.
+    pub silence_timeout: Duration,
+}
+
+impl Default for Timing {
+    fn default() -> Self {
+        Timing { heartbeat: Duration::from_secs(2), silence_timeout: Duration::from_secs(10) }
+    }
+}
+
+/// The largest message the coordinator accepts (scene bundles with their assets).
+pub const MAX_MESSAGE_BYTES: usize = 256 << 20;
+
+/// The coordinator: the farm behind a lock held only briefly, a change counter that wakes
+/// the tasks feeding workers and viewers, and a shutdown signal for its background tasks.
+#[derive(Clone)]
+pub struct CoordinatorService {
+    farm: Arc<Mutex<Farm>>,
+    changed: Arc<watch::Sender<u64>>,
+    shutdown: Arc<watch::Sender<bool>>,
+    timing: Timing,
+    durable: Option<Arc<durability::Durable>>,
+    feeds: Arc<viewers::Feeds>,
+}
+
+/// A job's identity and what it was submitted with, for clients that look for a job.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobSummary {
+    /// The job.
+    pub id: JobId,
+    /// Its scene's content hash.
+    pub scene_hash: String,
+    /// Its settings.
+    pub settings: JobSettings,
+}
+
+/// A job's image, resolved outside the farm's lock.
+#[derive(Debug, Clone)]
+pub struct Image {
+    /// Width in pixels.
+    pub width: u32,
+    /// Height in pixels.
+    pub height: u32,
+    /// Linear RGB, top row first; the mosaic where pass one has not reached.
+    pub rgb: Vec<f32>,
+    /// The job's state when the snapshot was taken.
+    pub state: JobState,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panic while holding a lock must not take every later request down with it: the
+    // holders keep their data consistent at every return.
+    m.lock().unwrap_or_else(|e| e.into_inner())
+}
+
+impl CoordinatorService {
+    /// A coordinator with no jobs, keeping nothing on disk.
+    pub fn new(timing: Timing) -> Self {
+        let (changed, _) = watch::channel(0);
+        let (shutdown, _) = watch::channel(false);
+        CoordinatorService {
+            farm: Arc::new(Mutex::new(Farm::new())),
+            changed: Arc::new(changed),
+            shutdown: Arc::new(shutdown),
+            timing,
+            durable: None,
+            feeds: Arc::default(),
+        }
+    }
+
+    /// The farm, locked: for short, bounded work only.
+    fn farm(&self) -> MutexGuard<'_, Farm> {
+        lock(&self.farm)
+    }
+
+    /// Wakes every worker and viewer feeder: a job arrived, leases came back, a result
+    /// merged, or a worker left.
+    pub fn notify(&self) {
+        self.changed.send_modify(|v| *v = v.wrapping_add(1));
+    }
+
+    /// A receiver of change notifications (also for in-process clients such as `render`).
+    pub fn subscribe(&self) -> watch::Receiver<u64> {
+        self.changed.subscribe()
+    }
+
+    /// Stops the background tasks (reaper, checkpointer, viewer feeds) and ends every
+    /// worker and viewer stream.
+    pub fn shutdown(&self) {
+        self.shutdown.send_replace(true);
+    }
+
+    /// A receiver that turns true when the service shuts down.
+    fn shutting_down(&self) -> watch::Receiver<bool> {
+        self.shutdown.subscribe()
+    }
+
+    /// Every job, oldest first.
+    pub fn jobs(&self) -> Vec<JobSummary> {
+        self.farm()
+            .jobs()
+            .map(|j| JobSummary { id: j.id, scene_hash: j.scene_hash.clone(), settings: j.settings.clone() })
+            .collect()
+    }
+
+    /// A job's progress now.
+    pub fn progress(&self, job: JobId) -> Option<JobProgress> {
+        self.farm().job(job).map(|j| j.progress(Instant::now()))
+    }
+
+    /// A job's image now: a snapshot under the lock, resolved outside it.
+    pub fn image(&self, job: JobId) -> Option<Image> {
+        let (fb, state) = {
+            let farm = self.farm();
+            let j = farm.job(job)?;
+            (j.framebuffer().clone(), j.state.clone())
+        };
+        Some(Image { width: fb.width(), height: fb.height(), rgb: fb.resolve(), state })
+    }
+
+    /// The tonic server for this service, with message limits set.
+    pub fn into_server(self) -> CoordinatorServer<Self> {
+        CoordinatorServer::new(self)
+            .max_decoding_message_size(MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(MAX_MESSAGE_BYTES)
+    }
+
+    /// Takes back the leases of silent workers and ends jobs whose time budget is spent,
+    /// once a second, until the service shuts down.
+    pub fn spawn_reaper(&self) -> tokio::task::JoinHandle<()> {
+        let this = self.clone();
+        let mut stop = self.shutting_down();
+        tokio::spawn(async move {
+            let mut tick = tokio::time::interval(Duration::from_secs(1));
+            loop {
+                tokio::select! {
+                    _ = tick.tick() => {}
+                    _ = stop.changed() => return,
+                }
+                let now = Instant::now();
+                let (ended, expired) = {
+                    let mut farm = this.farm();
+                    (farm.enforce_deadlines(now), farm.expire_silent(now, this.timing.silence_timeout))
+                };
+                for id in &ended {
+                    info!(%id, "time budget spent; job ends");
+                }
+                for (worker, n) in &expired {
+                    warn!(%worker, batches = n, "worker silent; its batches go to others");
+                }
+                if !ended.is_empty() || !expired.is_empty() {
+                    this.notify();
+                }
+            }
+        })
+    }
+}

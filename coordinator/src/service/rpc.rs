@@ -1,0 +1,84 @@
+//! The tonic trait: routes each RPC to its family's handler, nothing more.
+
+use std::pin::Pin;
+use std::time::Duration;
+
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::coordinator_server::Coordinator;
+use tokio::sync::mpsc;
+use tokio_stream::wrappers::ReceiverStream;
+use tokio_stream::Stream;
+use tonic::{Request, Response, Status, Streaming};
+
+use super::viewers::WATCH_DEFAULT_RATE;
+use super::workers::MAX_CREDIT;
+use super::CoordinatorService;
+
+/// A server stream of one message type.
+pub(super) type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send + 'static>>;
+
+#[tonic::async_trait]
+impl Coordinator for CoordinatorService {
+    type WorkStream = BoxStream<pb::CoordinatorMessage>;
+    type FetchImageStream = BoxStream<pb::ImageChunk>;
+    type WatchStream = BoxStream<pb::FramebufferUpdate>;
+
+    async fn watch(&self, request: Request<pb::WatchRequest>) -> Result<Response<Self::WatchStream>, Status> {
+        let req = request.into_inner();
+        let job = self.pick_job(req.job_id)?;
+        let rate =
+            if req.max_rate > 0.0 { req.max_rate.min(WATCH_DEFAULT_RATE * 10.0) } else { WATCH_DEFAULT_RATE };
+        if !rate.is_finite() {
+            return Err(Status::invalid_argument("max_rate must be a finite number"));
+        }
+        let interval = Duration::from_secs_f64(1.0 / rate.max(1.0 / 60.0));
+        // One update in flight: a viewer that does not read holds one chunk, no backlog.
+        let (tx, rx) = mpsc::channel(1);
+        tokio::spawn(self.clone().feed_viewer(job, interval, tx));
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    async fn work(
+        &self,
+        request: Request<Streaming<pb::WorkerMessage>>,
+    ) -> Result<Response<Self::WorkStream>, Status> {
+        let inbound = request.into_inner();
+        // Room for a full credit's worth of batches plus scenes, so that handing out work
+        // never waits on the worker reading.
+        let (tx, rx) = mpsc::channel(MAX_CREDIT as usize + 16);
+        tokio::spawn(self.clone().serve_worker(inbound, tx));
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
+    }
+
+    async fn submit(
+        &self,
+        request: Request<pb::SubmitRequest>,
+    ) -> Result<Response<pb::SubmitResponse>, Status> {
+        self.rpc_submit(request).await
+    }
+
+    async fn status(
+        &self,
+        request: Request<pb::StatusRequest>,
+    ) -> Result<Response<pb::StatusResponse>, Status> {
+        self.rpc_status(request).await
+    }
+
+    async fn fetch_image(
+        &self,
+        request: Request<pb::FetchImageRequest>,
+    ) -> Result<Response<Self::FetchImageStream>, Status> {
+        self.rpc_fetch_image(request).await
+    }
+
+    async fn pause(&self, request: Request<pb::PauseRequest>) -> Result<Response<pb::PauseResponse>, Status> {
+        self.rpc_pause(request).await
+    }
+
+    async fn cancel(
+        &self,
+        request: Request<pb::CancelRequest>,
+    ) -> Result<Response<pb::CancelResponse>, Status> {
+        self.rpc_cancel(request).await
+    }
+}

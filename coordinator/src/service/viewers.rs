@@ -1,0 +1,265 @@
+//! Watch streams. A viewer that joins gets a snapshot of the exact pixel state, then only
+//! what changed. The changes are computed once per tick per job, from the framebuffer's
+//! dirty tiles, by one publisher task, and the same encoded delta is handed to every
+//! viewer at that version; a viewer that fell behind (it reads slowly, or asked for a
+//! lower rate) catches up from a snapshot of its own, streamed a chunk at a time. Every
+//! snapshot is a copy-on-write clone taken under the farm's lock in microseconds; the
+//! scanning and encoding happen outside it.
+
+use std::collections::HashMap;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use tessera_description::ids::JobId;
+use tessera_description::job::JobState;
+use tessera_film::Framebuffer;
+use tessera_proto::v1 as pb;
+use tokio::sync::{mpsc, watch};
+use tonic::Status;
+
+use super::{convert, lock, CoordinatorService};
+
+/// Pixels per watch update: about 1.8 MB, far below gRPC's message limit, and all a slow
+/// viewer's task holds.
+pub const WATCH_CHUNK_PIXELS: usize = 1 << 16;
+/// Updates per second a viewer gets unless it asks for fewer; the publisher's rate.
+pub const WATCH_DEFAULT_RATE: f64 = 10.0;
+/// A publisher with nothing new still sends the status this often (samples/s, workers).
+const STATUS_REFRESH: Duration = Duration::from_secs(1);
+
+/// One delta of a job's framebuffer, encoded once and shared by every viewer at `from`.
+#[derive(Debug, Default)]
+pub(super) struct Delta {
+    /// The version the delta starts from.
+    from: u64,
+    /// The version it brings a replica to.
+    to: u64,
+    /// The updates, in order, the last one with `chunk_end`.
+    updates: Vec<pb::FramebufferUpdate>,
+    /// The job is over and this is its final state.
+    over: bool,
+}
+
+/// The publishers of jobs that have viewers.
+#[derive(Default)]
+pub(super) struct Feeds {
+    by_job: Mutex<HashMap<JobId, watch::Receiver<Arc<Delta>>>>,
+}
+
+/// A job's framebuffer and status at one moment, taken under the lock.
+struct ViewSnapshot {
+    fb: Framebuffer,
+    status: pb::JobStatus,
+    workers: u32,
+    over: bool,
+}
+
+impl ViewSnapshot {
+    /// The updates bringing a replica at version `since` to this snapshot, one chunk at a
+    /// time; at least one update, so that a viewer always hears the status.
+    fn updates(
+        &self,
+        job: JobId,
+        since: u64,
+        reset: bool,
+    ) -> impl Iterator<Item = pb::FramebufferUpdate> + '_ {
+        let mut chunks = self.fb.changes(since, WATCH_CHUNK_PIXELS).peekable();
+        let mut first = true;
+        std::iter::from_fn(move || {
+            let pixels = chunks.next();
+            if pixels.is_none() && !first {
+                return None;
+            }
+            let end = chunks.peek().is_none();
+            let update = pb::FramebufferUpdate {
+                job_id: job.0,
+                width: self.fb.width(),
+                height: self.fb.height(),
+                version: self.fb.version(),
+                chunk_end: end,
+                runs: pixels.map_or_else(Vec::new, |p| convert::runs(&p)),
+                status: Some(self.status.clone()),
+                workers: self.workers,
+                r#final: self.over && end,
+                reset: reset && first,
+            };
+            first = false;
+            Some(update)
+        })
+    }
+}
+
+impl CoordinatorService {
+    /// A snapshot of what viewers see of `job`, or `None` if there is no such job.
+    fn view_snapshot(&self, job: JobId) -> Option<ViewSnapshot> {
+        let farm = self.farm();
+        let j = farm.job(job)?;
+        Some(ViewSnapshot {
+            fb: j.framebuffer().clone(),
+            status: convert::status_to_wire(&j.progress(Instant::now())),
+            workers: farm.workers().count() as u32,
+            over: j.is_over(),
+        })
+    }
+
+    /// The job a viewer asks for: by id; or (0) the active job (running, else paused, else
+    /// queued, oldest first), or the only job; otherwise the jobs to choose from.
+    pub(super) fn pick_job(&self, id: u64) -> Result<JobId, Status> {
+        let farm = self.farm();
+        if id != 0 {
+            return farm
+                .job(JobId(id))
+                .map(|j| j.id)
+                .ok_or_else(|| Status::not_found(format!("no job {id} on this coordinator")));
+        }
+        for state in [JobState::Running, JobState::Paused, JobState::Queued] {
+            if let Some(j) = farm.jobs().find(|j| j.state == state) {
+                return Ok(j.id);
+            }
+        }
+        let jobs: Vec<_> = farm.jobs().collect();
+        match jobs.as_slice() {
+            [] => Err(Status::not_found("this coordinator has no jobs yet")),
+            [only] => Ok(only.id),
+            all => {
+                let list: Vec<String> = all
+                    .iter()
+                    .map(|j| format!("{} ({}, {})", j.id.0, j.state.name(), j.bundle.name))
+                    .collect();
+                Err(Status::failed_precondition(format!(
+                    "no job is running; choose one with --job: {}",
+                    list.join(", ")
+                )))
+            }
+        }
+    }
+
+    /// The shared deltas of `job`, starting its publisher if it has none.
+    fn feed(&self, job: JobId) -> watch::Receiver<Arc<Delta>> {
+        let mut feeds = lock(&self.feeds.by_job);
+        if let Some(rx) = feeds.get(&job).filter(|rx| rx.has_changed().is_ok()) {
+            return rx.clone();
+        }
+        let (tx, rx) = watch::channel(Arc::new(Delta::default()));
+        feeds.insert(job, rx.clone());
+        tokio::spawn(self.clone().publish(job, tx));
+        rx
+    }
+
+    /// Computes `job`'s delta once per tick, while it has viewers, and hands it to all of
+    /// them. Ends when the last viewer leaves, after the job's final state, or at shutdown.
+    async fn publish(self, job: JobId, tx: watch::Sender<Arc<Delta>>) {
+        let interval = Duration::from_secs_f64(1.0 / WATCH_DEFAULT_RATE);
+        let mut changed = self.subscribe();
+        let mut stop = self.shutting_down();
+        // The version and status last published; the first tick only sets the baseline
+        // (a viewer that joins takes a snapshot of its own, so no delta from 0 is made).
+        let mut last: Option<(u64, pb::JobStatus, u32)> = None;
+        loop {
+            let tick = Instant::now();
+            let Some(snap) = self.view_snapshot(job) else { break };
+            let version = snap.fb.version();
+            let news = match &last {
+                None => true,
+                Some((v, status, workers)) => {
+                    *v != version || *status != snap.status || *workers != snap.workers || snap.over
+                }
+            };
+            if news {
+                let since = last.as_ref().map_or(version, |(v, _, _)| *v);
+                let mark = (version, snap.status.clone(), snap.workers);
+                let baseline = last.is_none();
+                let delta = tokio::task::spawn_blocking(move || Delta {
+                    from: since,
+                    to: snap.fb.version(),
+                    updates: if baseline && !snap.over {
+                        Vec::new()
+                    } else {
+                        snap.updates(job, since, false).collect()
+                    },
+                    over: snap.over,
+                })
+                .await;
+                let Ok(delta) = delta else { break };
+                let over = delta.over;
+                if tx.send(Arc::new(delta)).is_err() || over {
+                    break;
+                }
+                last = Some(mark);
+            }
+            if tx.receiver_count() <= 1 {
+                // Only the feeds table holds a receiver: no viewer is left.
+                break;
+            }
+            tokio::select! {
+                _ = changed.changed() => {}
+                _ = tokio::time::sleep(STATUS_REFRESH) => {}
+                _ = stop.changed() => break,
+            }
+            tokio::time::sleep(interval.saturating_sub(tick.elapsed())).await;
+        }
+        let mut feeds = lock(&self.feeds.by_job);
+        if feeds.get(&job).is_some_and(|rx| rx.same_channel(&tx.subscribe())) {
+            feeds.remove(&job);
+        }
+    }
+
+    /// Feeds one viewer: a snapshot, then the shared deltas, at most `1 / interval` rounds
+    /// a second. It waits on its own channel only: a stalled viewer stalls this task alone,
+    /// and when it reads again it catches up to the newest state.
+    pub(super) async fn feed_viewer(
+        self,
+        job: JobId,
+        interval: Duration,
+        tx: mpsc::Sender<Result<pb::FramebufferUpdate, Status>>,
+    ) {
+        let mut feed = self.feed(job);
+        let mut stop = self.shutting_down();
+        // The version the viewer's replica holds (`None`: nothing yet).
+        let mut sent: Option<u64> = None;
+        let mut seen: Option<Arc<Delta>> = None;
+        loop {
+            let round = Instant::now();
+            let delta = feed.borrow_and_update().clone();
+            let fresh = !seen.as_ref().is_some_and(|d| Arc::ptr_eq(d, &delta));
+            seen = Some(delta.clone());
+            let over = match sent {
+                // In step with the publisher: its delta, shared, as it is.
+                Some(v) if fresh && delta.from == v && !delta.updates.is_empty() => {
+                    for u in &delta.updates {
+                        if tx.send(Ok(u.clone())).await.is_err() {
+                            return;
+                        }
+                    }
+                    sent = Some(delta.to);
+                    delta.over
+                }
+                // Already there.
+                Some(v) if delta.to <= v && !delta.over => false,
+                // Joining, or behind: a snapshot of its own, streamed a chunk at a time.
+                _ => {
+                    let Some(snap) = self.view_snapshot(job) else { return };
+                    for u in snap.updates(job, sent.unwrap_or(0), sent.is_none()) {
+                        if tx.send(Ok(u)).await.is_err() {
+                            return;
+                        }
+                    }
+                    sent = Some(snap.fb.version());
+                    snap.over
+                }
+            };
+            if over {
+                return;
+            }
+            tokio::select! {
+                r = feed.changed() => if r.is_err() {
+                    // The publisher ended (no viewer was left for a moment): start another.
+                    feed = self.feed(job);
+                },
+                _ = tx.closed() => return,
+                _ = stop.changed() => return,
+            }
+            tokio::time::sleep(interval.saturating_sub(round.elapsed())).await;
+        }
+    }
+}

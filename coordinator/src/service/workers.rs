@@ -1,0 +1,181 @@
+//! The work stream: one task per worker, handing out scenes and batches while the worker
+//! has credit, and taking its results, failures and heartbeats.
+
+use std::time::Instant;
+
+use tessera_description::ids::{BatchId, JobId, WorkerId};
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::coordinator_message::Msg as Out;
+use tessera_proto::v1::worker_message::Msg as In;
+use tokio::sync::mpsc;
+use tonic::{Status, Streaming};
+use tracing::{debug, info, warn};
+
+use super::{convert, CoordinatorService};
+use crate::farm::{BatchResult, ResultError};
+
+/// The most batches a worker may ask to hold at once; bounds the coordinator's lease table.
+pub const MAX_CREDIT: u32 = 256;
+
+impl CoordinatorService {
+    /// Feeds one worker stream until it ends.
+    pub(super) async fn serve_worker(
+        self,
+        mut inbound: Streaming<pb::WorkerMessage>,
+        tx: mpsc::Sender<Result<pb::CoordinatorMessage, Status>>,
+    ) {
+        let refuse =
+            |reason: String| pb::CoordinatorMessage { msg: Some(Out::Refused(pb::Refused { reason })) };
+        let hello = match inbound.message().await {
+            Ok(Some(pb::WorkerMessage { msg: Some(In::Hello(h)) })) => h,
+            Ok(_) => {
+                let _ =
+                    tx.send(Ok(refuse("the first message of a worker stream must be Hello".into()))).await;
+                return;
+            }
+            Err(e) => {
+                debug!("worker stream failed before Hello: {e}");
+                return;
+            }
+        };
+        if hello.protocol_version != pb::ProtocolVersion::Current as i32 {
+            let reason = format!(
+                "protocol version {} is not supported; this coordinator speaks version {}",
+                hello.protocol_version,
+                pb::ProtocolVersion::Current as i32
+            );
+            warn!(name = %hello.name, "{reason}");
+            let _ = tx.send(Ok(refuse(reason))).await;
+            return;
+        }
+        if hello.renderer_version != tessera_description::RENDERER_VERSION {
+            let reason = format!(
+                "worker runs renderer {}, coordinator {}: images would not be bit-identical; run the same tessera build everywhere",
+                hello.renderer_version,
+                tessera_description::RENDERER_VERSION
+            );
+            warn!(name = %hello.name, "{reason}");
+            let _ = tx.send(Ok(refuse(reason))).await;
+            return;
+        }
+        let threads = hello.threads.clamp(1, 4096);
+        let id = self.farm().add_worker(hello.name.clone(), threads, Instant::now());
+        info!(worker = %id, name = %hello.name, threads, "worker joined");
+        let welcome =
+            pb::Welcome { worker_id: id.0, heartbeat_interval_ms: self.timing.heartbeat.as_millis() as u32 };
+        if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Welcome(welcome)) })).await.is_err() {
+            self.farm().remove_worker(id);
+            return;
+        }
+        let mut credit = hello.credit.min(MAX_CREDIT);
+        let mut changed = self.subscribe();
+        let mut stop = self.shutting_down();
+        let end = loop {
+            // Hand out work while the worker wants it and there is some.
+            while credit > 0 {
+                let Some(a) = self.farm().assign(id, Instant::now()) else { break };
+                credit -= 1;
+                if a.speculative {
+                    info!(worker = %id, job = %a.job, batch = %a.batch.id, attempt = a.attempt, "speculative duplicate of a straggler's batch");
+                }
+                if let Some((bundle, hash, settings)) = a.scene {
+                    let scene = pb::JobScene {
+                        job_id: a.job.0,
+                        scene_hash: hash,
+                        bundle: Some(convert::bundle_to_wire(&bundle)),
+                        settings: Some(convert::settings_to_wire(&settings)),
+                    };
+                    if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Scene(scene)) })).await.is_err() {
+                        break;
+                    }
+                }
+                let pixels = a.batch.quads.iter().flat_map(|q| [q.x, q.y]).collect();
+                let batch = pb::Batch {
+                    job_id: a.job.0,
+                    batch_id: a.batch.id.0,
+                    attempt: a.attempt,
+                    scene_hash: a.scene_hash,
+                    pass: a.batch.pass.number(),
+                    sample_start: a.batch.samples.start,
+                    sample_end: a.batch.samples.end,
+                    pixels,
+                    even_sums: a.even_sums,
+                };
+                if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Batch(batch)) })).await.is_err() {
+                    break;
+                }
+            }
+            tokio::select! {
+                msg = inbound.message() => match msg {
+                    Ok(Some(m)) => {
+                        self.farm().touch(id, Instant::now());
+                        match self.handle(id, m, &mut credit) {
+                            Ok(()) => {}
+                            Err(reason) => {
+                                warn!(worker = %id, "{reason}; disconnecting it");
+                                let _ = tx.send(Ok(refuse(reason))).await;
+                                break "refused";
+                            }
+                        }
+                    }
+                    Ok(None) => break "closed",
+                    Err(e) => { debug!(worker = %id, "stream error: {e}"); break "lost" }
+                },
+                r = changed.changed() => if r.is_err() { break "shutdown" },
+                _ = stop.changed() => break "shutdown",
+                _ = tx.closed() => break "lost",
+            }
+        };
+        let n = self.farm().remove_worker(id);
+        info!(worker = %id, batches_taken_back = n, "worker left ({end})");
+        self.notify();
+    }
+
+    /// Applies one worker message; `Err` is a reason to disconnect the worker.
+    fn handle(&self, id: WorkerId, m: pb::WorkerMessage, credit: &mut u32) -> Result<(), String> {
+        match m.msg {
+            Some(In::Results(r)) => {
+                let now = Instant::now();
+                let mut merged = false;
+                for res in r.results {
+                    let (job, batch) = (JobId(res.job_id), BatchId(res.batch_id));
+                    // Even sums count only for jobs that keep them; the farm knows which.
+                    let result = BatchResult {
+                        job,
+                        batch,
+                        sums: &res.sums,
+                        even: Some(&res.even_sums),
+                        nonfinite: res.nonfinite_samples,
+                    };
+                    let done = self.farm().complete(id, &result, now);
+                    match done {
+                        Ok(()) => merged = true,
+                        Err(ResultError::Duplicate(e)) => {
+                            debug!(worker = %id, %job, "dropped duplicate: {e}")
+                        }
+                        Err(ResultError::UnknownJob(j)) => debug!(worker = %id, "result for unknown {j}"),
+                        Err(e @ ResultError::Malformed { .. }) => {
+                            self.notify();
+                            return Err(format!("malformed result: {e}"));
+                        }
+                    }
+                }
+                *credit = credit.saturating_add(r.credit).min(MAX_CREDIT);
+                if merged {
+                    self.notify();
+                }
+                Ok(())
+            }
+            Some(In::Heartbeat(_)) => Ok(()),
+            Some(In::Failed(f)) => {
+                warn!(worker = %id, job = f.job_id, batch = f.batch_id, "batch failed: {}", f.error);
+                self.farm().fail_batch(JobId(f.job_id), BatchId(f.batch_id), &f.error, Instant::now());
+                *credit = credit.saturating_add(f.credit).min(MAX_CREDIT);
+                self.notify();
+                Ok(())
+            }
+            Some(In::Hello(_)) => Err("Hello sent twice".into()),
+            None => Err("empty message".into()),
+        }
+    }
+}
