@@ -7,10 +7,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use tessera_coordinator::farm::{JobProgress, JobSettings, JobState};
 use tessera_coordinator::{CoordinatorService, Timing};
 use tessera_description::bundle::Bundle;
 use tessera_description::ids::JobId;
+use tessera_description::job::{JobProgress, JobSettings, JobState};
 use tokio::net::TcpListener;
 use tokio::process::{Child, Command};
 use tokio_stream::wrappers::TcpListenerStream;
@@ -233,10 +233,10 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
     let reaper = service.spawn_reaper();
     let url = format!("http://{addr}");
     let mut workers = Workers::spawn(&url, opts.workers, opts.threads)?;
+    let endpoint = tessera_proto::connect::EndpointConfig::new(&url)?;
     let window = opts.view.then(|| {
-        let (url, job) = (url.clone(), job.0);
         std::thread::spawn(move || {
-            if let Err(e) = tessera_viewer::window::run(&url, job, std::time::Duration::ZERO) {
+            if let Err(e) = tessera_viewer::window::run(&endpoint, Some(job), std::time::Duration::ZERO) {
                 eprintln!("warning: {e}");
             }
         })

@@ -12,6 +12,8 @@ use std::process::ExitCode;
 
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
+use tessera_description::ids::JobId;
+use tessera_proto::connect::EndpointConfig;
 use tracing_subscriber::EnvFilter;
 
 /// Tessera: a render farm for distributed ray tracing with progressive refinement.
@@ -247,7 +249,7 @@ async fn run(command: Command) -> Result<ExitCode> {
                 anyhow::bail!("--threads must be at least 1");
             }
             let config = tessera_worker::client::WorkerConfig {
-                coordinator: args.coordinator,
+                coordinator: EndpointConfig::new(&args.coordinator)?,
                 threads,
                 name: args.name.unwrap_or_else(|| format!("{}:{}", host_name(), std::process::id())),
                 exit_on_disconnect: args.exit_on_disconnect,
@@ -257,17 +259,17 @@ async fn run(command: Command) -> Result<ExitCode> {
         }
         Command::Submit(args) => remote::submit(args).await,
         Command::Status { coordinator } => remote::status(&coordinator).await,
-        Command::Cancel { job, coordinator } => remote::cancel(&coordinator, job).await,
+        Command::Cancel { job, coordinator } => remote::cancel(&coordinator, JobId(job)).await,
         Command::Fetch { job, output, coordinator } => {
             check_output(&output)?;
             let mut client = remote::connect(&coordinator).await?;
-            let (w, h, rgb) = remote::fetch_image(&mut client, job).await?;
+            let (w, h, rgb) = remote::fetch_image(&mut client, JobId(job)).await?;
             tessera_film::output::write_image(&output, w, h, &rgb)?;
             eprintln!("wrote {} ({w}x{h}) of job {job}", output.display());
             Ok(ExitCode::SUCCESS)
         }
-        Command::Pause { job, coordinator } => remote::pause(&coordinator, job, true).await,
-        Command::Resume { job, coordinator } => remote::pause(&coordinator, job, false).await,
+        Command::Pause { job, coordinator } => remote::pause(&coordinator, JobId(job), true).await,
+        Command::Resume { job, coordinator } => remote::pause(&coordinator, JobId(job), false).await,
         Command::Order { width, height } => {
             use std::io::Write;
             let stdout = std::io::stdout();
@@ -312,14 +314,16 @@ async fn view(args: ViewArgs) -> Result<ExitCode> {
         0.0 => std::time::Duration::ZERO,
         s => seconds("--reconnect-for", s)?,
     };
+    let coordinator = EndpointConfig::new(&args.coordinator)?;
+    let job = args.job.map(JobId);
     if let Some(tev) = &args.tev {
-        tessera_viewer::tev::run(&args.coordinator, args.job.unwrap_or(0), tev, reconnect_for).await?;
+        tessera_viewer::tev::run(&coordinator, job, tev, reconnect_for).await?;
         eprintln!("forwarded the job to tev at {tev}");
         return Ok(ExitCode::SUCCESS);
     }
     let Some(save) = args.save else {
-        let (url, job) = (args.coordinator, args.job.unwrap_or(0));
-        tokio::task::spawn_blocking(move || tessera_viewer::window::run(&url, job, reconnect_for)).await??;
+        tokio::task::spawn_blocking(move || tessera_viewer::window::run(&coordinator, job, reconnect_for))
+            .await??;
         return Ok(ExitCode::SUCCESS);
     };
     check_output(&save)?;
@@ -334,14 +338,7 @@ async fn view(args: ViewArgs) -> Result<ExitCode> {
         (_, Some(p)) => When::At(p),
         (None, None) => When::End,
     };
-    let outcome = run(Headless {
-        coordinator: args.coordinator,
-        job: args.job.unwrap_or(0),
-        save: save.clone(),
-        when,
-        reconnect_for,
-    })
-    .await?;
+    let outcome = run(Headless { coordinator, job, save: save.clone(), when, reconnect_for }).await?;
     eprintln!(
         "wrote {} at {:.1}%{}",
         save.display(),

@@ -7,13 +7,15 @@ use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{anyhow, bail, Context, Result};
-use tessera_coordinator::service::convert::bundle_to_wire;
-use tessera_coordinator::service::MAX_MESSAGE_BYTES;
 use tessera_coordinator::{CoordinatorService, Recovery, Timing};
 use tessera_description::bundle::Bundle;
+use tessera_description::ids::JobId;
+use tessera_description::job::{JobProgress, JobSettings, JobState};
+use tessera_proto::connect::{Backoff, EndpointConfig};
+use tessera_proto::convert::{bundle_to_wire, settings_to_wire, state_name, status_from_wire};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_client::CoordinatorClient;
-use tonic::transport::{Channel, Endpoint};
+use tonic::transport::Channel;
 
 /// Arguments of `tessera submit`.
 #[derive(Debug, clap::Args)]
@@ -57,7 +59,7 @@ pub fn report_recovery(dir: &Path, recovery: &Recovery) {
         eprintln!(
             "resumed job {} ({}) from {}: {pct:.1}% done, {} of {} samples kept",
             r.id.0,
-            format!("{:?}", r.state).to_lowercase(),
+            r.state.name(),
             dir.display(),
             r.samples_kept,
             r.samples_total
@@ -103,15 +105,7 @@ pub async fn serve_coordinator(
 
 /// A client of the coordinator at `url`.
 pub async fn connect(url: &str) -> Result<CoordinatorClient<Channel>> {
-    let endpoint = Endpoint::from_shared(url.to_string())
-        .map_err(|e| anyhow!("bad coordinator address {url:?}: {e}"))?
-        .connect_timeout(Duration::from_secs(5));
-    let channel = endpoint.connect().await.map_err(|e| {
-        anyhow!("cannot reach coordinator at {url}: {}", tessera_worker::client::error_chain(&e))
-    })?;
-    Ok(CoordinatorClient::new(channel)
-        .max_decoding_message_size(MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(MAX_MESSAGE_BYTES))
+    Ok(tessera_proto::connect::client(&EndpointConfig::new(url)?).await?)
 }
 
 fn status_error(s: tonic::Status) -> anyhow::Error {
@@ -131,43 +125,40 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
         .submit(pb::SubmitRequest {
             protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
             bundle: Some(bundle_to_wire(&bundle)),
-            settings: Some(tessera_coordinator::service::convert::settings_to_wire(
-                &tessera_coordinator::farm::JobSettings {
-                    spp: args.spp,
-                    size: args.size,
-                    time_limit: args.time,
-                    noise: args.noise,
-                },
-            )),
+            settings: Some(settings_to_wire(&JobSettings {
+                spp: args.spp,
+                size: args.size,
+                time_limit: args.time,
+                noise: args.noise,
+            })),
             priority: args.priority,
         })
         .await
         .map_err(status_error)?
         .into_inner();
-    let job = response.job_id;
-    eprintln!("submitted job {job}: {}x{}, {} spp", response.width, response.height, response.spp);
-    println!("{job}");
+    let job = JobId(response.job_id);
+    eprintln!("submitted {job}: {}x{}, {} spp", response.width, response.height, response.spp);
+    println!("{}", job.0);
     if args.output.is_none() && !args.wait {
         return Ok(ExitCode::SUCCESS);
     }
-    let status = wait(&mut client, job).await?;
-    let state = pb::JobState::try_from(status.state).unwrap_or(pb::JobState::Unspecified);
-    if state == pb::JobState::Failed {
-        bail!("job {job} failed: {}", status.error);
+    let state = wait(&mut client, job).await?.state;
+    if let JobState::Failed(e) = &state {
+        bail!("{job} failed: {e}");
     }
     if let Some(out) = &args.output {
         let (w, h, rgb) = fetch_image(&mut client, job).await?;
         tessera_film::output::write_image(out, w, h, &rgb)?;
-        eprintln!("wrote {} ({w}x{h}), job {}", out.display(), state.as_str_name());
+        eprintln!("wrote {} ({w}x{h}), {job} {}", out.display(), state.name());
     }
-    Ok(if state == pb::JobState::Done { ExitCode::SUCCESS } else { ExitCode::FAILURE })
+    Ok(if state == JobState::Done { ExitCode::SUCCESS } else { ExitCode::FAILURE })
 }
 
 /// How long `submit --wait` keeps trying a lost coordinator.
 const RECONNECT_FOR: Duration = Duration::from_secs(60);
 
 /// Polls a job until it is over, with a progress bar; rides out a coordinator restart.
-async fn wait(client: &mut CoordinatorClient<Channel>, job: u64) -> Result<pb::JobStatus> {
+async fn wait(client: &mut CoordinatorClient<Channel>, job: JobId) -> Result<JobProgress> {
     let bar = indicatif::ProgressBar::new(1000);
     bar.set_style(
         indicatif::ProgressStyle::with_template("pass {prefix} [{bar:32}] {percent:>3}% {msg} ETA {eta}")
@@ -176,26 +167,26 @@ async fn wait(client: &mut CoordinatorClient<Channel>, job: u64) -> Result<pb::J
     );
     let mut said_waiting = false;
     let mut lost_since: Option<std::time::Instant> = None;
+    let mut backoff = Backoff::new(Duration::from_millis(250), Duration::from_secs(2));
     loop {
-        let response = match client.status(pb::StatusRequest { job_id: job }).await {
+        let response = match client.status(pb::StatusRequest { job_id: job.0 }).await {
             Ok(r) => {
+                backoff.reset();
                 if lost_since.take().is_some() {
-                    bar.suspend(|| eprintln!("job {job}: reconnected to the coordinator"));
+                    bar.suspend(|| eprintln!("{job}: reconnected to the coordinator"));
                 }
                 r.into_inner()
             }
             // A coordinator restarting on its data directory comes back with the job.
             Err(s) if s.code() == tonic::Code::Unavailable => {
                 let since = *lost_since.get_or_insert_with(|| {
-                    bar.suspend(|| {
-                        eprintln!("job {job}: lost the coordinator ({}); reconnecting", s.message())
-                    });
+                    bar.suspend(|| eprintln!("{job}: lost the coordinator ({}); reconnecting", s.message()));
                     std::time::Instant::now()
                 });
                 if since.elapsed() > RECONNECT_FOR {
                     bail!("lost the coordinator for {RECONNECT_FOR:?}: {}", s.message());
                 }
-                tokio::time::sleep(Duration::from_millis(500)).await;
+                tokio::time::sleep(backoff.next_delay()).await;
                 continue;
             }
             Err(s) => return Err(status_error(s)),
@@ -203,32 +194,33 @@ async fn wait(client: &mut CoordinatorClient<Channel>, job: u64) -> Result<pb::J
         // Say it once, also where the bar is hidden (no terminal): a job with no worker
         // otherwise looks like a hang.
         if response.workers.is_empty() && !said_waiting {
-            bar.suspend(|| eprintln!("job {job}: no workers connected; waiting for a worker to join"));
+            bar.suspend(|| eprintln!("{job}: no workers connected; waiting for a worker to join"));
             said_waiting = true;
         } else if !response.workers.is_empty() {
             said_waiting = false;
         }
-        let s = response.jobs.into_iter().next().ok_or_else(|| anyhow!("job {job} vanished"))?;
+        let s = response.jobs.into_iter().next().ok_or_else(|| anyhow!("{job} vanished"))?;
+        let s = status_from_wire(s).with_context(|| format!("the coordinator's status of {job}"))?;
         let total = s.samples_total.max(1) as f64;
         bar.set_prefix(s.pass.to_string());
         bar.set_position((s.samples_done as f64 / total * 1000.0) as u64);
         let waiting = if response.workers.is_empty() { ", waiting for workers" } else { "" };
         bar.set_message(format!("{}{waiting}", crate::local::rate(s.samples_per_second)));
-        match pb::JobState::try_from(s.state) {
-            Ok(pb::JobState::Queued | pb::JobState::Running | pb::JobState::Paused) => {}
-            _ => {
-                bar.finish_and_clear();
-                return Ok(s);
-            }
+        if s.state.is_over() {
+            bar.finish_and_clear();
+            return Ok(s);
         }
         tokio::time::sleep(Duration::from_millis(250)).await;
     }
 }
 
 /// A job's current image: width, height, linear RGB top row first.
-pub async fn fetch_image(client: &mut CoordinatorClient<Channel>, job: u64) -> Result<(u32, u32, Vec<f32>)> {
+pub async fn fetch_image(
+    client: &mut CoordinatorClient<Channel>,
+    job: JobId,
+) -> Result<(u32, u32, Vec<f32>)> {
     let mut stream =
-        client.fetch_image(pb::FetchImageRequest { job_id: job }).await.map_err(status_error)?.into_inner();
+        client.fetch_image(pb::FetchImageRequest { job_id: job.0 }).await.map_err(status_error)?.into_inner();
     let mut size = None;
     let mut rgb = Vec::new();
     while let Some(chunk) = stream.message().await.map_err(status_error)? {
@@ -271,8 +263,7 @@ pub async fn status(url: &str) -> Result<ExitCode> {
         "rate"
     );
     for j in &s.jobs {
-        let state = pb::JobState::try_from(j.state).map_or("?", |s| s.as_str_name());
-        let state = state.trim_start_matches("JOB_STATE_").to_lowercase();
+        let state = state_name(j.state);
         let done = j.samples_done as f64 / j.samples_total.max(1) as f64 * 100.0;
         outln!(
             out,
@@ -315,17 +306,17 @@ pub async fn status(url: &str) -> Result<ExitCode> {
 }
 
 /// `tessera pause` and `tessera resume`.
-pub async fn pause(url: &str, job: u64, paused: bool) -> Result<ExitCode> {
+pub async fn pause(url: &str, job: JobId, paused: bool) -> Result<ExitCode> {
     let mut client = connect(url).await?;
-    client.pause(pb::PauseRequest { job_id: job, paused }).await.map_err(status_error)?;
-    eprintln!("{} job {job}", if paused { "paused" } else { "resumed" });
+    client.pause(pb::PauseRequest { job_id: job.0, paused }).await.map_err(status_error)?;
+    eprintln!("{} {job}", if paused { "paused" } else { "resumed" });
     Ok(ExitCode::SUCCESS)
 }
 
 /// `tessera cancel`.
-pub async fn cancel(url: &str, job: u64) -> Result<ExitCode> {
+pub async fn cancel(url: &str, job: JobId) -> Result<ExitCode> {
     let mut client = connect(url).await?;
-    client.cancel(pb::CancelRequest { job_id: job }).await.map_err(status_error)?;
-    eprintln!("cancelled job {job}");
+    client.cancel(pb::CancelRequest { job_id: job.0 }).await.map_err(status_error)?;
+    eprintln!("cancelled {job}");
     Ok(ExitCode::SUCCESS)
 }

@@ -1,10 +1,17 @@
 //! Tessera's wire contract: the gRPC service between coordinator, workers and clients,
-//! generated from `proto/tessera.proto` at build time with no system `protoc`.
+//! generated from `proto/tessera.proto` at build time with no system `protoc`; the one
+//! place where wire types meet domain types (`convert`); and the client side's connection
+//! (`connect`: endpoints, errors, backoff) shared by the worker, the viewer and the CLI.
 //!
-//! Only this crate and each crate's `service.rs`/`client.rs` touch these types.
-#![allow(missing_docs, clippy::large_enum_variant)]
+//! Only this crate and each crate's `service.rs`/`client.rs` touch the generated types.
+#![forbid(unsafe_code)]
+#![deny(missing_docs)]
+
+pub mod connect;
+pub mod convert;
 
 /// Version 1 of the protocol.
+#[allow(missing_docs, clippy::large_enum_variant)]
 pub mod v1 {
     tonic::include_proto!("tessera.v1");
 }

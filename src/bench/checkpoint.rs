@@ -7,10 +7,11 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
-use tessera_coordinator::farm::{BatchResult, Farm, JobSettings};
+use tessera_coordinator::farm::{BatchResult, Farm};
 use tessera_coordinator::persist::JobStore;
 use tessera_coordinator::store::Store;
 use tessera_description::bundle::Bundle;
+use tessera_description::job::JobSettings;
 
 fn fastest(runs: usize, mut f: impl FnMut() -> Result<()>) -> Result<Duration> {
     let mut best = Duration::MAX;

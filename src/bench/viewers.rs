@@ -8,6 +8,10 @@ use std::process::Stdio;
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
+use tessera_description::ids::JobId;
+use tessera_description::job::JobState;
+use tessera_proto::connect::EndpointConfig;
+use tessera_proto::convert::state_from_wire;
 use tessera_proto::v1 as pb;
 use tokio::io::{AsyncBufReadExt, BufReader};
 use tokio::process::{Child, Command};
@@ -54,7 +58,8 @@ async fn case(
         workers
             .push(spawn(&["worker", "--coordinator", &url, "--threads", "1", "--exit-on-disconnect"]).await?);
     }
-    let mut client = crate::remote::connect(&url).await?;
+    let endpoint = EndpointConfig::new(&url)?;
+    let mut client = tessera_proto::connect::client(&endpoint).await?;
     // Wait for the workers, so that every case starts alike.
     let t = Instant::now();
     while client.status(pb::StatusRequest { job_id: 0 }).await?.into_inner().workers.len() < cores {
@@ -68,7 +73,7 @@ async fn case(
     let job = client
         .submit(pb::SubmitRequest {
             protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
-            bundle: Some(tessera_coordinator::service::convert::bundle_to_wire(&bundle)),
+            bundle: Some(tessera_proto::convert::bundle_to_wire(&bundle)),
             settings: Some(pb::RenderSettings { spp: spp.unwrap_or(0), ..Default::default() }),
             priority: 0,
         })
@@ -78,7 +83,8 @@ async fn case(
     let mut tasks = Vec::new();
     let mut held = Vec::new();
     for v in 0..viewers {
-        let mut watch = tessera_viewer::conn::Watch::open(&url, job, 10.0, std::time::Duration::ZERO).await?;
+        let mut watch =
+            tessera_viewer::conn::Watch::open(&endpoint, Some(JobId(job)), 10.0, Duration::ZERO).await?;
         if v < stalled {
             // Opened and never read.
             held.push(watch);
@@ -98,7 +104,7 @@ async fn case(
     }
     loop {
         let s = client.status(pb::StatusRequest { job_id: job }).await?.into_inner();
-        if s.jobs.first().is_some_and(|j| j.state == pb::JobState::Done as i32) {
+        if s.jobs.first().is_some_and(|j| state_from_wire(j.state, &j.error) == Ok(JobState::Done)) {
             break;
         }
         tokio::time::sleep(Duration::from_millis(10)).await;

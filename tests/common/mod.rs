@@ -251,9 +251,8 @@ pub fn job_status(url: &str, id: u64) -> Option<JobStatus> {
             .ok()?
             .into_inner();
         let j = r.jobs.into_iter().next()?;
-        let state = pb::JobState::try_from(j.state).map_or("?", |s| s.as_str_name());
         Some(JobStatus {
-            state: state.trim_start_matches("JOB_STATE_").to_lowercase(),
+            state: tessera_proto::convert::state_name(j.state).to_string(),
             pass: j.pass,
             samples_done: j.samples_done,
             samples_total: j.samples_total,

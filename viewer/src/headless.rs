@@ -3,9 +3,11 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
+use tessera_description::ids::JobId;
+use tessera_proto::connect::{ConnectError, EndpointConfig};
 use tracing::info;
 
-use crate::conn::{ConnError, Watch};
+use crate::conn::Watch;
 use crate::state::{Replica, UpdateError};
 
 /// When to write the image.
@@ -22,10 +24,10 @@ pub enum When {
 /// What the headless viewer does.
 #[derive(Debug, Clone)]
 pub struct Headless {
-    /// The coordinator's URL.
-    pub coordinator: String,
-    /// The job (0: the running one, else the newest).
-    pub job: u64,
+    /// Where the coordinator is.
+    pub coordinator: EndpointConfig,
+    /// The job (`None`: the running one, else the newest).
+    pub job: Option<JobId>,
     /// Where to write (.png or .exr), replaced atomically at each snapshot.
     pub save: PathBuf,
     /// When.
@@ -39,7 +41,7 @@ pub struct Headless {
 pub enum HeadlessError {
     /// The connection.
     #[error(transparent)]
-    Conn(#[from] ConnError),
+    Conn(#[from] ConnectError),
     /// A malformed update.
     #[error("the coordinator sent a malformed update: {0}")]
     Update(#[from] UpdateError),

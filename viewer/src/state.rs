@@ -1,7 +1,9 @@
 //! The replica of a job's framebuffer: updates from the watch stream applied to the same
 //! `Framebuffer` the coordinator keeps, so that it resolves to the same bits.
 
+use tessera_description::ids::JobId;
 use tessera_film::framebuffer::{Framebuffer, PixelState};
+use tessera_proto::convert::{job_from_wire, state_name};
 use tessera_proto::v1 as pb;
 
 /// Why an update could not be applied (a coordinator speaking nonsense).
@@ -29,8 +31,8 @@ pub enum UpdateError {
 #[derive(Debug, Default)]
 pub struct Replica {
     fb: Option<Framebuffer>,
-    /// The job.
-    pub job: u64,
+    /// The job, once an update named it.
+    pub job: Option<JobId>,
     /// The version of the last complete update.
     pub version: u64,
     /// The job's status from the last update.
@@ -75,7 +77,7 @@ impl Replica {
                 fb.set(&PixelState { index: r.start + k as u32, sums: [s[0], s[1], s[2]], count });
             }
         }
-        self.job = u.job_id;
+        self.job = job_from_wire(u.job_id);
         if u.chunk_end {
             self.version = u.version;
         }
@@ -110,11 +112,10 @@ impl Replica {
         } else {
             "ETA -".into()
         };
-        let state = pb::JobState::try_from(s.state).map_or("?", |st| st.as_str_name());
         format!(
             "job {} {} pass {} {:.1}% {:.2} Msamples/s {} workers {}",
             s.job_id,
-            state.trim_start_matches("JOB_STATE_").to_lowercase(),
+            state_name(s.state),
             s.pass,
             self.percent(),
             s.samples_per_second / 1e6,

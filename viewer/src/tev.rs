@@ -6,6 +6,8 @@
 
 use std::time::{Duration, Instant};
 
+use tessera_description::ids::JobId;
+use tessera_proto::connect::EndpointConfig;
 use tokio::io::AsyncWriteExt;
 use tokio::net::TcpStream;
 
@@ -70,8 +72,8 @@ pub fn update_tile(name: &str, width: u32, y: u32, rows: u32, rgb: &[f32]) -> Ve
 /// Follows job `job` at `coordinator` and mirrors it into tev at `tev` (HOST:PORT) until
 /// the job ends.
 pub async fn run(
-    coordinator: &str,
-    job: u64,
+    coordinator: &EndpointConfig,
+    job: Option<JobId>,
     tev: &str,
     reconnect_for: Duration,
 ) -> Result<(), HeadlessError> {
@@ -95,7 +97,7 @@ pub async fn run(
             }
         }
         let Some((w, h, rgb)) = replica.image() else { return Err(HeadlessError::Empty) };
-        let name = format!("tessera job {}", replica.job);
+        let name = format!("tessera job {}", replica.job.map_or(0, |j| j.0));
         let send = |e: std::io::Error| HeadlessError::Tev(format!("lost tev at {tev}: {e}"));
         if !created {
             socket.write_all(&create_image(&name, w, h)).await.map_err(send)?;

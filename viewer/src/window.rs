@@ -8,6 +8,8 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use minifb::{Key, KeyRepeat, Window, WindowOptions};
+use tessera_description::ids::JobId;
+use tessera_proto::connect::EndpointConfig;
 use tessera_proto::v1 as pb;
 
 use crate::conn::Watch;
@@ -32,12 +34,16 @@ struct Shared {
     ended: Option<String>,
 }
 
-/// Opens the window on job `job` (0: the running one) of the coordinator at `url`; blocks
-/// until the window is closed.
-pub fn run(url: &str, job: u64, reconnect_for: Duration) -> Result<(), WindowError> {
+/// Opens the window on job `job` (`None`: the running one) of the coordinator at `endpoint`;
+/// blocks until the window is closed.
+pub fn run(
+    endpoint: &EndpointConfig,
+    job: Option<JobId>,
+    reconnect_for: Duration,
+) -> Result<(), WindowError> {
     let shared = Arc::new(Mutex::new(Shared::default()));
     let net = shared.clone();
-    let net_url = url.to_string();
+    let net_endpoint = endpoint.clone();
     let runtime = tokio::runtime::Builder::new_current_thread()
         .enable_all()
         .build()
@@ -47,7 +53,7 @@ pub fn run(url: &str, job: u64, reconnect_for: Duration) -> Result<(), WindowErr
         .name("viewer-net".into())
         .spawn(move || {
             runtime.block_on(async move {
-                let ended = match Watch::open(&net_url, job, 20.0, reconnect_for).await {
+                let ended = match Watch::open(&net_endpoint, job, 20.0, reconnect_for).await {
                     Err(e) => e.to_string(),
                     Ok(mut watch) => loop {
                         match watch.next().await {
@@ -96,7 +102,7 @@ pub fn run(url: &str, job: u64, reconnect_for: Duration) -> Result<(), WindowErr
                 Key::Equal | Key::NumPadPlus => exposure += 0.5,
                 Key::Minus | Key::NumPadMinus => exposure -= 0.5,
                 Key::S => note = save(image.as_ref(), job_id),
-                Key::P => note = toggle_pause(&handle, url, job_id, !paused),
+                Key::P => note = toggle_pause(&handle, endpoint, job_id, !paused),
                 _ => {}
             }
         }
@@ -131,8 +137,10 @@ fn draw(buffer: &mut [u32], w: usize, h: usize, iw: usize, ih: usize, rgb: &[f32
     }
 }
 
-fn save(image: Option<&(u32, u32, Vec<f32>)>, job: u64) -> String {
-    let Some((w, h, rgb)) = image else { return " — nothing to save yet".into() };
+fn save(image: Option<&(u32, u32, Vec<f32>)>, job: Option<JobId>) -> String {
+    let (Some((w, h, rgb)), Some(JobId(job))) = (image, job) else {
+        return " — nothing to save yet".into();
+    };
     let mut saved = Vec::new();
     for ext in ["png", "exr"] {
         let path = PathBuf::from(format!("tessera-job{job}.{ext}"));
@@ -144,14 +152,17 @@ fn save(image: Option<&(u32, u32, Vec<f32>)>, job: u64) -> String {
     format!(" — saved {}", saved.join(" and "))
 }
 
-fn toggle_pause(handle: &tokio::runtime::Handle, url: &str, job: u64, pause: bool) -> String {
-    let url = url.to_string();
+fn toggle_pause(
+    handle: &tokio::runtime::Handle,
+    endpoint: &EndpointConfig,
+    job: Option<JobId>,
+    pause: bool,
+) -> String {
+    let Some(JobId(job)) = job else { return " — no job to pause yet".into() };
     let result = std::thread::scope(|s| {
         s.spawn(|| {
             handle.block_on(async move {
-                let mut client = pb::coordinator_client::CoordinatorClient::connect(url)
-                    .await
-                    .map_err(|e| e.to_string())?;
+                let mut client = tessera_proto::connect::client(endpoint).await.map_err(|e| e.to_string())?;
                 client
                     .pause(pb::PauseRequest { job_id: job, paused: pause })
                     .await

@@ -8,65 +8,35 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use glam::UVec2;
+use tessera_proto::connect::{Backoff, ConnectError, EndpointConfig};
+use tessera_proto::convert::bundle_from_wire;
 use tessera_proto::v1 as pb;
-use tessera_proto::v1::coordinator_client::CoordinatorClient;
 use tessera_proto::v1::coordinator_message::Msg as In;
 use tessera_proto::v1::worker_message::Msg as Out;
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
-use tonic::transport::{Channel, Endpoint};
 use tracing::{debug, info, warn};
 
 use crate::batch::render_batch_split;
 use crate::render::Scene;
-use tessera_description::bundle::Bundle;
 
 /// Scenes a worker keeps at once (one per recent job); older ones are dropped.
 const SCENE_CACHE: usize = 8;
 /// Batches a worker wants in hand per render thread: one rendering, one waiting, so that
 /// no thread idles for a round trip to the coordinator.
 pub const CREDIT_PER_THREAD: u32 = 2;
-/// The largest message the worker accepts (scene bundles with their assets).
-const MAX_MESSAGE_BYTES: usize = 256 << 20;
 
 /// How a worker runs.
 #[derive(Debug, Clone)]
 pub struct WorkerConfig {
-    /// The coordinator's URL, e.g. `http://10.0.0.1:7878`.
-    pub coordinator: String,
+    /// Where the coordinator is.
+    pub coordinator: EndpointConfig,
     /// Render threads.
     pub threads: usize,
     /// Name shown in status.
     pub name: String,
     /// Exit when the coordinator goes away instead of reconnecting (local render children).
     pub exit_on_disconnect: bool,
-}
-
-/// Why a worker stopped.
-#[derive(Debug, thiserror::Error)]
-pub enum WorkerError {
-    /// The URL is not usable.
-    #[error("bad coordinator address {url:?}: {reason}")]
-    BadAddress {
-        /// The URL.
-        url: String,
-        /// Why.
-        reason: String,
-    },
-    /// Nothing answers there.
-    #[error("cannot reach coordinator at {url}: {reason}")]
-    Unreachable {
-        /// The URL.
-        url: String,
-        /// Why.
-        reason: String,
-    },
-    /// The coordinator refused this worker.
-    #[error("coordinator refused this worker: {0}")]
-    Refused(String),
-    /// The connection broke.
-    #[error("lost the coordinator: {0}")]
-    Lost(String),
 }
 
 /// One batch for the render pool.
@@ -120,27 +90,6 @@ impl Pool {
     }
 }
 
-/// A capped exponential backoff for reconnecting.
-#[derive(Debug, Clone)]
-pub struct Backoff {
-    next: Duration,
-    max: Duration,
-}
-
-impl Backoff {
-    /// Starts at `first`, doubles up to `max`.
-    pub fn new(first: Duration, max: Duration) -> Self {
-        Backoff { next: first, max }
-    }
-
-    /// The next wait.
-    pub fn next_delay(&mut self) -> Duration {
-        let d = self.next;
-        self.next = (self.next * 2).min(self.max);
-        d
-    }
-}
-
 enum SessionEnd {
     /// The coordinator closed the stream.
     Closed,
@@ -149,24 +98,24 @@ enum SessionEnd {
 /// Runs a worker until the coordinator refuses it, or (with `exit_on_disconnect`) until
 /// the coordinator goes away. A coordinator that cannot be reached at start is an error;
 /// one lost later is retried with backoff.
-pub async fn run(config: WorkerConfig) -> Result<(), WorkerError> {
-    let url = config.coordinator.clone();
-    let endpoint = Endpoint::from_shared(url.clone())
-        .map_err(|e| WorkerError::BadAddress { url: url.clone(), reason: e.to_string() })?
-        .connect_timeout(Duration::from_secs(5))
-        .tcp_nodelay(true)
-        .http2_keep_alive_interval(Duration::from_secs(10))
-        .keep_alive_timeout(Duration::from_secs(20));
+pub async fn run(config: WorkerConfig) -> Result<(), ConnectError> {
+    // A worker sits on one long stream: pings notice a coordinator that vanished silently.
+    let endpoint = config.coordinator.clone().keep_alive(Duration::from_secs(10), Duration::from_secs(20));
     let pool = Pool::new(config.threads.max(1));
     let mut connected_once = false;
     let mut backoff = Backoff::new(Duration::from_millis(250), Duration::from_secs(15));
     loop {
-        let result = session(&endpoint, &config, &pool, &mut connected_once).await;
+        let mut welcomed = false;
+        let result = session(&endpoint, &config, &pool, &mut welcomed).await;
         pool.generation.fetch_add(1, Ordering::Relaxed);
+        if welcomed {
+            connected_once = true;
+            backoff.reset();
+        }
         let reason = match result {
             Ok(SessionEnd::Closed) => "the coordinator closed the connection".to_string(),
-            Err(WorkerError::Unreachable { .. }) if connected_once => "unreachable".to_string(),
-            Err(WorkerError::Lost(e)) => e,
+            Err(ConnectError::Unreachable { .. }) if connected_once => "unreachable".to_string(),
+            Err(ConnectError::Lost(e)) => e,
             Err(e) => return Err(e),
         };
         if config.exit_on_disconnect {
@@ -179,20 +128,15 @@ pub async fn run(config: WorkerConfig) -> Result<(), WorkerError> {
     }
 }
 
+/// One connection, from Hello to its end; sets `welcomed` once the coordinator accepted it.
 async fn session(
-    endpoint: &Endpoint,
+    endpoint: &EndpointConfig,
     config: &WorkerConfig,
     pool: &Pool,
-    connected_once: &mut bool,
-) -> Result<SessionEnd, WorkerError> {
-    let url = config.coordinator.clone();
-    let channel: Channel = endpoint
-        .connect()
-        .await
-        .map_err(|e| WorkerError::Unreachable { url: url.clone(), reason: error_chain(&e) })?;
-    let mut client = CoordinatorClient::new(channel)
-        .max_decoding_message_size(MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(MAX_MESSAGE_BYTES);
+    welcomed: &mut bool,
+) -> Result<SessionEnd, ConnectError> {
+    let url = &endpoint.url;
+    let mut client = tessera_proto::connect::client(endpoint).await?;
     let (out, out_rx) = mpsc::channel::<pb::WorkerMessage>(64);
     let threads = config.threads.max(1) as u32;
     let hello = pb::Hello {
@@ -206,7 +150,7 @@ async fn session(
     let mut inbound = client
         .work(ReceiverStream::new(out_rx))
         .await
-        .map_err(|s| WorkerError::Unreachable { url: url.clone(), reason: s.message().to_string() })?
+        .map_err(|s| ConnectError::Unreachable { url: url.clone(), reason: s.message().to_string() })?
         .into_inner();
     let heartbeat = match inbound.message().await {
         Ok(Some(pb::CoordinatorMessage { msg: Some(In::Welcome(w)) })) => {
@@ -214,12 +158,12 @@ async fn session(
             Duration::from_millis(u64::from(w.heartbeat_interval_ms.clamp(100, 60_000)))
         }
         Ok(Some(pb::CoordinatorMessage { msg: Some(In::Refused(r)) })) => {
-            return Err(WorkerError::Refused(r.reason))
+            return Err(ConnectError::Refused(r.reason))
         }
-        Ok(_) => return Err(WorkerError::Lost("the coordinator did not answer Hello with Welcome".into())),
-        Err(s) => return Err(WorkerError::Lost(s.message().to_string())),
+        Ok(_) => return Err(ConnectError::Lost("the coordinator did not answer Hello with Welcome".into())),
+        Err(s) => return Err(ConnectError::Lost(s.message().to_string())),
     };
-    *connected_once = true;
+    *welcomed = true;
     let generation = pool.generation.load(Ordering::Relaxed);
     let (reply, mut done) = mpsc::unbounded_channel::<pb::BatchResult>();
     let mut scenes: SceneCache = SceneCache::default();
@@ -230,7 +174,7 @@ async fn session(
                 let m = match msg {
                     Ok(Some(m)) => m,
                     Ok(None) => return Ok(SessionEnd::Closed),
-                    Err(s) => return Err(WorkerError::Lost(s.message().to_string())),
+                    Err(s) => return Err(ConnectError::Lost(s.message().to_string())),
                 };
                 match m.msg {
                     Some(In::Scene(js)) => scenes.load(js).await,
@@ -245,7 +189,7 @@ async fn session(
                             send(&out, Out::Failed(failed)).await?;
                         }
                     },
-                    Some(In::Refused(r)) => return Err(WorkerError::Refused(r.reason)),
+                    Some(In::Refused(r)) => return Err(ConnectError::Refused(r.reason)),
                     Some(In::Welcome(_)) | None => debug!("ignored an unexpected message"),
                 }
             }
@@ -263,10 +207,10 @@ async fn session(
     }
 }
 
-async fn send(out: &mpsc::Sender<pb::WorkerMessage>, msg: Out) -> Result<(), WorkerError> {
+async fn send(out: &mpsc::Sender<pb::WorkerMessage>, msg: Out) -> Result<(), ConnectError> {
     out.send(pb::WorkerMessage { msg: Some(msg) })
         .await
-        .map_err(|_| WorkerError::Lost("the outbound stream closed".into()))
+        .map_err(|_| ConnectError::Lost("the outbound stream closed".into()))
 }
 
 /// The scenes of recent jobs, by job id: parsed, or the reason they could not be.
@@ -286,10 +230,7 @@ impl SceneCache {
         let parsed = match js.bundle {
             None => Err("the coordinator sent a job without its scene".to_string()),
             Some(b) => {
-                let mut assets: Vec<(String, Vec<u8>)> =
-                    b.assets.into_iter().map(|a| (a.path, a.data)).collect();
-                assets.sort();
-                let bundle = Bundle { name: b.name, text: b.text, assets };
+                let bundle = bundle_from_wire(b);
                 // Parsing a large scene is CPU work: keep it off the async threads.
                 tokio::task::spawn_blocking(move || {
                     let actual = bundle.hash();
@@ -340,33 +281,5 @@ impl SceneCache {
             ));
         }
         Ok((scene, pixels))
-    }
-}
-
-/// An error with its causes on one line, each said once (transport errors repeat their
-/// sources in their own messages).
-pub fn error_chain(e: &dyn std::error::Error) -> String {
-    let mut s = e.to_string();
-    let mut source = e.source();
-    while let Some(cause) = source {
-        let text = cause.to_string();
-        if !s.contains(&text) {
-            s.push_str(": ");
-            s.push_str(&text);
-        }
-        source = cause.source();
-    }
-    s
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn backoff_doubles_up_to_its_cap() {
-        let mut b = Backoff::new(Duration::from_millis(250), Duration::from_secs(1));
-        let waits: Vec<u64> = (0..5).map(|_| b.next_delay().as_millis() as u64).collect();
-        assert_eq!(waits, [250, 500, 1000, 1000, 1000]);
     }
 }

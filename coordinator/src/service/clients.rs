@@ -9,7 +9,9 @@ use tracing::info;
 
 use super::durability::SubmitFailure;
 use super::rpc::BoxStream;
-use super::{convert, CoordinatorService};
+use tessera_proto::convert;
+
+use super::CoordinatorService;
 
 /// Pixels per `ImageChunk`: about 1 MB of floats at most, far below gRPC's message limit.
 const ROWS_PER_CHUNK_PIXELS: usize = 1 << 16;
@@ -29,7 +31,7 @@ impl CoordinatorService {
         }
         let bundle = req.bundle.ok_or_else(|| Status::invalid_argument("submit without a scene bundle"))?;
         let settings = convert::settings_from_wire(req.settings.unwrap_or_default())
-            .map_err(Status::invalid_argument)?;
+            .map_err(|e| Status::invalid_argument(e.to_string()))?;
         let id = self.submit(convert::bundle_from_wire(bundle), settings, req.priority).await.map_err(
             |e| match e {
                 SubmitFailure::Invalid(e) => Status::invalid_argument(e.to_string()),

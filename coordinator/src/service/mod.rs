@@ -7,10 +7,10 @@
 //! snapshots. The files here are split by RPC family: `workers.rs` (the work stream),
 //! `clients.rs` (submit, status, images, control), `viewers.rs` (watch streams fed from
 //! one shared delta per job), `durability.rs` (the store, checkpoints, recovery),
-//! `rpc.rs` (the trait impl that routes each RPC) and `convert.rs` (wire ↔ farm types).
+//! and `rpc.rs` (the trait impl that routes each RPC). Wire ↔ domain conversions live
+//! next to the contract, in `tessera_proto::convert`.
 
 mod clients;
-pub mod convert;
 mod durability;
 mod rpc;
 mod viewers;
@@ -48,7 +48,7 @@ impl Default for Timing {
 }
 
 /// The largest message the coordinator accepts (scene bundles with their assets).
-pub const MAX_MESSAGE_BYTES: usize = 256 << 20;
+pub use tessera_proto::connect::MAX_MESSAGE_BYTES;
 
 /// The coordinator: the farm behind a lock held only briefly, a change counter that wakes
 /// the tasks feeding workers and viewers, and a shutdown signal for its background tasks.

@@ -17,7 +17,9 @@ use tessera_proto::v1 as pb;
 use tokio::sync::{mpsc, watch};
 use tonic::Status;
 
-use super::{convert, lock, CoordinatorService};
+use tessera_proto::convert;
+
+use super::{lock, CoordinatorService};
 
 /// Pixels per watch update: about 1.8 MB, far below gRPC's message limit, and all a slow
 /// viewer's task holds.
@@ -77,7 +79,7 @@ impl ViewSnapshot {
                 height: self.fb.height(),
                 version: self.fb.version(),
                 chunk_end: end,
-                runs: pixels.map_or_else(Vec::new, |p| convert::runs(&p)),
+                runs: pixels.map_or_else(Vec::new, |p| runs(&p)),
                 status: Some(self.status.clone()),
                 workers: self.workers,
                 r#final: self.over && end,
@@ -262,4 +264,19 @@ impl CoordinatorService {
             tokio::time::sleep(interval.saturating_sub(round.elapsed())).await;
         }
     }
+}
+
+/// Consecutive pixels grouped into runs.
+fn runs(pixels: &[tessera_film::PixelState]) -> Vec<pb::PixelRun> {
+    let mut out: Vec<pb::PixelRun> = Vec::new();
+    for p in pixels {
+        match out.last_mut() {
+            Some(r) if r.start as usize + r.counts.len() == p.index as usize => {
+                r.sums.extend_from_slice(&p.sums);
+                r.counts.push(p.count);
+            }
+            _ => out.push(pb::PixelRun { start: p.index, sums: p.sums.to_vec(), counts: vec![p.count] }),
+        }
+    }
+    out
 }

@@ -11,7 +11,9 @@ use tokio::sync::mpsc;
 use tonic::{Status, Streaming};
 use tracing::{debug, info, warn};
 
-use super::{convert, CoordinatorService};
+use tessera_proto::convert;
+
+use super::CoordinatorService;
 use crate::farm::{BatchResult, ResultError};
 
 /// The most batches a worker may ask to hold at once; bounds the coordinator's lease table.

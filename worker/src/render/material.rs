@@ -1,5 +1,5 @@
 //! Materials: the classic (Whitted/Phong) model of the seed paper, with Cook's gloss and
-//! translucency, and the physically based family of `bsdf.rs`.
+//! translucency, and the physically based family of `bsdf/`.
 
 use glam::{Vec2, Vec3};
 

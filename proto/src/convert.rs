@@ -1,0 +1,275 @@
+//! Every conversion between the wire's types and the domain's (`tessera-description`), in
+//! one place so that the coordinator and every client read and write the wire alike.
+//!
+//! On the wire, 0 means "none" for ids and "keep the scene's" for settings; here those are
+//! `Option`s.
+
+use std::time::Duration;
+
+use tessera_description::ids::{BatchId, JobId, WorkerId};
+use tessera_description::job::{JobProgress, JobSettings, JobState};
+use tessera_description::Bundle;
+
+use crate::v1 as pb;
+
+/// Why a wire message does not convert to its domain type.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum WireError {
+    /// Render settings out of range; the message says which and why.
+    #[error("{0}")]
+    Settings(String),
+    /// A job state this build does not know (or unspecified).
+    #[error("unknown job state {0}")]
+    UnknownState(i32),
+}
+
+/// A bundle as it travels.
+pub fn bundle_to_wire(b: &Bundle) -> pb::SceneBundle {
+    pb::SceneBundle {
+        name: b.name.clone(),
+        text: b.text.clone(),
+        assets: b
+            .assets
+            .iter()
+            .map(|(path, data)| pb::Asset { path: path.clone(), data: data.clone() })
+            .collect(),
+    }
+}
+
+/// A bundle from the wire, its assets sorted by path (the order the content hash is taken in,
+/// whatever order the sender used).
+pub fn bundle_from_wire(b: pb::SceneBundle) -> Bundle {
+    let mut assets: Vec<(String, Vec<u8>)> = b.assets.into_iter().map(|a| (a.path, a.data)).collect();
+    assets.sort();
+    Bundle { name: b.name, text: b.text, assets }
+}
+
+/// Job settings as they travel.
+pub fn settings_to_wire(s: &JobSettings) -> pb::RenderSettings {
+    let (width, height) = s.size.unwrap_or((0, 0));
+    pb::RenderSettings {
+        spp: s.spp.unwrap_or(0),
+        width,
+        height,
+        time_limit_seconds: s.time_limit.map_or(0.0, |t| t.as_secs_f64()),
+        noise: s.noise.map_or(0.0, f64::from),
+    }
+}
+
+/// Job settings from the wire, checked; 0 means "keep the scene's".
+pub fn settings_from_wire(s: pb::RenderSettings) -> Result<JobSettings, WireError> {
+    let bad = |m: String| Err(WireError::Settings(m));
+    let size = match (s.width, s.height) {
+        (0, 0) => None,
+        (0, _) | (_, 0) => return bad(format!("give both width and height, got {}x{}", s.width, s.height)),
+        (w, h) => Some((w, h)),
+    };
+    let time_limit = match s.time_limit_seconds {
+        0.0 => None,
+        t if t.is_finite() && t > 0.0 && t < 1e9 => Some(Duration::from_secs_f64(t)),
+        t => return bad(format!("time_limit_seconds must be a positive number of seconds, got {t}")),
+    };
+    let noise = match s.noise {
+        0.0 => None,
+        n if n.is_finite() && n > 0.0 && n < 1.0 => Some(n as f32),
+        n => return bad(format!("noise must be a relative error in (0, 1), got {n}")),
+    };
+    Ok(JobSettings { spp: (s.spp != 0).then_some(s.spp), size, time_limit, noise })
+}
+
+/// A job state as it travels (a failure's reason travels apart, in `JobStatus::error`).
+pub fn state_to_wire(s: &JobState) -> pb::JobState {
+    match s {
+        JobState::Queued => pb::JobState::Queued,
+        JobState::Running => pb::JobState::Running,
+        JobState::Done => pb::JobState::Done,
+        JobState::Cancelled => pb::JobState::Cancelled,
+        JobState::Failed(_) => pb::JobState::Failed,
+        JobState::Paused => pb::JobState::Paused,
+    }
+}
+
+/// A job state from the wire (the raw enum field), with a failure's reason `error`.
+pub fn state_from_wire(state: i32, error: &str) -> Result<JobState, WireError> {
+    Ok(match pb::JobState::try_from(state) {
+        Ok(pb::JobState::Queued) => JobState::Queued,
+        Ok(pb::JobState::Running) => JobState::Running,
+        Ok(pb::JobState::Done) => JobState::Done,
+        Ok(pb::JobState::Cancelled) => JobState::Cancelled,
+        Ok(pb::JobState::Failed) => JobState::Failed(error.to_string()),
+        Ok(pb::JobState::Paused) => JobState::Paused,
+        Ok(pb::JobState::Unspecified) | Err(_) => return Err(WireError::UnknownState(state)),
+    })
+}
+
+/// A wire job state's name as people read it (`queued`, `running`, …; [`JobState::name`]),
+/// `?` for one this build does not know.
+pub fn state_name(state: i32) -> &'static str {
+    state_from_wire(state, "").map_or("?", |s| s.name())
+}
+
+/// A job's progress as it travels.
+pub fn status_to_wire(p: &JobProgress) -> pb::JobStatus {
+    pb::JobStatus {
+        job_id: p.id.0,
+        scene: p.scene.clone(),
+        state: state_to_wire(&p.state) as i32,
+        width: p.width,
+        height: p.height,
+        spp: p.spp,
+        pass: p.pass,
+        samples_done: p.samples_done,
+        samples_total: p.samples_total,
+        samples_per_second: p.samples_per_second,
+        elapsed_seconds: p.elapsed.as_secs_f64(),
+        error: match &p.state {
+            JobState::Failed(e) => e.clone(),
+            _ => String::new(),
+        },
+        pass_one_done: p.pass_one_done,
+        priority: p.priority,
+    }
+}
+
+/// A job's progress from the wire. Why a job halted early does not travel (`halted` is
+/// `None`); a nonsensical elapsed time reads as zero.
+pub fn status_from_wire(s: pb::JobStatus) -> Result<JobProgress, WireError> {
+    let state = state_from_wire(s.state, &s.error)?;
+    Ok(JobProgress {
+        id: JobId(s.job_id),
+        scene: s.scene,
+        state,
+        width: s.width,
+        height: s.height,
+        spp: s.spp,
+        pass: s.pass,
+        samples_done: s.samples_done,
+        samples_total: s.samples_total,
+        samples_per_second: s.samples_per_second,
+        elapsed: Duration::try_from_secs_f64(s.elapsed_seconds).unwrap_or_default(),
+        pass_one_done: s.pass_one_done,
+        nonfinite_samples: 0,
+        priority: s.priority,
+        halted: None,
+    })
+}
+
+/// A job id field of a request: 0 when none is named (the coordinator then picks, e.g. the
+/// running job).
+pub fn job_to_wire(id: Option<JobId>) -> u64 {
+    id.map_or(0, |j| j.0)
+}
+
+/// A job id field from the wire; 0 names no job.
+pub fn job_from_wire(id: u64) -> Option<JobId> {
+    (id != 0).then_some(JobId(id))
+}
+
+/// A batch id from the wire (batches are numbered from 0, so every value names one).
+pub fn batch_from_wire(id: u64) -> BatchId {
+    BatchId(id)
+}
+
+/// A worker id field from the wire; 0 names no worker.
+pub fn worker_from_wire(id: u64) -> Option<WorkerId> {
+    (id != 0).then_some(WorkerId(id))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bundles_round_trip_and_assets_come_in_sorted() {
+        let b = Bundle {
+            name: "s.toml".into(),
+            text: "x = 1".into(),
+            assets: vec![("a.obj".into(), vec![1, 2]), ("b.png".into(), vec![3])],
+        };
+        assert_eq!(bundle_from_wire(bundle_to_wire(&b)), b);
+        let mut wire = bundle_to_wire(&b);
+        wire.assets.reverse();
+        assert_eq!(bundle_from_wire(wire), b);
+    }
+
+    #[test]
+    fn settings_round_trip() {
+        for s in [
+            JobSettings::default(),
+            JobSettings::sized(Some(64), Some((320, 200))),
+            JobSettings {
+                spp: Some(1024),
+                size: None,
+                time_limit: Some(Duration::from_secs(90)),
+                noise: Some(0.01),
+            },
+        ] {
+            assert_eq!(settings_from_wire(settings_to_wire(&s)), Ok(s));
+        }
+    }
+
+    #[test]
+    fn bad_settings_are_refused_with_reasons() {
+        let wire = |f: fn(&mut pb::RenderSettings)| {
+            let mut s = pb::RenderSettings::default();
+            f(&mut s);
+            settings_from_wire(s).unwrap_err().to_string()
+        };
+        assert!(wire(|s| s.width = 10).contains("both width and height"));
+        assert!(wire(|s| s.time_limit_seconds = -1.0).contains("time_limit_seconds"));
+        assert!(wire(|s| s.time_limit_seconds = f64::NAN).contains("time_limit_seconds"));
+        assert!(wire(|s| s.noise = 1.0).contains("noise"));
+    }
+
+    #[test]
+    fn states_round_trip_and_have_names() {
+        for s in [
+            JobState::Queued,
+            JobState::Running,
+            JobState::Done,
+            JobState::Cancelled,
+            JobState::Failed("bad scene".into()),
+            JobState::Paused,
+        ] {
+            let error = if let JobState::Failed(e) = &s { e.as_str() } else { "" };
+            assert_eq!(state_from_wire(state_to_wire(&s) as i32, error), Ok(s.clone()));
+            assert_eq!(state_name(state_to_wire(&s) as i32), s.name());
+        }
+        assert_eq!(state_name(pb::JobState::Unspecified as i32), "?");
+        assert_eq!(state_name(99), "?");
+        assert_eq!(state_from_wire(99, ""), Err(WireError::UnknownState(99)));
+    }
+
+    #[test]
+    fn progress_round_trips_but_for_what_does_not_travel() {
+        let p = JobProgress {
+            id: JobId(3),
+            scene: "cornell".into(),
+            state: JobState::Failed("out of memory".into()),
+            width: 64,
+            height: 48,
+            spp: 16,
+            pass: 2,
+            samples_done: 1000,
+            samples_total: 64 * 48 * 16,
+            samples_per_second: 1.5e6,
+            elapsed: Duration::from_millis(2500),
+            pass_one_done: 64 * 48,
+            nonfinite_samples: 0,
+            priority: -1,
+            halted: None,
+        };
+        let wire = status_to_wire(&p);
+        assert_eq!(wire.error, "out of memory");
+        assert_eq!(status_from_wire(wire), Ok(p));
+    }
+
+    #[test]
+    fn ids_map_zero_to_none() {
+        assert_eq!(job_to_wire(None), 0);
+        assert_eq!(job_from_wire(job_to_wire(Some(JobId(7)))), Some(JobId(7)));
+        assert_eq!(job_from_wire(0), None);
+        assert_eq!(worker_from_wire(0), None);
+        assert_eq!(batch_from_wire(0), BatchId(0));
+    }
+}
