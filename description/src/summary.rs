@@ -9,10 +9,10 @@
 use crate::model::{Description, Shape, TextureKind};
 
 /// Bytes per bounded primitive: the primitive itself (shape, material, light, motion).
-pub const PRIMITIVE_BYTES: u64 = 64;
-/// Bytes per primitive in the BVH: about two nodes per primitive, its index, and the
-/// bounds the builder holds while it runs.
-pub const BVH_BYTES_PER_PRIMITIVE: u64 = 2 * 32 + 4 + 24;
+pub const PRIMITIVE_BYTES: u64 = 96;
+/// Bytes per primitive in the BVH: at most two nodes (box, offsets, axis) per primitive, its
+/// index, and the bounds the builder holds while it runs.
+pub const BVH_BYTES_PER_PRIMITIVE: u64 = 2 * 36 + 4 + 24;
 /// Bytes per triangle: three corners of (position, normal, uv) indices.
 pub const TRIANGLE_BYTES: u64 = 36;
 /// Bytes per mesh position or normal.

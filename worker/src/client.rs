@@ -21,8 +21,11 @@ use crate::batch::render_batch_split;
 use crate::render::Scene;
 use tessera_description::bundle::Bundle;
 
-/// Scenes a worker keeps at once (one per recent job); older ones are dropped.
-const SCENE_CACHE: usize = 8;
+/// Built scenes a worker keeps at once, by content hash; the least recently used goes
+/// first. A job still rendering keeps its own scene alive through its `Arc`.
+const SCENE_CACHE: usize = 4;
+/// Jobs whose scene and settings a worker remembers; older ones are dropped.
+const JOB_CACHE: usize = 8;
 /// Batches a worker wants in hand per render thread: one rendering, one waiting, so that
 /// no thread idles for a round trip to the coordinator.
 pub const CREDIT_PER_THREAD: u32 = 2;
@@ -269,10 +272,17 @@ async fn send(out: &mpsc::Sender<pb::WorkerMessage>, msg: Out) -> Result<(), Wor
         .map_err(|_| WorkerError::Lost("the outbound stream closed".into()))
 }
 
-/// The scenes of recent jobs, by job id: parsed, or the reason they could not be.
+/// The scenes of recent jobs. The heavy part of a scene (meshes, BVH, textures) is built
+/// once per content hash and shared by every job that renders it; a job only adds its
+/// settings (spp, size), which cost nothing to apply.
 #[derive(Default)]
 struct SceneCache {
-    scenes: HashMap<u64, (String, Result<Arc<Scene>, String>)>,
+    /// Built scenes by content hash, at the file's own settings, least recently used
+    /// first; or why the scene could not be built (the same content fails the same way).
+    built: VecDeque<(String, Result<Arc<Scene>, String>)>,
+    /// Each recent job's scene hash and its scene with the job's settings applied.
+    jobs: HashMap<u64, (String, Result<Arc<Scene>, String>)>,
+    /// Job ids, oldest first.
     order: VecDeque<u64>,
 }
 
@@ -283,45 +293,78 @@ impl SceneCache {
         let settings = js.settings.unwrap_or_default();
         let spp = (settings.spp != 0).then_some(settings.spp);
         let size = (settings.width != 0 && settings.height != 0).then_some((settings.width, settings.height));
-        let parsed = match js.bundle {
+        let base = match js.bundle {
             None => Err("the coordinator sent a job without its scene".to_string()),
             Some(b) => {
                 let mut assets: Vec<(String, Vec<u8>)> =
                     b.assets.into_iter().map(|a| (a.path, a.data)).collect();
                 assets.sort();
                 let bundle = Bundle { name: b.name, text: b.text, assets };
-                // Parsing a large scene is CPU work: keep it off the async threads.
-                tokio::task::spawn_blocking(move || {
+                let name = claimed.clone();
+                // Hashing and building a large scene is CPU work: keep it off the async threads.
+                let checked = tokio::task::spawn_blocking(move || {
                     let actual = bundle.hash();
-                    if actual != claimed {
+                    if actual != name {
                         return Err(format!(
-                            "scene content hashes to {actual}, but the coordinator named it {claimed}: refusing a scene that differs from the submitted one"
+                            "scene content hashes to {actual}, but the coordinator named it {name}: refusing a scene that differs from the submitted one"
                         ));
                     }
-                    let mut scene = crate::scene::parse_bundle(&bundle).map_err(|e| e.to_string())?;
-                    scene.apply(spp, size);
-                    Ok(Arc::new(scene))
+                    Ok(bundle)
                 })
                 .await
-                .unwrap_or_else(|e| Err(format!("scene loading panicked: {e}")))
+                .unwrap_or_else(|e| Err(format!("scene loading panicked: {e}")));
+                match checked {
+                    Err(e) => Err(e),
+                    Ok(bundle) => {
+                        let built = match self.take_built(&claimed) {
+                            Some(built) => built,
+                            None => tokio::task::spawn_blocking(move || {
+                                crate::build::parse_bundle(&bundle).map(Arc::new).map_err(|e| e.to_string())
+                            })
+                            .await
+                            .unwrap_or_else(|e| Err(format!("scene building panicked: {e}"))),
+                        };
+                        self.put_built(claimed, built.clone());
+                        built
+                    }
+                }
             }
         };
+        let parsed = base.map(|base| {
+            let mut scene = Scene::clone(&base);
+            scene.apply(spp, size);
+            Arc::new(scene)
+        });
         if let Err(e) = &parsed {
             warn!(job, "scene refused: {e}");
         }
-        self.scenes.insert(job, (js.scene_hash, parsed));
+        self.jobs.insert(job, (js.scene_hash, parsed));
         self.order.push_back(job);
-        while self.order.len() > SCENE_CACHE {
+        while self.order.len() > JOB_CACHE {
             if let Some(old) = self.order.pop_front() {
-                self.scenes.remove(&old);
+                self.jobs.remove(&old);
             }
+        }
+    }
+
+    /// Takes the built scene of `hash` out of the cache, if there.
+    fn take_built(&mut self, hash: &str) -> Option<Result<Arc<Scene>, String>> {
+        let i = self.built.iter().position(|(h, _)| h == hash)?;
+        self.built.remove(i).map(|(_, s)| s)
+    }
+
+    /// Puts a built scene back as the most recently used, dropping the least recent.
+    fn put_built(&mut self, hash: String, scene: Result<Arc<Scene>, String>) {
+        self.built.push_back((hash, scene));
+        while self.built.len() > SCENE_CACHE {
+            self.built.pop_front();
         }
     }
 
     /// The scene and pixels of a batch, checked against each other.
     fn prepare(&self, b: &pb::Batch) -> Result<(Arc<Scene>, Vec<UVec2>), String> {
         let (hash, scene) =
-            self.scenes.get(&b.job_id).ok_or_else(|| format!("no scene received for job {}", b.job_id))?;
+            self.jobs.get(&b.job_id).ok_or_else(|| format!("no scene received for job {}", b.job_id))?;
         if *hash != b.scene_hash {
             return Err(format!("batch names scene {}, but job {} has scene {hash}", b.scene_hash, b.job_id));
         }
@@ -329,7 +372,7 @@ impl SceneCache {
         if !b.pixels.len().is_multiple_of(2) {
             return Err("pixel list has an odd number of coordinates".into());
         }
-        if b.sample_start >= b.sample_end || b.sample_end > crate::scene::limits::MAX_SPP {
+        if b.sample_start >= b.sample_end || b.sample_end > tessera_description::limits::MAX_SPP {
             return Err(format!("bad sample range {}..{}", b.sample_start, b.sample_end));
         }
         let pixels: Vec<UVec2> = b.pixels.chunks_exact(2).map(|p| UVec2::new(p[0], p[1])).collect();
