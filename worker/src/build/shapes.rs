@@ -61,10 +61,9 @@ impl Shapes {
             }
             S::Mesh { file, .. } => {
                 // Validation read this asset; a bundle that changed since is caught here.
-                let text = assets
-                    .get(file)
-                    .and_then(|b| std::str::from_utf8(b).ok())
-                    .ok_or_else(|| err(o.at, format!("mesh.file: cannot read {file:?} (relative to the scene's folder)")))?;
+                let text = assets.get(file).and_then(|b| std::str::from_utf8(b).ok()).ok_or_else(|| {
+                    err(o.at, format!("mesh.file: cannot read {file:?} (relative to the scene's folder)"))
+                })?;
                 let m = parse_obj(text).map_err(|e| err(o.at, format!("mesh {file:?}: {e}")))?;
                 let mesh = Mesh { p: m.p, n: m.n, uv: m.uv, tris: m.tris };
                 self.mesh(mesh, o.material, &trs, motion);

@@ -142,7 +142,11 @@ impl Scene {
         let mut tr = Vec3::ONE;
         let mut pass = |material: u32, emitter: bool| {
             // An emitter's own surface does not shadow the light it sends.
-            tr *= if emitter { Vec3::ZERO } else { self.world.materials[material as usize].shadow_transmission() };
+            tr *= if emitter {
+                Vec3::ZERO
+            } else {
+                self.world.materials[material as usize].shadow_transmission()
+            };
             tr != Vec3::ZERO
         };
         let mut open = true;
