@@ -406,6 +406,53 @@ pub fn error_chain(e: &dyn std::error::Error) -> String {
 mod tests {
     use super::*;
 
+    const SCENE: &str =
+        "[render]\nwidth = 8\nheight = 6\n[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\n\
+                         [materials.red]\ncolor = 1\n[[sphere]]\nmaterial = \"red\"\n";
+
+    fn job(job_id: u64, text: &str, spp: u32, size: (u32, u32)) -> pb::JobScene {
+        let bundle = Bundle { name: "t.toml".into(), text: text.into(), assets: vec![] };
+        pb::JobScene {
+            job_id,
+            scene_hash: bundle.hash(),
+            bundle: Some(pb::SceneBundle { name: bundle.name, text: bundle.text, assets: vec![] }),
+            settings: Some(pb::RenderSettings { spp, width: size.0, height: size.1, ..Default::default() }),
+        }
+    }
+
+    fn scene_of(cache: &SceneCache, job: u64) -> Arc<Scene> {
+        cache.jobs[&job].1.clone().unwrap()
+    }
+
+    #[tokio::test]
+    async fn jobs_of_one_scene_share_its_world_with_their_own_settings() {
+        let mut cache = SceneCache::default();
+        cache.load(job(1, SCENE, 0, (0, 0))).await;
+        cache.load(job(2, SCENE, 5, (40, 30))).await;
+        let (a, b) = (scene_of(&cache, 1), scene_of(&cache, 2));
+        assert!(Arc::ptr_eq(&a.world, &b.world));
+        assert_eq!((a.width, a.height, a.spp), (8, 6, 16));
+        assert_eq!((b.width, b.height, b.spp), (40, 30, 5));
+        assert_eq!(cache.built.len(), 1);
+    }
+
+    #[tokio::test]
+    async fn the_cache_keeps_a_few_scenes_and_refuses_a_misnamed_one() {
+        let mut cache = SceneCache::default();
+        for i in 0..SCENE_CACHE as u64 + 2 {
+            cache.load(job(i, &format!("{SCENE}# {i}\n"), 0, (0, 0))).await;
+        }
+        assert_eq!(cache.built.len(), SCENE_CACHE);
+        // The first scene was dropped: loading it again builds a new world.
+        let first = scene_of(&cache, 0);
+        cache.load(job(100, &format!("{SCENE}# 0\n"), 0, (0, 0))).await;
+        assert!(!Arc::ptr_eq(&first.world, &scene_of(&cache, 100).world));
+        let mut wrong = job(101, SCENE, 0, (0, 0));
+        wrong.scene_hash = "0".repeat(64);
+        cache.load(wrong).await;
+        assert!(cache.jobs[&101].1.as_ref().unwrap_err().contains("refusing a scene that differs"));
+    }
+
     #[test]
     fn backoff_doubles_up_to_its_cap() {
         let mut b = Backoff::new(Duration::from_millis(250), Duration::from_secs(1));
