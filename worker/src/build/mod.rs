@@ -36,7 +36,7 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
     let textures = materials::textures(desc, assets, &err)?;
     let mut shapes = shapes::Shapes::default();
     for o in &desc.objects {
-        shapes.object(o, assets, &err)?;
+        shapes.object(o, &desc.objects, assets, &err)?;
     }
     let planes = desc
         .planes

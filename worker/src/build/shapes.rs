@@ -1,9 +1,11 @@
 //! Primitives, meshes, motions and area lights, from the described objects, in their order.
 
+use std::collections::HashMap;
+
 use glam::Vec3;
 use tessera_description::bundle::Assets;
 use tessera_description::model::{box_faces, placed_rect, Location, Object, Shape as S};
-use tessera_description::obj::parse_obj;
+use tessera_description::obj::{parse_obj, ObjMesh};
 use tessera_description::SceneError;
 
 use crate::render::geometry::Sphere;
@@ -18,13 +20,17 @@ pub(super) struct Shapes {
     pub(super) meshes: Vec<Mesh>,
     pub(super) motions: Vec<Motion>,
     pub(super) lights: Vec<Light>,
+    /// Meshes read and still to be used again, by asset, with the uses left: a mesh used
+    /// again is copied, not parsed again, and dropped at its last use.
+    read: HashMap<String, (ObjMesh, usize)>,
 }
 
 impl Shapes {
-    /// Adds an object's primitives.
+    /// Adds the primitives of `o`, one of `objects`.
     pub(super) fn object(
         &mut self,
         o: &Object,
+        objects: &[Object],
         assets: &dyn Assets,
         err: &dyn Fn(Location, String) -> SceneError,
     ) -> Result<(), SceneError> {
@@ -60,11 +66,29 @@ impl Shapes {
                 self.mesh(mesh, o.material, &trs, motion);
             }
             S::Mesh { file, .. } => {
-                // Validation read this asset; a bundle that changed since is caught here.
-                let text = assets.get(file).and_then(|b| std::str::from_utf8(b).ok()).ok_or_else(|| {
-                    err(o.at, format!("mesh.file: cannot read {file:?} (relative to the scene's folder)"))
-                })?;
-                let m = parse_obj(text).map_err(|e| err(o.at, format!("mesh {file:?}: {e}")))?;
+                let uses = |f: &String| {
+                    objects.iter().filter(|o| matches!(&o.shape, S::Mesh { file, .. } if file == f)).count()
+                };
+                if !self.read.contains_key(file) {
+                    // Validation read this asset; a bundle that changed since is caught here.
+                    let text =
+                        assets.get(file).and_then(|b| std::str::from_utf8(b).ok()).ok_or_else(|| {
+                            err(
+                                o.at,
+                                format!("mesh.file: cannot read {file:?} (relative to the scene's folder)"),
+                            )
+                        })?;
+                    let m = parse_obj(text).map_err(|e| err(o.at, format!("mesh {file:?}: {e}")))?;
+                    self.read.insert(file.clone(), (m, uses(file)));
+                }
+                // Each use is its own copy: a static one is baked into world space.
+                let (_, left) = self.read.get_mut(file).expect("read above");
+                *left -= 1;
+                let m = if *left == 0 {
+                    self.read.remove(file).expect("read above").0
+                } else {
+                    self.read[file].0.clone()
+                };
                 let mesh = Mesh { p: m.p, n: m.n, uv: m.uv, tris: m.tris };
                 self.mesh(mesh, o.material, &trs, motion);
             }

@@ -42,6 +42,13 @@ fn a_mesh_becomes_one_primitive_per_triangle() {
     let quad = One(b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n");
     let s = parse_scene_with_assets("t.toml", &text, &quad).unwrap();
     assert_eq!((s.world.prims.len(), s.world.meshes.len()), (3, 1));
+    // Used again, moved: read once, each use its own copy in world space.
+    let twice = format!(
+        "{text}\n[[mesh]]\nfile = \"m.obj\"\nmaterial = \"red\"\ntransform = {{ translate = [5, 0, 0] }}\n"
+    );
+    let s = parse_scene_with_assets("t.toml", &twice, &quad).unwrap();
+    assert_eq!((s.world.prims.len(), s.world.meshes.len()), (5, 2));
+    assert_eq!(s.world.meshes[1].p[0] - s.world.meshes[0].p[0], glam::Vec3::new(5.0, 0.0, 0.0));
 }
 
 /// Contract 6: a sample draws only the dimensions the scene uses.
