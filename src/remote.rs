@@ -118,8 +118,9 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
         crate::check_output(out)?;
     }
     let bundle = Bundle::read(&args.scene)?;
-    // Refuse a bad scene here, with its location, before any network traffic.
-    tessera_worker::scene::parse_bundle(&bundle)?;
+    // Refuse a bad scene here, with its location, before any network traffic; nothing is
+    // built for that.
+    tessera_description::Description::parse(&bundle)?;
     let mut client = connect(&args.coordinator).await?;
     let response = client
         .submit(pb::SubmitRequest {

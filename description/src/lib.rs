@@ -4,21 +4,38 @@
 //!
 //! The coordinator, the viewer and the CLI's client side depend on this crate and on the
 //! wire contract, never on the renderer: nothing here builds geometry or decodes images.
+//! [`Description::parse`] turns a bundle into a validated [`Description`] (errors name the
+//! file, line and column), and [`Description::summary`] says what rendering it will cost.
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
+// `!(x > 0.0)` is how this crate rejects NaN along with the values out of range.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod bundle;
 pub mod error;
 pub mod ids;
 pub mod job;
 pub mod limits;
+mod materials;
+pub mod model;
+pub mod obj;
+mod objects;
+mod schema;
+pub mod summary;
+pub mod transform;
+mod validate;
+
+#[cfg(test)]
+mod tests;
 
 /// The renderer's build: what, with a description, fixes an image's bits. Workers and
 /// coordinators refuse each other when it differs, since images are only bit-identical
 /// when every worker runs the same renderer.
 pub const RENDERER_VERSION: &str = env!("CARGO_PKG_VERSION");
 
-pub use bundle::Bundle;
+pub use bundle::{Assets, Bundle, NoAssets};
 pub use error::SceneError;
 pub use ids::{BatchId, JobId, WorkerId};
 pub use job::{JobSettings, JobState};
+pub use model::Description;
+pub use summary::Summary;

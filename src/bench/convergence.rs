@@ -14,8 +14,8 @@ use tessera_description::bundle::Bundle;
 use tessera_film::fixed;
 use tessera_film::quadtree::{fifo_walk_in, ChildOrder};
 use tessera_worker::batch::render_batch;
+use tessera_worker::build::parse_bundle;
 use tessera_worker::render::{SamplerKind, Scene};
-use tessera_worker::scene::parse_bundle;
 
 use super::plot::{write_png, Plot, Series};
 use crate::compare::errors;

@@ -9,7 +9,7 @@ use glam::UVec2;
 use rayon::prelude::*;
 use tessera_description::bundle::Bundle;
 use tessera_worker::batch::render_batch;
-use tessera_worker::scene::parse_bundle;
+use tessera_worker::build::parse_bundle;
 
 use crate::local::{render_local, LocalOptions};
 

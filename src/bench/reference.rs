@@ -38,20 +38,22 @@ impl<'a> Whitted<'a> {
             return None;
         }
         let mut spheres = Vec::new();
-        for p in &scene.prims {
+        for p in &scene.world.prims {
             match &p.shape {
                 Shape::Sphere(s) if p.light.is_none() && p.motion.is_none() => {
-                    spheres.push((s.clone(), classic(&scene.materials[p.material as usize])?))
+                    spheres.push((s.clone(), classic(&scene.world.materials[p.material as usize])?))
                 }
                 _ => return None,
             }
         }
         let planes = scene
+            .world
             .planes
             .iter()
-            .map(|(p, m)| Some((p, classic(&scene.materials[*m as usize])?)))
+            .map(|(p, m)| Some((p, classic(&scene.world.materials[*m as usize])?)))
             .collect::<Option<Vec<_>>>()?;
         let lights = scene
+            .world
             .lights
             .iter()
             .map(|l| match l {

@@ -20,8 +20,11 @@ use tracing::{debug, info, warn};
 use crate::batch::render_batch_split;
 use crate::render::Scene;
 
-/// Scenes a worker keeps at once (one per recent job); older ones are dropped.
-const SCENE_CACHE: usize = 8;
+/// Built scenes a worker keeps at once, by content hash; the least recently used goes
+/// first. A job still rendering keeps its own scene alive through its `Arc`.
+const SCENE_CACHE: usize = 4;
+/// Jobs whose scene and settings a worker remembers; older ones are dropped.
+const JOB_CACHE: usize = 8;
 /// Batches a worker wants in hand per render thread: one rendering, one waiting, so that
 /// no thread idles for a round trip to the coordinator.
 pub const CREDIT_PER_THREAD: u32 = 2;
@@ -213,10 +216,17 @@ async fn send(out: &mpsc::Sender<pb::WorkerMessage>, msg: Out) -> Result<(), Con
         .map_err(|_| ConnectError::Lost("the outbound stream closed".into()))
 }
 
-/// The scenes of recent jobs, by job id: parsed, or the reason they could not be.
+/// The scenes of recent jobs. The heavy part of a scene (meshes, BVH, textures) is built
+/// once per content hash and shared by every job that renders it; a job only adds its
+/// settings (spp, size), which cost nothing to apply.
 #[derive(Default)]
 struct SceneCache {
-    scenes: HashMap<u64, (String, Result<Arc<Scene>, String>)>,
+    /// Built scenes by content hash, at the file's own settings, least recently used
+    /// first; or why the scene could not be built (the same content fails the same way).
+    built: VecDeque<(String, Result<Arc<Scene>, String>)>,
+    /// Each recent job's scene hash and its scene with the job's settings applied.
+    jobs: HashMap<u64, (String, Result<Arc<Scene>, String>)>,
+    /// Job ids, oldest first.
     order: VecDeque<u64>,
 }
 
@@ -227,42 +237,75 @@ impl SceneCache {
         let settings = js.settings.unwrap_or_default();
         let spp = (settings.spp != 0).then_some(settings.spp);
         let size = (settings.width != 0 && settings.height != 0).then_some((settings.width, settings.height));
-        let parsed = match js.bundle {
+        let base = match js.bundle {
             None => Err("the coordinator sent a job without its scene".to_string()),
             Some(b) => {
                 let bundle = bundle_from_wire(b);
-                // Parsing a large scene is CPU work: keep it off the async threads.
-                tokio::task::spawn_blocking(move || {
+                let name = claimed.clone();
+                // Hashing and building a large scene is CPU work: keep it off the async threads.
+                let checked = tokio::task::spawn_blocking(move || {
                     let actual = bundle.hash();
-                    if actual != claimed {
+                    if actual != name {
                         return Err(format!(
-                            "scene content hashes to {actual}, but the coordinator named it {claimed}: refusing a scene that differs from the submitted one"
+                            "scene content hashes to {actual}, but the coordinator named it {name}: refusing a scene that differs from the submitted one"
                         ));
                     }
-                    let mut scene = crate::scene::parse_bundle(&bundle).map_err(|e| e.to_string())?;
-                    scene.apply(spp, size);
-                    Ok(Arc::new(scene))
+                    Ok(bundle)
                 })
                 .await
-                .unwrap_or_else(|e| Err(format!("scene loading panicked: {e}")))
+                .unwrap_or_else(|e| Err(format!("scene loading panicked: {e}")));
+                match checked {
+                    Err(e) => Err(e),
+                    Ok(bundle) => {
+                        let built = match self.take_built(&claimed) {
+                            Some(built) => built,
+                            None => tokio::task::spawn_blocking(move || {
+                                crate::build::parse_bundle(&bundle).map(Arc::new).map_err(|e| e.to_string())
+                            })
+                            .await
+                            .unwrap_or_else(|e| Err(format!("scene building panicked: {e}"))),
+                        };
+                        self.put_built(claimed, built.clone());
+                        built
+                    }
+                }
             }
         };
+        let parsed = base.map(|base| {
+            let mut scene = Scene::clone(&base);
+            scene.apply(spp, size);
+            Arc::new(scene)
+        });
         if let Err(e) = &parsed {
             warn!(job, "scene refused: {e}");
         }
-        self.scenes.insert(job, (js.scene_hash, parsed));
+        self.jobs.insert(job, (js.scene_hash, parsed));
         self.order.push_back(job);
-        while self.order.len() > SCENE_CACHE {
+        while self.order.len() > JOB_CACHE {
             if let Some(old) = self.order.pop_front() {
-                self.scenes.remove(&old);
+                self.jobs.remove(&old);
             }
+        }
+    }
+
+    /// Takes the built scene of `hash` out of the cache, if there.
+    fn take_built(&mut self, hash: &str) -> Option<Result<Arc<Scene>, String>> {
+        let i = self.built.iter().position(|(h, _)| h == hash)?;
+        self.built.remove(i).map(|(_, s)| s)
+    }
+
+    /// Puts a built scene back as the most recently used, dropping the least recent.
+    fn put_built(&mut self, hash: String, scene: Result<Arc<Scene>, String>) {
+        self.built.push_back((hash, scene));
+        while self.built.len() > SCENE_CACHE {
+            self.built.pop_front();
         }
     }
 
     /// The scene and pixels of a batch, checked against each other.
     fn prepare(&self, b: &pb::Batch) -> Result<(Arc<Scene>, Vec<UVec2>), String> {
         let (hash, scene) =
-            self.scenes.get(&b.job_id).ok_or_else(|| format!("no scene received for job {}", b.job_id))?;
+            self.jobs.get(&b.job_id).ok_or_else(|| format!("no scene received for job {}", b.job_id))?;
         if *hash != b.scene_hash {
             return Err(format!("batch names scene {}, but job {} has scene {hash}", b.scene_hash, b.job_id));
         }
@@ -270,7 +313,7 @@ impl SceneCache {
         if !b.pixels.len().is_multiple_of(2) {
             return Err("pixel list has an odd number of coordinates".into());
         }
-        if b.sample_start >= b.sample_end || b.sample_end > crate::scene::limits::MAX_SPP {
+        if b.sample_start >= b.sample_end || b.sample_end > tessera_description::limits::MAX_SPP {
             return Err(format!("bad sample range {}..{}", b.sample_start, b.sample_end));
         }
         let pixels: Vec<UVec2> = b.pixels.chunks_exact(2).map(|p| UVec2::new(p[0], p[1])).collect();
@@ -281,5 +324,58 @@ impl SceneCache {
             ));
         }
         Ok((scene, pixels))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_description::bundle::Bundle;
+
+    const SCENE: &str =
+        "[render]\nwidth = 8\nheight = 6\n[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\n\
+                         [materials.red]\ncolor = 1\n[[sphere]]\nmaterial = \"red\"\n";
+
+    fn job(job_id: u64, text: &str, spp: u32, size: (u32, u32)) -> pb::JobScene {
+        let bundle = Bundle { name: "t.toml".into(), text: text.into(), assets: vec![] };
+        pb::JobScene {
+            job_id,
+            scene_hash: bundle.hash(),
+            bundle: Some(pb::SceneBundle { name: bundle.name, text: bundle.text, assets: vec![] }),
+            settings: Some(pb::RenderSettings { spp, width: size.0, height: size.1, ..Default::default() }),
+        }
+    }
+
+    fn scene_of(cache: &SceneCache, job: u64) -> Arc<Scene> {
+        cache.jobs[&job].1.clone().unwrap()
+    }
+
+    #[tokio::test]
+    async fn jobs_of_one_scene_share_its_world_with_their_own_settings() {
+        let mut cache = SceneCache::default();
+        cache.load(job(1, SCENE, 0, (0, 0))).await;
+        cache.load(job(2, SCENE, 5, (40, 30))).await;
+        let (a, b) = (scene_of(&cache, 1), scene_of(&cache, 2));
+        assert!(Arc::ptr_eq(&a.world, &b.world));
+        assert_eq!((a.width, a.height, a.spp), (8, 6, 16));
+        assert_eq!((b.width, b.height, b.spp), (40, 30, 5));
+        assert_eq!(cache.built.len(), 1);
+    }
+
+    #[tokio::test]
+    async fn the_cache_keeps_a_few_scenes_and_refuses_a_misnamed_one() {
+        let mut cache = SceneCache::default();
+        for i in 0..SCENE_CACHE as u64 + 2 {
+            cache.load(job(i, &format!("{SCENE}# {i}\n"), 0, (0, 0))).await;
+        }
+        assert_eq!(cache.built.len(), SCENE_CACHE);
+        // The first scene was dropped: loading it again builds a new world.
+        let first = scene_of(&cache, 0);
+        cache.load(job(100, &format!("{SCENE}# 0\n"), 0, (0, 0))).await;
+        assert!(!Arc::ptr_eq(&first.world, &scene_of(&cache, 100).world));
+        let mut wrong = job(101, SCENE, 0, (0, 0));
+        wrong.scene_hash = "0".repeat(64);
+        cache.load(wrong).await;
+        assert!(cache.jobs[&101].1.as_ref().unwrap_err().contains("refusing a scene that differs"));
     }
 }

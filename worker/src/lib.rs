@@ -6,10 +6,9 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod batch;
+pub mod build;
 pub mod client;
-pub mod obj;
 pub mod render;
-pub mod scene;
 
 /// The renderer's build. Workers and coordinators refuse each other when it differs, since
 /// images are only bit-identical when every worker runs the same renderer.

@@ -20,7 +20,7 @@ fn srgb8(v: f32) -> u8 {
 
 fn render_tiny(path: &Path) -> Vec<u8> {
     let bundle = Bundle::read(path).unwrap();
-    let mut scene = tessera_worker::scene::parse_bundle(&bundle).unwrap_or_else(|e| panic!("{e}"));
+    let mut scene = tessera_worker::build::parse_bundle(&bundle).unwrap_or_else(|e| panic!("{e}"));
     scene.apply(Some(SPP), Some(SIZE));
     let (w, h) = SIZE;
     let mut out = Vec::with_capacity((w * h * 3) as usize);

@@ -148,7 +148,8 @@ impl Job {
         settings: JobSettings,
         priority: i32,
     ) -> Result<Job, SubmitError> {
-        let mut scene = tessera_worker::scene::parse_bundle(&bundle)?;
+        // Validation only: the coordinator never builds geometry or decodes images.
+        let mut desc = tessera_description::Description::parse(&bundle)?;
         use tessera_description::limits;
         if let Some(s) = settings.spp.filter(|&s| s == 0 || s > limits::MAX_SPP) {
             return Err(SubmitError::Spp { got: s, max: limits::MAX_SPP });
@@ -165,7 +166,8 @@ impl Job {
                 return Err(SubmitError::Size { width, height, max_side, max_pixels });
             }
         }
-        scene.apply(settings.spp, settings.size);
+        desc.apply(settings.spp, settings.size);
+        let scene = desc.render;
         if let Some(n) = settings.noise.filter(|n| !(n.is_finite() && *n > 0.0 && *n < 1.0)) {
             return Err(SubmitError::Noise(n));
         }

@@ -26,14 +26,7 @@ pub struct Camera {
     pub shutter: (f32, f32),
 }
 
-/// How the field of view is measured.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum FovAxis {
-    /// The full vertical angle.
-    Vertical,
-    /// The full horizontal angle.
-    Horizontal,
-}
+pub use tessera_description::model::FovAxis;
 
 impl Camera {
     /// A camera with full field of view `fov` (radians) along `axis`, for a

@@ -62,7 +62,7 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
             break;
         };
         if let Some(li) = sh.light {
-            let light = &scene.lights[li as usize];
+            let light = &scene.world.lights[li as usize];
             let le = light.emitted(sh.hit.n, ray.dir);
             if le != Vec3::ZERO {
                 let w = if from_dirac {
@@ -78,7 +78,7 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
         if last {
             break;
         }
-        let material = &scene.materials[sh.material as usize];
+        let material = &scene.world.materials[sh.material as usize];
         if material.is_textured() {
             scene.complete_uv(&mut sh);
         }
@@ -87,7 +87,7 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
             l += beta * classic(scene, sampler, &ray, &hit, c, depth, time);
             break;
         }
-        let bsdf = material.bsdf(&scene.textures, hit.p, hit.uv).expect("physically based material");
+        let bsdf = material.bsdf(&scene.world.textures, hit.p, hit.uv).expect("physically based material");
         let wo_world = -ray.dir;
         // Dielectrics need to know inside from outside; opaque surfaces shade both sides.
         let mut ns = hit.ns;
@@ -99,7 +99,7 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
         let frame = Frame::new(ns);
         let wo = frame.to_local(wo_world);
         if depth + 1 < scene.max_depth && !bsdf.is_delta() {
-            for light in &scene.lights {
+            for light in &scene.world.lights {
                 let u = if light.is_delta() { Vec2::ZERO } else { sampler.get_2d() };
                 let Some(ls) = light.sample(hit.p, u) else { continue };
                 let f = bsdf.eval(wo, frame.to_local(ls.wi));
@@ -171,10 +171,10 @@ fn classic(
     let entering = hit.n.dot(wo) >= 0.0;
     // The normals on the side the ray comes from.
     let (n, ns) = if entering { (hit.n, hit.ns) } else { (-hit.n, -hit.ns) };
-    let color = m.color.eval(&scene.textures, hit.p, hit.uv);
+    let color = m.color.eval(&scene.world.textures, hit.p, hit.uv);
 
     let mut l = scene.ambient * m.ambient * color;
-    for light in &scene.lights {
+    for light in &scene.world.lights {
         let u = if light.is_delta() { Vec2::ZERO } else { sampler.get_2d() };
         let Some(ls) = light.sample(hit.p, u) else { continue };
         let cos = ns.dot(ls.wi);

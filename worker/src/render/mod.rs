@@ -14,6 +14,8 @@ pub mod shape;
 pub mod texture;
 pub mod transform;
 
+use std::sync::Arc;
+
 use glam::{UVec2, Vec2, Vec3};
 
 use bvh::Bvh;
@@ -26,7 +28,8 @@ use shape::{Mesh, Primitive};
 use texture::Texture;
 use transform::Motion;
 
-/// A scene ready to render.
+/// A scene ready to render: the per-job settings and camera, with the heavy part shared.
+/// Cloning is cheap, and so is [`Scene::apply`]: jobs of one scene share its world.
 #[derive(Debug, Clone)]
 pub struct Scene {
     /// Image width in pixels.
@@ -47,6 +50,13 @@ pub struct Scene {
     pub ambient: Vec3,
     /// The camera.
     pub camera: Camera,
+    /// What the scene holds: built once per scene, shared by every job that renders it.
+    pub world: Arc<World>,
+}
+
+/// A scene's materials, textures, geometry and lights, independent of image size.
+#[derive(Debug)]
+pub struct World {
     /// Materials, referenced by index.
     pub materials: Vec<Material>,
     /// Textures, referenced by index.
@@ -92,21 +102,21 @@ impl Scene {
 
     /// Whether the time dimension is sampled: only with motion and an open shutter.
     pub fn has_motion_blur(&self) -> bool {
-        !self.motions.is_empty() && self.camera.shutter.1 > self.camera.shutter.0
+        !self.world.motions.is_empty() && self.camera.shutter.1 > self.camera.shutter.0
     }
 
     /// The nearest surface the ray hits before `t_max`, at shutter fraction `time`.
     pub fn intersect(&self, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceHit> {
         let mut best: Option<SurfaceHit> = None;
-        let t_max = self.bvh.traverse(ray, t_max, |i, t_max| {
-            let prim = &self.prims[i as usize];
-            let mut hit = prim.intersect(ray, t_max, time, &self.meshes, &self.motions)?;
+        let t_max = self.world.bvh.traverse(ray, t_max, |i, t_max| {
+            let prim = &self.world.prims[i as usize];
+            let mut hit = prim.intersect(ray, t_max, time, &self.world.meshes, &self.world.motions)?;
             hit.prim = i;
             best = Some(SurfaceHit { hit, material: prim.material, light: prim.light });
             Some(hit.t)
         });
         let mut t_max = t_max;
-        for (plane, material) in &self.planes {
+        for (plane, material) in &self.world.planes {
             if let Some(mut hit) = plane.intersect(ray, t_max) {
                 // Planes are not in `prims`: no index may point there.
                 hit.prim = u32::MAX;
@@ -120,7 +130,7 @@ impl Scene {
     /// Fills in the texture coordinates of a hit where the shape computes them lazily
     /// (spheres: two transcendental functions, paid only by textured materials).
     pub fn complete_uv(&self, sh: &mut SurfaceHit) {
-        if let Some(shape::Shape::Sphere(_)) = self.prims.get(sh.hit.prim as usize).map(|p| &p.shape) {
+        if let Some(shape::Shape::Sphere(_)) = self.world.prims.get(sh.hit.prim as usize).map(|p| &p.shape) {
             sh.hit.uv = geometry::sphere_uv(sh.hit.n);
         }
     }
@@ -132,13 +142,17 @@ impl Scene {
         let mut tr = Vec3::ONE;
         let mut pass = |material: u32, emitter: bool| {
             // An emitter's own surface does not shadow the light it sends.
-            tr *= if emitter { Vec3::ZERO } else { self.materials[material as usize].shadow_transmission() };
+            tr *= if emitter {
+                Vec3::ZERO
+            } else {
+                self.world.materials[material as usize].shadow_transmission()
+            };
             tr != Vec3::ZERO
         };
         let mut open = true;
-        self.bvh.visit(ray, dist, |i| {
-            let prim = &self.prims[i as usize];
-            for _ in 0..prim.crossings(ray, dist, time, &self.meshes, &self.motions) {
+        self.world.bvh.visit(ray, dist, |i| {
+            let prim = &self.world.prims[i as usize];
+            for _ in 0..prim.crossings(ray, dist, time, &self.world.meshes, &self.world.motions) {
                 open = pass(prim.material, prim.light.is_some());
                 if !open {
                     break;
@@ -149,7 +163,7 @@ impl Scene {
         if !open {
             return Vec3::ZERO;
         }
-        for (plane, material) in &self.planes {
+        for (plane, material) in &self.world.planes {
             if plane.intersect(ray, dist).is_some() && !pass(*material, false) {
                 return Vec3::ZERO;
             }

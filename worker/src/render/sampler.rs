@@ -97,38 +97,7 @@ fn cmj(s: u32, (m, rows): (u32, u32), key: u64) -> Vec2 {
 /// The largest f32 below 1.
 pub const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON / 2.0;
 
-/// Which pattern a pixel's samples follow.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
-pub enum SamplerKind {
-    /// Cook's jittered strata: each 2-D dimension a correlated multi-jittered pattern over
-    /// the pixel's samples, dimensions associated at random.
-    #[default]
-    Stratified,
-    /// Independent uniform random numbers: the baseline every other pattern must beat.
-    Independent,
-    /// The first two dimensions of Sobol's sequence, Owen-scrambled per pixel and dimension
-    /// (hash-based nested uniform scrambling), sample order shuffled per dimension. A (0, 2)
-    /// net in base 2: best at power-of-two sample counts.
-    Sobol,
-}
-
-impl SamplerKind {
-    /// The name used in scene files.
-    pub fn name(self) -> &'static str {
-        match self {
-            SamplerKind::Stratified => "stratified",
-            SamplerKind::Independent => "independent",
-            SamplerKind::Sobol => "sobol",
-        }
-    }
-
-    /// The kind of a scene-file name.
-    pub fn from_name(name: &str) -> Option<Self> {
-        [SamplerKind::Stratified, SamplerKind::Independent, SamplerKind::Sobol]
-            .into_iter()
-            .find(|k| k.name() == name)
-    }
-}
+pub use tessera_description::model::SamplerKind;
 
 /// The second dimension of Sobol's sequence (the first is the bit-reversed index): its
 /// direction numbers follow v₁ = 2³¹, vₖ₊₁ = vₖ ⊕ (vₖ ≫ 1).

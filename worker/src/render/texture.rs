@@ -2,14 +2,7 @@
 
 use glam::{Vec2, Vec3};
 
-/// Where a checker takes its coordinates from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum CheckerSpace {
-    /// World x and z of the hit point (floors).
-    WorldXz,
-    /// The surface's UV coordinates.
-    Uv,
-}
+pub use tessera_description::model::CheckerSpace;
 
 /// A texture.
 #[derive(Debug, Clone)]

@@ -3,7 +3,7 @@
 use glam::UVec2;
 use tessera_film::fixed;
 use tessera_worker::batch::render_batch;
-use tessera_worker::scene::parse_scene;
+use tessera_worker::build::parse_scene;
 
 /// Renders a scene text; returns width, height and linear RGB, top row first. Fails on any
 /// non-finite sample or pixel: no test image may hide a NaN.

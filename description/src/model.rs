@@ -1,0 +1,374 @@
+//! A validated scene description: plain data, every value checked and every name resolved
+//! to an index, in the order the renderer builds it. Nothing here holds geometry beyond
+//! what the scene file itself spells out: meshes are named by their asset and counted,
+//! images by their asset and size.
+
+use glam::Vec3;
+
+use crate::obj::ObjCounts;
+use crate::transform::Trs;
+
+/// Where in the scene file something was given: 1-based line and column.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Location {
+    /// 1-based line.
+    pub line: usize,
+    /// 1-based column.
+    pub column: usize,
+}
+
+/// A scene, validated.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Description {
+    /// The scene's name in messages (the file it was read from).
+    pub file: String,
+    /// Image size, samples and the rest of `[render]`.
+    pub render: RenderSettings,
+    /// The camera.
+    pub camera: Camera,
+    /// Textures, referenced by index, in name order.
+    pub textures: Vec<Texture>,
+    /// Materials, referenced by index: the named ones in name order, then the black
+    /// surface of emitters when the scene has any.
+    pub materials: Vec<Material>,
+    /// Bounded objects, in build order: spheres, rectangles, boxes, triangles, meshes.
+    pub objects: Vec<Object>,
+    /// Infinite planes.
+    pub planes: Vec<Plane>,
+    /// Point and directional lights (emitting objects are lights too, built with them).
+    pub lights: Vec<Light>,
+    /// Bytes of the bundle: the scene text and every asset.
+    pub bundle_bytes: u64,
+}
+
+/// The `[render]` table.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RenderSettings {
+    /// Image width in pixels.
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// Samples per pixel.
+    pub spp: u32,
+    /// Seed of every random choice.
+    pub seed: u64,
+    /// The sample pattern.
+    pub sampler: SamplerKind,
+    /// Most path segments and depth of the classic ray tree.
+    pub max_depth: u32,
+    /// Radiance of rays that escape.
+    pub background: Vec3,
+    /// Ambient light of the classic model.
+    pub ambient: Vec3,
+}
+
+/// Which pattern a pixel's samples follow.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub enum SamplerKind {
+    /// Cook's jittered strata: each 2-D dimension a correlated multi-jittered pattern over
+    /// the pixel's samples, dimensions associated at random.
+    #[default]
+    Stratified,
+    /// Independent uniform random numbers: the baseline every other pattern must beat.
+    Independent,
+    /// The first two dimensions of Sobol's sequence, Owen-scrambled per pixel and dimension
+    /// (hash-based nested uniform scrambling), sample order shuffled per dimension. A (0, 2)
+    /// net in base 2: best at power-of-two sample counts.
+    Sobol,
+}
+
+impl SamplerKind {
+    /// The name used in scene files.
+    pub fn name(self) -> &'static str {
+        match self {
+            SamplerKind::Stratified => "stratified",
+            SamplerKind::Independent => "independent",
+            SamplerKind::Sobol => "sobol",
+        }
+    }
+
+    /// The kind of a scene-file name.
+    pub fn from_name(name: &str) -> Option<Self> {
+        [SamplerKind::Stratified, SamplerKind::Independent, SamplerKind::Sobol]
+            .into_iter()
+            .find(|k| k.name() == name)
+    }
+}
+
+/// How the field of view is measured.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum FovAxis {
+    /// The full vertical angle.
+    Vertical,
+    /// The full horizontal angle.
+    Horizontal,
+}
+
+/// The `[camera]` table, resolved: lens radius and focus distance computed.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Camera {
+    /// Eye position.
+    pub position: Vec3,
+    /// The point looked at.
+    pub look_at: Vec3,
+    /// Up direction (not necessarily orthogonal to the view).
+    pub up: Vec3,
+    /// Full field of view in radians along `axis`.
+    pub fov: f32,
+    /// Which angle `fov` is.
+    pub axis: FovAxis,
+    /// Lens radius; 0 is a pinhole.
+    pub lens_radius: f32,
+    /// Distance of the plane of focus along the view axis.
+    pub focus_distance: f32,
+    /// Shutter open and close, as fractions of the motion interval [0, 1].
+    pub shutter: (f32, f32),
+}
+
+/// Where a checker takes its coordinates from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum CheckerSpace {
+    /// World x and z of the hit point (floors).
+    WorldXz,
+    /// The surface's UV coordinates.
+    Uv,
+}
+
+/// A named texture.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Texture {
+    /// Its name in the scene.
+    pub name: String,
+    /// What it is.
+    pub kind: TextureKind,
+    /// Its table in the scene file.
+    pub at: Location,
+}
+
+/// A texture's kind and parameters.
+#[derive(Debug, Clone, PartialEq)]
+pub enum TextureKind {
+    /// A procedural checker.
+    Checker {
+        /// Colour of even squares.
+        even: Vec3,
+        /// Colour of odd squares.
+        odd: Vec3,
+        /// Edge of one square.
+        size: f32,
+        /// Coordinates.
+        space: CheckerSpace,
+    },
+    /// An image asset, checked from its header only.
+    Image {
+        /// The normalised asset path.
+        file: String,
+        /// Width in pixels.
+        width: u32,
+        /// Height in pixels.
+        height: u32,
+    },
+}
+
+/// A colour parameter: constant or textured.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Color {
+    /// A constant colour.
+    Const(Vec3),
+    /// A texture by index.
+    Texture(u32),
+}
+
+/// The classic (Whitted/Cook) model's parameters.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Classic {
+    /// Surface colour.
+    pub color: Color,
+    /// Weight of the ambient term.
+    pub ambient: f32,
+    /// Weight of the diffuse term.
+    pub diffuse: f32,
+    /// Weight of the specular highlight.
+    pub specular: f32,
+    /// Phong exponent of the highlight.
+    pub shininess: f32,
+    /// Mirror reflection per channel.
+    pub reflect: Vec3,
+    /// Transmission per channel.
+    pub transmit: Vec3,
+    /// Index of refraction.
+    pub ior: f32,
+    /// Spread of glossy reflection.
+    pub gloss: f32,
+    /// Spread of translucent transmission.
+    pub translucency: f32,
+}
+
+/// A material.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Material {
+    /// The classic model.
+    Classic(Classic),
+    /// Lambertian.
+    Lambert {
+        /// Albedo.
+        albedo: Color,
+    },
+    /// Ideal mirror.
+    Mirror {
+        /// Reflectance.
+        reflectance: Vec3,
+    },
+    /// Smooth dielectric.
+    Dielectric {
+        /// Index of refraction.
+        ior: f32,
+    },
+    /// Conductor with a complex index.
+    Conductor {
+        /// Real part.
+        eta: Vec3,
+        /// Imaginary part.
+        k: Vec3,
+        /// GGX roughness.
+        roughness: f32,
+    },
+    /// Rough dielectric.
+    RoughDielectric {
+        /// Index of refraction.
+        ior: f32,
+        /// GGX roughness.
+        roughness: f32,
+    },
+    /// Dielectric coat over a diffuse base.
+    Plastic {
+        /// Base albedo.
+        diffuse: Color,
+        /// Index of the coat.
+        ior: f32,
+    },
+}
+
+/// A bounded object's shape, in object space.
+#[derive(Debug, Clone, PartialEq)]
+pub enum Shape {
+    /// A sphere.
+    Sphere {
+        /// Centre.
+        center: Vec3,
+        /// Radius.
+        radius: f32,
+    },
+    /// A parallelogram: centre and the two half-edges.
+    Rectangle {
+        /// Centre.
+        center: Vec3,
+        /// First half-edge.
+        u: Vec3,
+        /// Second half-edge.
+        v: Vec3,
+    },
+    /// An axis-aligned box, built as six rectangles.
+    Box {
+        /// Lower corner.
+        min: Vec3,
+        /// Upper corner.
+        max: Vec3,
+    },
+    /// One triangle.
+    Triangle {
+        /// Its corners.
+        vertices: [Vec3; 3],
+    },
+    /// An OBJ mesh asset.
+    Mesh {
+        /// The normalised asset path.
+        file: String,
+        /// What the file holds, from a validating scan.
+        counts: ObjCounts,
+    },
+}
+
+/// A bounded object.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Object {
+    /// Its shape.
+    pub shape: Shape,
+    /// Material index.
+    pub material: u32,
+    /// Emitted radiance, for lights.
+    pub emission: Option<Vec3>,
+    /// Its transform (at shutter open).
+    pub transform: Trs,
+    /// Its transform at shutter close, when it moves.
+    pub motion: Option<Trs>,
+    /// Its table in the scene file.
+    pub at: Location,
+}
+
+impl Object {
+    /// How many primitives the renderer makes of it.
+    pub fn primitives(&self) -> u64 {
+        match &self.shape {
+            Shape::Box { .. } => 6,
+            Shape::Mesh { counts, .. } => counts.triangles as u64,
+            _ => 1,
+        }
+    }
+
+    /// How many triangles it has.
+    pub fn triangles(&self) -> u64 {
+        match &self.shape {
+            Shape::Triangle { .. } => 1,
+            Shape::Mesh { counts, .. } => counts.triangles as u64,
+            _ => 0,
+        }
+    }
+}
+
+/// An infinite plane.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Plane {
+    /// A point on it.
+    pub point: Vec3,
+    /// Its normal (not necessarily unit).
+    pub normal: Vec3,
+    /// Material index.
+    pub material: u32,
+}
+
+/// A Dirac light.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Light {
+    /// A point light.
+    Point {
+        /// Position.
+        position: Vec3,
+        /// Radiant intensity per channel (colour times intensity).
+        intensity: Vec3,
+    },
+    /// A directional light.
+    Directional {
+        /// Unit direction the light travels in.
+        direction: Vec3,
+        /// Irradiance per channel (colour times irradiance).
+        irradiance: Vec3,
+    },
+}
+
+/// The six faces `(centre, u, v)` of a box, each with u × v pointing out of the box.
+pub fn box_faces(min: Vec3, max: Vec3) -> [(Vec3, Vec3, Vec3); 6] {
+    let (c, h) = ((min + max) * 0.5, (max - min) * 0.5);
+    let (x, y, z) = (Vec3::X * h.x, Vec3::Y * h.y, Vec3::Z * h.z);
+    [(c + x, y, z), (c - x, z, y), (c + y, z, x), (c - y, x, z), (c + z, x, y), (c - z, y, x)]
+}
+
+/// A parallelogram as the renderer holds it: in world space when static, in object space
+/// when it moves (its motion transforms it at render time).
+pub fn placed_rect((c, u, v): (Vec3, Vec3, Vec3), trs: &Trs, moves: bool) -> (Vec3, Vec3, Vec3) {
+    if moves {
+        return (c, u, v);
+    }
+    let m = trs.matrix();
+    (m.transform_point3(c), m.transform_vector3(u), m.transform_vector3(v))
+}

@@ -1,0 +1,248 @@
+//! A Wavefront OBJ reader for triangle meshes: positions, normals, texture coordinates,
+//! polygons (fan-triangulated), negative (relative) indices. Errors name the line.
+//!
+//! One reader serves two ends: [`scan_obj`] checks a file and counts what it holds
+//! without storing a vertex (validation and the summary), [`parse_obj`] keeps the data
+//! (the renderer). Both see the same statements in the same order, so they refuse the
+//! same files with the same messages.
+
+use glam::{Vec2, Vec3};
+
+/// An OBJ error: the 1-based line and what is wrong.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+#[error("line {line}: {message}")]
+pub struct ObjError {
+    /// 1-based line.
+    pub line: usize,
+    /// What is wrong.
+    pub message: String,
+}
+
+/// What an OBJ file holds.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ObjCounts {
+    /// Positions (`v`).
+    pub positions: usize,
+    /// Normals (`vn`).
+    pub normals: usize,
+    /// Texture coordinates (`vt`).
+    pub uvs: usize,
+    /// Faces (`f`).
+    pub faces: usize,
+    /// Triangles after fan triangulation.
+    pub triangles: usize,
+}
+
+/// A triangle mesh as the file gives it (object space).
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct ObjMesh {
+    /// Positions.
+    pub p: Vec<Vec3>,
+    /// Normals (empty unless every corner has one).
+    pub n: Vec<Vec3>,
+    /// Texture coordinates (empty unless every corner has one).
+    pub uv: Vec<Vec2>,
+    /// Per triangle: position, normal and uv index of each corner (`u32::MAX`: none).
+    pub tris: Vec<[[u32; 3]; 3]>,
+}
+
+/// Where the reader puts what it reads.
+trait Sink {
+    fn position(&mut self, p: Vec3);
+    fn normal(&mut self, n: Vec3);
+    fn uv(&mut self, uv: Vec2);
+    fn triangle(&mut self, t: [[u32; 3]; 3]);
+}
+
+impl Sink for ObjCounts {
+    fn position(&mut self, _: Vec3) {}
+    fn normal(&mut self, _: Vec3) {}
+    fn uv(&mut self, _: Vec2) {}
+    fn triangle(&mut self, _: [[u32; 3]; 3]) {
+        self.triangles += 1;
+    }
+}
+
+impl Sink for ObjMesh {
+    fn position(&mut self, p: Vec3) {
+        self.p.push(p);
+    }
+    fn normal(&mut self, n: Vec3) {
+        self.n.push(n);
+    }
+    fn uv(&mut self, uv: Vec2) {
+        self.uv.push(uv);
+    }
+    fn triangle(&mut self, t: [[u32; 3]; 3]) {
+        self.tris.push(t);
+    }
+}
+
+/// Checks OBJ text and counts what it holds, storing nothing per vertex.
+pub fn scan_obj(text: &str) -> Result<ObjCounts, ObjError> {
+    let mut sink = ObjCounts::default();
+    let counts = read(text, &mut sink)?;
+    Ok(ObjCounts { triangles: sink.triangles, ..counts })
+}
+
+/// Parses OBJ text into a mesh (object space).
+pub fn parse_obj(text: &str) -> Result<ObjMesh, ObjError> {
+    let mut mesh = ObjMesh::default();
+    read(text, &mut mesh)?;
+    // Use normals only when every corner has one; the same for texture coordinates.
+    let all = |k: usize| mesh.tris.iter().all(|t| t.iter().all(|c| c[k] != u32::MAX));
+    let (has_n, has_uv) = (all(1), all(2));
+    for t in &mut mesh.tris {
+        for c in t.iter_mut() {
+            if !has_n {
+                c[1] = u32::MAX;
+            }
+            if !has_uv {
+                c[2] = u32::MAX;
+            }
+        }
+    }
+    Ok(mesh)
+}
+
+/// Reads every statement into `sink`; returns the counts of positions, normals, uvs and
+/// faces (triangles are the sink's to count).
+fn read(text: &str, sink: &mut impl Sink) -> Result<ObjCounts, ObjError> {
+    let mut n = ObjCounts::default();
+    for (i, raw) in text.lines().enumerate() {
+        let line = i + 1;
+        let err = |message: String| ObjError { line, message };
+        let content = raw.split('#').next().unwrap_or("").trim();
+        let mut words = content.split_whitespace();
+        let Some(keyword) = words.next() else { continue };
+        let numbers = |words: std::str::SplitWhitespace, count: usize| -> Result<[f32; 3], ObjError> {
+            let mut v = [0f32; 3];
+            let mut got = 0;
+            for (slot, w) in v.iter_mut().zip(words.take(count)) {
+                *slot = w.parse::<f32>().map_err(|_| err(format!("expected a number, got {w:?}")))?;
+                got += 1;
+            }
+            if got < count {
+                return Err(err(format!("expected {count} numbers after {keyword:?}")));
+            }
+            if v.iter().any(|x| !x.is_finite()) {
+                return Err(err("coordinates must be finite".into()));
+            }
+            Ok(v)
+        };
+        match keyword {
+            "v" => {
+                sink.position(Vec3::from(numbers(words, 3)?));
+                n.positions += 1;
+            }
+            "vn" => {
+                sink.normal(Vec3::from(numbers(words, 3)?));
+                n.normals += 1;
+            }
+            "vt" => {
+                let v = numbers(words, 2)?;
+                sink.uv(Vec2::new(v[0], v[1]));
+                n.uvs += 1;
+            }
+            "f" => {
+                // Fan triangulation as the corners come: no list of corners is kept.
+                let (mut first, mut prev, mut corners) = ([0u32; 3], [0u32; 3], 0usize);
+                for w in words {
+                    let c = corner(w, n.positions, n.uvs, n.normals).map_err(&err)?;
+                    match corners {
+                        0 => first = c,
+                        1 => {}
+                        // A face that fails later fails the whole file: its first triangles never count.
+                        _ => sink.triangle([first, prev, c]),
+                    }
+                    prev = c;
+                    corners += 1;
+                }
+                if corners < 3 {
+                    return Err(err(format!("a face needs at least 3 corners, got {corners}")));
+                }
+                n.faces += 1;
+            }
+            // Groups, objects, smoothing groups and materials do not change the geometry.
+            "g" | "o" | "s" | "usemtl" | "mtllib" | "l" | "p" => {}
+            other => return Err(err(format!("unknown statement {other:?}"))),
+        }
+    }
+    Ok(n)
+}
+
+/// One face corner `v`, `v/vt`, `v//vn` or `v/vt/vn` as (position, normal, uv) indices.
+fn corner(word: &str, np: usize, nuv: usize, nn: usize) -> Result<[u32; 3], String> {
+    let mut parts = word.split('/');
+    let index = |s: Option<&str>, count: usize, what: &str| -> Result<u32, String> {
+        match s {
+            None | Some("") => Ok(u32::MAX),
+            Some(s) => {
+                let i: i64 = s.parse().map_err(|_| format!("bad {what} index {s:?} in {word:?}"))?;
+                let resolved = if i < 0 { count as i64 + i } else { i - 1 };
+                if i == 0 || resolved < 0 || resolved >= count as i64 {
+                    return Err(format!("{what} index {i} is out of range (the file has {count} so far)"));
+                }
+                Ok(resolved as u32)
+            }
+        }
+    };
+    let p = index(parts.next(), np, "vertex")?;
+    if p == u32::MAX {
+        return Err(format!("face corner {word:?} has no vertex index"));
+    }
+    let uv = index(parts.next(), nuv, "texture coordinate")?;
+    let n = index(parts.next(), nn, "normal")?;
+    Ok([p, n, uv])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn quad_with_normals_and_relative_indices() {
+        let m = parse_obj("v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvn 0 0 1\nf 1//1 2//1 3//1 -1//1\n").unwrap();
+        assert_eq!(m.tris.len(), 2);
+        assert_eq!(m.tris[1][2], [3, 0, u32::MAX]);
+    }
+
+    #[test]
+    fn broken_indices_name_the_line() {
+        let e = parse_obj("v 0 0 0\nv 1 0 0\n\nf 1 2 7\n").unwrap_err();
+        assert_eq!(e.line, 4);
+        assert!(e.message.contains("vertex index 7 is out of range"), "{e}");
+        assert!(parse_obj("v 0 0\n").unwrap_err().message.contains("3 numbers"));
+        assert!(parse_obj("v 0 0 0\nf 1 1\n").unwrap_err().message.contains("at least 3"));
+        assert!(parse_obj("v 0 0 0\nf 0 1 1\n").unwrap_err().message.contains("out of range"));
+        assert!(parse_obj("bogus 1\n").unwrap_err().message.contains("unknown statement"));
+    }
+
+    #[test]
+    fn scan_counts_what_parse_keeps() {
+        let text = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nvt 0 0\nvn 0 0 1\n# a quad and a triangle\n\
+                    f 1//1 2//1 3//1 4//1\nf 1 2 3\n";
+        let c = scan_obj(text).unwrap();
+        assert_eq!(c, ObjCounts { positions: 4, normals: 1, uvs: 1, faces: 2, triangles: 3 });
+        assert_eq!(parse_obj(text).unwrap().tris.len(), c.triangles);
+    }
+
+    #[test]
+    fn scan_refuses_what_parse_refuses_with_the_same_words() {
+        for bad in [
+            "v 0 0 0\nv 1 0 0\n\nf 1 2 7\n",
+            "v 0 0\n",
+            "v 0 0 x\n",
+            "v 0 0 inf\n",
+            "v 0 0 0\nf 1 1\n",
+            "v 0 0 0\nf 0 1 1\n",
+            "v 0 0 0\nf 1/2 1 1\n",
+            "v 0 0 0\nf /1 1 1\n",
+            "v 0 0 0\nf a 1 1\n",
+            "bogus 1\n",
+        ] {
+            let (s, p) = (scan_obj(bad).unwrap_err(), parse_obj(bad).unwrap_err());
+            assert_eq!(s, p, "{bad:?}");
+        }
+    }
+}

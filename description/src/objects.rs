@@ -1,0 +1,214 @@
+//! Objects: spheres, rectangles, boxes, triangles and meshes, each checked with its
+//! surface (material or emission) and placement (transform and motion). Meshes are scanned,
+//! not read: the triangle budget is counted before anything is built, every use of a mesh
+//! counted again.
+
+use std::ops::Range;
+
+use glam::Vec3;
+
+use crate::bundle::check_asset_path;
+use crate::limits;
+use crate::model::{box_faces, placed_rect, Color, Location, Material, Object, Shape};
+use crate::obj::scan_obj;
+use crate::schema::{BoxDef, MeshDef, RectangleDef, Rgb, SphereDef, TransformDef, TriangleDef};
+use crate::transform::Trs;
+use crate::validate::{Validator, R};
+
+impl Validator<'_> {
+    pub(crate) fn surface(
+        &mut self,
+        span: &Range<usize>,
+        what: &str,
+        material: Option<&String>,
+        emission: Option<Rgb>,
+    ) -> R<(u32, Option<Vec3>)> {
+        let emission =
+            emission.map(|e| self.ctx.colour(span, &format!("{what}.emission"), e.0)).transpose()?;
+        match (material, emission) {
+            (Some(_), Some(_)) => Err(self.ctx.err(
+                span,
+                format!("{what}: an emitter reflects nothing; give `material` or `emission`, not both"),
+            )),
+            (Some(m), None) => Ok((self.material_of(span, m)?, None)),
+            (None, Some(e)) => {
+                let black = *self.emitter_material.get_or_insert_with(|| {
+                    self.materials.push(Material::Lambert { albedo: Color::Const(Vec3::ZERO) });
+                    self.materials.len() as u32 - 1
+                });
+                Ok((black, Some(e)))
+            }
+            (None, None) => {
+                Err(self.ctx.err(span, format!("{what} needs a `material` (or an `emission`, for a light)")))
+            }
+        }
+    }
+
+    fn trs(&self, span: &Range<usize>, what: &str, t: &TransformDef, base: &Trs) -> R<Trs> {
+        let translate =
+            t.translate.map(|v| self.ctx.finite(span, &format!("{what}.translate"), v.0)).transpose()?;
+        let rotate =
+            t.rotate.map(|v| self.ctx.finite(span, &format!("{what}.rotate (degrees)"), v.0)).transpose()?;
+        let scale = t.scale.map(|v| self.ctx.finite(span, &format!("{what}.scale"), v.0)).transpose()?;
+        if let Some(s) = scale {
+            if s.abs().min_element() < 1e-12 {
+                return Err(self.ctx.err(span, format!("{what}.scale must not be zero, got {s}")));
+            }
+        }
+        let mut trs = *base;
+        if let Some(v) = translate {
+            trs.translate = v;
+        }
+        if let Some(v) = rotate {
+            trs.rotate = Trs::new(Vec3::ZERO, v, Vec3::ONE).rotate;
+        }
+        if let Some(v) = scale {
+            trs.scale = v;
+        }
+        Ok(trs)
+    }
+
+    /// The static transform and the motion (if any) of an object.
+    fn placement(
+        &self,
+        span: &Range<usize>,
+        what: &str,
+        t: &Option<TransformDef>,
+        m: &Option<TransformDef>,
+    ) -> R<(Trs, Option<Trs>)> {
+        let start = self.trs(span, &format!("{what}.transform"), &t.unwrap_or_default(), &Trs::default())?;
+        let Some(m) = m else { return Ok((start, None)) };
+        let end = self.trs(span, &format!("{what}.motion"), m, &start)?;
+        if end == start {
+            return Ok((start, None));
+        }
+        Ok((start, Some(end)))
+    }
+
+    fn push(
+        &mut self,
+        span: &Range<usize>,
+        shape: Shape,
+        surface: (u32, Option<Vec3>),
+        place: (Trs, Option<Trs>),
+    ) {
+        let at: Location = self.ctx.at(span);
+        let (material, emission) = surface;
+        let (transform, motion) = place;
+        self.objects.push(Object { shape, material, emission, transform, motion, at });
+    }
+
+    pub(crate) fn sphere(&mut self, span: &Range<usize>, d: &SphereDef) -> R<()> {
+        let center = self.ctx.finite(span, "sphere.center", d.center.0)?;
+        if !(d.radius.is_finite() && d.radius > 0.0) {
+            return Err(self
+                .ctx
+                .err(span, format!("sphere.radius must be a positive number, got {}", d.radius)));
+        }
+        let (material, emission) = self.surface(span, "sphere", d.material.as_ref(), d.emission)?;
+        let (trs, motion) = self.placement(span, "sphere", &d.transform, &d.motion)?;
+        let uniform = |t: &Trs| {
+            (t.scale.abs().max_element() - t.scale.abs().min_element()) <= 1e-6 * t.scale.abs().max_element()
+        };
+        if !uniform(&trs) || motion.as_ref().is_some_and(|end| !uniform(end)) {
+            return Err(self
+                .ctx
+                .err(span, "sphere: scale must be uniform (one number); use a mesh for ellipsoids"));
+        }
+        if emission.is_some() && motion.is_some() {
+            return Err(self
+                .ctx
+                .err(span, "sphere: lights cannot move (give `emission` or `motion`, not both)"));
+        }
+        self.push(span, Shape::Sphere { center, radius: d.radius }, (material, emission), (trs, motion));
+        Ok(())
+    }
+
+    /// Checks a parallelogram `(c, u, v)` as the renderer will hold it.
+    fn check_rect(
+        &self,
+        span: &Range<usize>,
+        what: &str,
+        rect: (Vec3, Vec3, Vec3),
+        emits: bool,
+        trs: &Trs,
+        moves: bool,
+    ) -> R<()> {
+        let (_, u, v) = placed_rect(rect, trs, moves);
+        if !(u.cross(v).length_squared() > 0.0) {
+            return Err(self
+                .ctx
+                .err(span, format!("{what}: the edges u and v must not be parallel or zero")));
+        }
+        if emits && moves {
+            return Err(self.ctx.err(span, format!("{what}: lights cannot move")));
+        }
+        Ok(())
+    }
+
+    pub(crate) fn rectangle(&mut self, span: &Range<usize>, d: &RectangleDef) -> R<()> {
+        let c = self.ctx.finite(span, "rectangle.center", d.center.0)?;
+        let u = self.ctx.finite(span, "rectangle.u", d.u.0)?;
+        let v = self.ctx.finite(span, "rectangle.v", d.v.0)?;
+        let (material, emission) = self.surface(span, "rectangle", d.material.as_ref(), d.emission)?;
+        let (trs, motion) = self.placement(span, "rectangle", &d.transform, &d.motion)?;
+        self.check_rect(span, "rectangle", (c, u, v), emission.is_some(), &trs, motion.is_some())?;
+        self.push(span, Shape::Rectangle { center: c, u, v }, (material, emission), (trs, motion));
+        Ok(())
+    }
+
+    pub(crate) fn cuboid(&mut self, span: &Range<usize>, d: &BoxDef) -> R<()> {
+        let (lo, hi) =
+            (self.ctx.finite(span, "box.min", d.min.0)?, self.ctx.finite(span, "box.max", d.max.0)?);
+        if !lo.cmplt(hi).all() {
+            return Err(self
+                .ctx
+                .err(span, format!("box.min must be below box.max on every axis, got {lo} and {hi}")));
+        }
+        let material = self.material_of(span, &d.material)?;
+        let (trs, motion) = self.placement(span, "box", &d.transform, &d.motion)?;
+        for face in box_faces(lo, hi) {
+            self.check_rect(span, "box", face, false, &trs, motion.is_some())?;
+        }
+        self.push(span, Shape::Box { min: lo, max: hi }, (material, None), (trs, motion));
+        Ok(())
+    }
+
+    pub(crate) fn triangle(&mut self, span: &Range<usize>, d: &TriangleDef) -> R<()> {
+        let mut vertices = [Vec3::ZERO; 3];
+        for (i, (slot, v)) in vertices.iter_mut().zip(&d.vertices).enumerate() {
+            *slot = self.ctx.finite(span, &format!("triangle.vertices[{i}]"), v.0)?;
+        }
+        let material = self.material_of(span, &d.material)?;
+        let place = self.placement(span, "triangle", &d.transform, &d.motion)?;
+        self.count_triangles(span, 1)?;
+        self.push(span, Shape::Triangle { vertices }, (material, None), place);
+        Ok(())
+    }
+
+    pub(crate) fn mesh(&mut self, span: &Range<usize>, d: &MeshDef) -> R<()> {
+        let path = check_asset_path(&d.file).map_err(|e| self.ctx.err(span, format!("mesh.file: {e}")))?;
+        let bytes = self.assets.get(&path).ok_or_else(|| {
+            self.ctx
+                .err(span, format!("mesh.file: cannot read {:?} (relative to the scene's folder)", d.file))
+        })?;
+        let text = std::str::from_utf8(bytes)
+            .map_err(|_| self.ctx.err(span, format!("mesh.file: {:?} is not text", d.file)))?;
+        let counts = scan_obj(text).map_err(|e| self.ctx.err(span, format!("mesh {:?}: {e}", d.file)))?;
+        let material = self.material_of(span, &d.material)?;
+        let place = self.placement(span, "mesh", &d.transform, &d.motion)?;
+        self.count_triangles(span, counts.triangles)?;
+        self.push(span, Shape::Mesh { file: path, counts }, (material, None), place);
+        Ok(())
+    }
+
+    fn count_triangles(&mut self, span: &Range<usize>, n: usize) -> R<()> {
+        self.triangles += n;
+        if self.triangles > limits::MAX_TRIANGLES {
+            return Err(self
+                .ctx
+                .err(span, format!("the scene has more than {} triangles", limits::MAX_TRIANGLES)));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,314 @@
+//! From the parsed schema to a [`Description`]: every value checked, every name resolved,
+//! each error located at the table it concerns, in the order the file's parts are built
+//! (render, camera, textures, materials, objects, lights), so that the first error found
+//! is always the same one.
+
+use std::collections::BTreeMap;
+use std::ops::Range;
+
+use glam::Vec3;
+use toml::Spanned;
+
+use crate::bundle::Assets;
+use crate::limits;
+use crate::model::SamplerKind;
+use crate::model::{Camera, Description, FovAxis, Light, Location, Material, Object, Plane, RenderSettings};
+use crate::schema::{CameraDef, SceneFile};
+use crate::SceneError;
+
+pub(crate) type R<T> = Result<T, SceneError>;
+
+/// Where in the text an error points: 1-based line and column of a byte offset.
+fn line_column(text: &str, offset: usize) -> (usize, usize) {
+    let mut offset = offset.min(text.len());
+    while !text.is_char_boundary(offset) {
+        offset -= 1;
+    }
+    let before = &text[..offset];
+    let line = before.matches('\n').count() + 1;
+    let column = before.rsplit('\n').next().map_or(0, |l| l.chars().count()) + 1;
+    (line, column)
+}
+
+/// The scene's text, for locating errors.
+pub(crate) struct Ctx<'a> {
+    pub(crate) file: &'a str,
+    pub(crate) text: &'a str,
+}
+
+impl Ctx<'_> {
+    pub(crate) fn at(&self, span: &Range<usize>) -> Location {
+        let (line, column) = line_column(self.text, span.start);
+        Location { line, column }
+    }
+
+    pub(crate) fn err(&self, span: &Range<usize>, message: impl Into<String>) -> SceneError {
+        let (line, column) = line_column(self.text, span.start);
+        SceneError { file: self.file.to_string(), line, column, message: message.into() }
+    }
+
+    pub(crate) fn finite(&self, span: &Range<usize>, what: &str, v: Vec3) -> R<Vec3> {
+        if v.is_finite() {
+            Ok(v)
+        } else {
+            Err(self.err(span, format!("{what} must be finite numbers, got {v}")))
+        }
+    }
+
+    pub(crate) fn colour(&self, span: &Range<usize>, what: &str, c: Vec3) -> R<Vec3> {
+        let v = self.finite(span, what, c)?;
+        if v.min_element() < 0.0 {
+            return Err(self.err(span, format!("{what} must not be negative, got {v}")));
+        }
+        Ok(v)
+    }
+
+    pub(crate) fn number(&self, span: &Range<usize>, what: &str, v: f32, ok: Range<f32>) -> R<f32> {
+        if v.is_finite() && v >= ok.start && v <= ok.end {
+            Ok(v)
+        } else {
+            Err(self.err(span, format!("{what} must be in [{}, {}], got {v}", ok.start, ok.end)))
+        }
+    }
+}
+
+/// The description being put together, with the names resolved so far.
+pub(crate) struct Validator<'a> {
+    pub(crate) ctx: Ctx<'a>,
+    pub(crate) assets: &'a dyn Assets,
+    pub(crate) textures: Vec<crate::model::Texture>,
+    pub(crate) texture_index: BTreeMap<String, u32>,
+    pub(crate) materials: Vec<Material>,
+    pub(crate) material_index: BTreeMap<String, u32>,
+    pub(crate) emitter_material: Option<u32>,
+    pub(crate) objects: Vec<Object>,
+    /// Triangles so far, every use of a mesh counted.
+    pub(crate) triangles: usize,
+}
+
+/// Parses and validates a scene whose meshes and images come from `assets`.
+pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Description> {
+    let ctx = Ctx { file, text };
+    let raw: SceneFile = toml::from_str(text).map_err(|e| {
+        let span = e.span().unwrap_or(0..0);
+        ctx.err(&span, e.message().trim().to_string())
+    })?;
+
+    let rspan = raw.render.span();
+    let r = raw.render.into_inner();
+    if r.width == 0 || r.height == 0 || r.width > limits::MAX_SIDE || r.height > limits::MAX_SIDE {
+        return Err(ctx.err(
+            &rspan,
+            format!("image size must be 1..={} on each side, got {}x{}", limits::MAX_SIDE, r.width, r.height),
+        ));
+    }
+    if u64::from(r.width) * u64::from(r.height) > limits::MAX_PIXELS {
+        return Err(ctx.err(&rspan, format!("image has more than {} pixels", limits::MAX_PIXELS)));
+    }
+    if r.spp == 0 || r.spp > limits::MAX_SPP {
+        return Err(ctx.err(&rspan, format!("spp must be 1..={}, got {}", limits::MAX_SPP, r.spp)));
+    }
+    if r.max_depth == 0 || r.max_depth > limits::MAX_DEPTH {
+        return Err(
+            ctx.err(&rspan, format!("max_depth must be 1..={}, got {}", limits::MAX_DEPTH, r.max_depth))
+        );
+    }
+    let sampler = match &r.sampler {
+        None => SamplerKind::default(),
+        Some(name) => SamplerKind::from_name(name.get_ref()).ok_or_else(|| {
+            ctx.err(
+                &name.span(),
+                format!(
+                    "unknown sampler {:?}: use \"stratified\", \"independent\" or \"sobol\"",
+                    name.get_ref()
+                ),
+            )
+        })?,
+    };
+    let background = ctx.colour(&rspan, "render.background", r.background.0)?;
+    let ambient = ctx.colour(&rspan, "render.ambient", r.ambient.0)?;
+    let render = RenderSettings {
+        width: r.width,
+        height: r.height,
+        spp: r.spp,
+        seed: r.seed,
+        sampler,
+        max_depth: r.max_depth,
+        background,
+        ambient,
+    };
+    let camera = camera(&ctx, raw.camera)?;
+
+    let mut v = Validator {
+        ctx,
+        assets,
+        textures: Vec::new(),
+        texture_index: BTreeMap::new(),
+        materials: Vec::new(),
+        material_index: BTreeMap::new(),
+        emitter_material: None,
+        objects: Vec::new(),
+        triangles: 0,
+    };
+    for (name, t) in &raw.textures {
+        v.texture(name, &t.span(), t.get_ref())?;
+    }
+    for (name, m) in &raw.materials {
+        v.material(name, &m.span(), m.get_ref())?;
+    }
+    for s in &raw.sphere {
+        v.sphere(&s.span(), s.get_ref())?;
+    }
+    let mut planes = Vec::new();
+    for p in &raw.plane {
+        let span = p.span();
+        let d = p.get_ref();
+        let point = v.ctx.finite(&span, "plane.point", d.point.0)?;
+        let normal = v.ctx.finite(&span, "plane.normal", d.normal.0)?;
+        if normal.length_squared() == 0.0 {
+            return Err(v.ctx.err(&span, "plane.normal must not be the zero vector"));
+        }
+        let material = v.material_of(&span, &d.material)?;
+        planes.push(Plane { point, normal, material });
+    }
+    for r in &raw.rectangle {
+        v.rectangle(&r.span(), r.get_ref())?;
+    }
+    for b in &raw.boxes {
+        v.cuboid(&b.span(), b.get_ref())?;
+    }
+    for t in &raw.triangle {
+        v.triangle(&t.span(), t.get_ref())?;
+    }
+    for m in &raw.mesh {
+        v.mesh(&m.span(), m.get_ref())?;
+    }
+    let mut lights = Vec::new();
+    for l in &raw.point_light {
+        let span = l.span();
+        let d = l.get_ref();
+        let position = v.ctx.finite(&span, "point_light.position", d.position.0)?;
+        let color = v.ctx.colour(&span, "point_light.color", d.color.0)?;
+        let intensity = v.ctx.number(&span, "point_light.intensity", d.intensity, 0.0..f32::MAX)?;
+        lights.push(Light::Point { position, intensity: color * intensity });
+    }
+    for l in &raw.directional_light {
+        let span = l.span();
+        let d = l.get_ref();
+        let direction = v.ctx.finite(&span, "directional_light.direction", d.direction.0)?;
+        let direction = direction
+            .try_normalize()
+            .ok_or_else(|| v.ctx.err(&span, "directional_light.direction must not be the zero vector"))?;
+        let color = v.ctx.colour(&span, "directional_light.color", d.color.0)?;
+        let irradiance = v.ctx.number(&span, "directional_light.irradiance", d.irradiance, 0.0..f32::MAX)?;
+        lights.push(Light::Directional { direction, irradiance: color * irradiance });
+    }
+    Ok(Description {
+        file: file.to_string(),
+        render,
+        camera,
+        textures: v.textures,
+        materials: v.materials,
+        objects: v.objects,
+        planes,
+        lights,
+        bundle_bytes: 0,
+    })
+}
+
+fn camera(ctx: &Ctx, c: Spanned<CameraDef>) -> R<Camera> {
+    let span = c.span();
+    let c = c.into_inner();
+    let position = ctx.finite(&span, "camera.position", c.position.0)?;
+    let look_at = ctx.finite(&span, "camera.look_at", c.look_at.0)?;
+    let up = ctx.finite(&span, "camera.up", c.up.map_or(Vec3::Y, |u| u.0))?;
+    let fov = ctx.number(&span, "camera.fov (degrees)", c.fov.unwrap_or(40.0), 1e-4..179.9)?;
+    let axis = match c.fov_axis.as_deref().unwrap_or("vertical") {
+        "vertical" => FovAxis::Vertical,
+        "horizontal" => FovAxis::Horizontal,
+        other => {
+            return Err(ctx.err(
+                &span,
+                format!("camera.fov_axis: expected \"vertical\" or \"horizontal\", got {other:?}"),
+            ))
+        }
+    };
+    let forward = look_at - position;
+    if forward.length_squared() == 0.0 || forward.cross(up).length_squared() == 0.0 {
+        return Err(
+            ctx.err(&span, "camera.look_at must differ from camera.position and not lie along camera.up")
+        );
+    }
+    let focus_distance = match c.focus_distance {
+        Some(d) => ctx.number(&span, "camera.focus_distance", d, 1e-6..f32::MAX)?,
+        None => forward.length(),
+    };
+    let lens_radius = match (c.aperture, c.f_number, c.focal_length) {
+        (Some(a), None, None) => ctx.number(&span, "camera.aperture (lens radius)", a, 0.0..f32::MAX)?,
+        (None, Some(n), Some(f)) => {
+            let n = ctx.number(&span, "camera.f_number", n, 1e-3..1e6)?;
+            let f = ctx.number(&span, "camera.focal_length", f, 1e-9..f32::MAX)?;
+            f / (2.0 * n)
+        }
+        (None, None, None) => 0.0,
+        _ => {
+            return Err(ctx.err(
+                &span,
+                "camera: give `aperture` (lens radius), or `f_number` with `focal_length`, not a mix",
+            ))
+        }
+    };
+    let [open, close] = c.shutter.unwrap_or([0.0, 1.0]);
+    if !(open.is_finite()
+        && close.is_finite()
+        && (0.0..=1.0).contains(&open)
+        && (open..=1.0).contains(&close))
+    {
+        return Err(ctx.err(
+            &span,
+            format!(
+                "camera.shutter must be [open, close] with 0 <= open <= close <= 1, got [{open}, {close}]"
+            ),
+        ));
+    }
+    Ok(Camera {
+        position,
+        look_at,
+        up,
+        fov: fov.to_radians(),
+        axis,
+        lens_radius,
+        focus_distance,
+        shutter: (open, close),
+    })
+}
+
+impl Description {
+    /// Parses and validates a bundle's scene, with its assets.
+    pub fn parse(bundle: &crate::Bundle) -> Result<Description, SceneError> {
+        let mut d = validate(&bundle.name, &bundle.text, bundle)?;
+        d.bundle_bytes = bundle.text.len() as u64
+            + bundle.assets.iter().map(|(p, a)| (p.len() + a.len()) as u64).sum::<u64>();
+        Ok(d)
+    }
+
+    /// Parses and validates a scene text whose meshes and images come from `assets`;
+    /// `file` names the scene in messages.
+    pub fn parse_text(file: &str, text: &str, assets: &dyn Assets) -> Result<Description, SceneError> {
+        let mut d = validate(file, text, assets)?;
+        d.bundle_bytes = text.len() as u64;
+        Ok(d)
+    }
+
+    /// Applies a submission's overrides: samples per pixel, image size. The overrides are
+    /// the submitter's to check against the limits.
+    pub fn apply(&mut self, spp: Option<u32>, size: Option<(u32, u32)>) {
+        if let Some(spp) = spp {
+            self.render.spp = spp;
+        }
+        if let Some((w, h)) = size {
+            self.render.width = w;
+            self.render.height = h;
+        }
+    }
+}

@@ -1,0 +1,99 @@
+//! Building the render scene from a validated description: textures decoded, materials,
+//! primitives, lights and motions made, the BVH built. Validation happened before, in
+//! `tessera_description`; what can still fail here is only what a header could not tell
+//! (an image whose pixels are damaged) or assets that differ from the ones validated.
+
+mod materials;
+mod shapes;
+
+use std::sync::Arc;
+
+use tessera_description::bundle::{Assets, NoAssets};
+use tessera_description::model::{Description, Location};
+use tessera_description::{Bundle, SceneError};
+
+use crate::render::bvh::Bvh;
+use crate::render::camera::Camera;
+use crate::render::light::Light;
+use crate::render::{Scene, World};
+
+pub use tessera_description::limits;
+
+/// Builds the scene a description describes, with its meshes and images from `assets`.
+pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneError> {
+    let r = &desc.render;
+    let c = &desc.camera;
+    let mut camera = Camera::new(c.position, c.look_at, c.up, c.fov, c.axis, r.width, r.height);
+    camera.focus_distance = c.focus_distance;
+    camera.lens_radius = c.lens_radius;
+    camera.shutter = c.shutter;
+    let err = |at: Location, message: String| SceneError {
+        file: desc.file.clone(),
+        line: at.line,
+        column: at.column,
+        message,
+    };
+    let textures = materials::textures(desc, assets, &err)?;
+    let mut shapes = shapes::Shapes::default();
+    for o in &desc.objects {
+        shapes.object(o, &desc.objects, assets, &err)?;
+    }
+    let planes = desc
+        .planes
+        .iter()
+        .map(|p| (crate::render::geometry::Plane::new(p.point, p.normal), p.material))
+        .collect();
+    let mut lights = shapes.lights;
+    for l in &desc.lights {
+        lights.push(match *l {
+            tessera_description::model::Light::Point { position, intensity } => {
+                Light::Point { position, intensity }
+            }
+            tessera_description::model::Light::Directional { direction, irradiance } => {
+                Light::Directional { direction, irradiance }
+            }
+        });
+    }
+    let bounds: Vec<_> = shapes.prims.iter().map(|p| p.bounds(&shapes.meshes, &shapes.motions)).collect();
+    let bvh = Bvh::build(&bounds);
+    let world = World {
+        materials: desc.materials.iter().map(materials::material).collect(),
+        textures,
+        prims: shapes.prims,
+        bvh,
+        planes,
+        meshes: shapes.meshes,
+        motions: shapes.motions,
+        lights,
+    };
+    Ok(Scene {
+        width: r.width,
+        height: r.height,
+        spp: r.spp,
+        seed: r.seed,
+        sampler: r.sampler,
+        max_depth: r.max_depth,
+        background: r.background,
+        ambient: r.ambient,
+        camera,
+        world: Arc::new(world),
+    })
+}
+
+/// Validates and builds a bundle's scene.
+pub fn parse_bundle(bundle: &Bundle) -> Result<Scene, SceneError> {
+    build(&Description::parse(bundle)?, bundle)
+}
+
+/// Validates and builds a scene without assets. `file` names the scene in messages.
+pub fn parse_scene(file: &str, text: &str) -> Result<Scene, SceneError> {
+    parse_scene_with_assets(file, text, &NoAssets)
+}
+
+/// Validates and builds a scene whose meshes and images come from `assets`.
+pub fn parse_scene_with_assets(file: &str, text: &str, assets: &dyn Assets) -> Result<Scene, SceneError> {
+    build(&Description::parse_text(file, text, assets)?, assets)
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,132 @@
+//! Primitives, meshes, motions and area lights, from the described objects, in their order.
+
+use std::collections::HashMap;
+
+use glam::Vec3;
+use tessera_description::bundle::Assets;
+use tessera_description::model::{box_faces, placed_rect, Location, Object, Shape as S};
+use tessera_description::obj::{parse_obj, ObjMesh};
+use tessera_description::SceneError;
+
+use crate::render::geometry::Sphere;
+use crate::render::light::Light;
+use crate::render::shape::{Mesh, Primitive, Rect, Shape};
+use crate::render::transform::{Motion, Trs};
+
+/// What the objects make, in the order the renderer indexes it.
+#[derive(Default)]
+pub(super) struct Shapes {
+    pub(super) prims: Vec<Primitive>,
+    pub(super) meshes: Vec<Mesh>,
+    pub(super) motions: Vec<Motion>,
+    pub(super) lights: Vec<Light>,
+    /// Meshes read and still to be used again, by asset, with the uses left: a mesh used
+    /// again is copied, not parsed again, and dropped at its last use.
+    read: HashMap<String, (ObjMesh, usize)>,
+}
+
+impl Shapes {
+    /// Adds the primitives of `o`, one of `objects`.
+    pub(super) fn object(
+        &mut self,
+        o: &Object,
+        objects: &[Object],
+        assets: &dyn Assets,
+        err: &dyn Fn(Location, String) -> SceneError,
+    ) -> Result<(), SceneError> {
+        let trs = o.transform;
+        let motion = o.motion.map(|end| {
+            self.motions.push(Motion { start: trs, end });
+            self.motions.len() as u32 - 1
+        });
+        match &o.shape {
+            S::Sphere { center, radius } => {
+                let shape = match motion {
+                    Some(_) => Sphere::new(*center, *radius),
+                    None => Sphere::new(trs.matrix().transform_point3(*center), radius * trs.scale.abs().x),
+                };
+                let light = o.emission.map(|radiance| {
+                    self.lights.push(Light::Sphere { sphere: shape.clone(), radiance });
+                    self.lights.len() as u32 - 1
+                });
+                self.push(Shape::Sphere(shape), o.material, light, motion);
+            }
+            S::Rectangle { center, u, v } => self.rect((*center, *u, *v), o, &trs, motion),
+            S::Box { min, max } => {
+                for face in box_faces(*min, *max) {
+                    self.rect(face, o, &trs, motion);
+                }
+            }
+            S::Triangle { vertices } => {
+                let mesh = Mesh {
+                    p: vertices.to_vec(),
+                    tris: vec![[[0, u32::MAX, u32::MAX], [1, u32::MAX, u32::MAX], [2, u32::MAX, u32::MAX]]],
+                    ..Mesh::default()
+                };
+                self.mesh(mesh, o.material, &trs, motion);
+            }
+            S::Mesh { file, .. } => {
+                let uses = |f: &String| {
+                    objects.iter().filter(|o| matches!(&o.shape, S::Mesh { file, .. } if file == f)).count()
+                };
+                if !self.read.contains_key(file) {
+                    // Validation read this asset; a bundle that changed since is caught here.
+                    let text =
+                        assets.get(file).and_then(|b| std::str::from_utf8(b).ok()).ok_or_else(|| {
+                            err(
+                                o.at,
+                                format!("mesh.file: cannot read {file:?} (relative to the scene's folder)"),
+                            )
+                        })?;
+                    let m = parse_obj(text).map_err(|e| err(o.at, format!("mesh {file:?}: {e}")))?;
+                    self.read.insert(file.clone(), (m, uses(file)));
+                }
+                // Each use is its own copy: a static one is baked into world space.
+                let (_, left) = self.read.get_mut(file).expect("read above");
+                *left -= 1;
+                let m = if *left == 0 {
+                    self.read.remove(file).expect("read above").0
+                } else {
+                    self.read[file].0.clone()
+                };
+                let mesh = Mesh { p: m.p, n: m.n, uv: m.uv, tris: m.tris };
+                self.mesh(mesh, o.material, &trs, motion);
+            }
+        }
+        Ok(())
+    }
+
+    fn push(&mut self, shape: Shape, material: u32, light: Option<u32>, motion: Option<u32>) {
+        self.prims.push(Primitive { shape, material, light, motion });
+    }
+
+    /// A parallelogram `(c, u, v)` of object `o` (validated: its edges span, it does not
+    /// both emit and move).
+    fn rect(&mut self, rect: (Vec3, Vec3, Vec3), o: &Object, trs: &Trs, motion: Option<u32>) {
+        let (c, u, v) = placed_rect(rect, trs, motion.is_some());
+        let rect = Rect::new(c, u, v);
+        let light = o.emission.map(|radiance| {
+            self.lights.push(Light::Rect { rect: rect.clone(), radiance });
+            self.lights.len() as u32 - 1
+        });
+        self.push(Shape::Rect(rect), o.material, light, motion);
+    }
+
+    fn mesh(&mut self, mut mesh: Mesh, material: u32, trs: &Trs, motion: Option<u32>) {
+        if motion.is_none() && !trs.is_identity() {
+            let m = trs.matrix();
+            let normal_matrix = m.matrix3.inverse().transpose();
+            for p in &mut mesh.p {
+                *p = m.transform_point3(*p);
+            }
+            for n in &mut mesh.n {
+                *n = Vec3::from(normal_matrix * glam::Vec3A::from(*n)).normalize_or_zero();
+            }
+        }
+        let index = self.meshes.len() as u32;
+        for tri in 0..mesh.tris.len() as u32 {
+            self.push(Shape::Triangle { mesh: index, tri }, material, None, motion);
+        }
+        self.meshes.push(mesh);
+    }
+}

@@ -1,0 +1,123 @@
+//! The building tests: what the description becomes in the renderer.
+
+use std::sync::Arc;
+
+use super::*;
+
+const MINIMAL: &str = r#"
+[render]
+width = 8
+height = 6
+
+[camera]
+position = [0, 0, 5]
+look_at = [0, 0, 0]
+
+[materials.red]
+color = [1, 0, 0]
+
+[[sphere]]
+center = [0, 0, 0]
+radius = 1
+material = "red"
+"#;
+
+#[test]
+fn minimal_scene_builds_with_defaults() {
+    let s = parse_scene("t.toml", MINIMAL).unwrap();
+    assert_eq!((s.width, s.height, s.spp, s.max_depth), (8, 6, 16, 8));
+    assert_eq!(s.world.prims.len(), 1);
+    assert!(!s.camera.has_lens() && !s.has_motion_blur());
+}
+
+#[test]
+fn a_mesh_becomes_one_primitive_per_triangle() {
+    struct One(&'static [u8]);
+    impl Assets for One {
+        fn get(&self, path: &str) -> Option<&[u8]> {
+            (path == "m.obj").then_some(self.0)
+        }
+    }
+    let text = format!("{MINIMAL}\n[[mesh]]\nfile = \"m.obj\"\nmaterial = \"red\"\n");
+    let quad = One(b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n");
+    let s = parse_scene_with_assets("t.toml", &text, &quad).unwrap();
+    assert_eq!((s.world.prims.len(), s.world.meshes.len()), (3, 1));
+    // Used again, moved: read once, each use its own copy in world space.
+    let twice = format!(
+        "{text}\n[[mesh]]\nfile = \"m.obj\"\nmaterial = \"red\"\ntransform = {{ translate = [5, 0, 0] }}\n"
+    );
+    let s = parse_scene_with_assets("t.toml", &twice, &quad).unwrap();
+    assert_eq!((s.world.prims.len(), s.world.meshes.len()), (5, 2));
+    assert_eq!(s.world.meshes[1].p[0] - s.world.meshes[0].p[0], glam::Vec3::new(5.0, 0.0, 0.0));
+}
+
+/// Contract 6: a sample draws only the dimensions the scene uses.
+#[test]
+fn samples_pay_only_for_the_dimensions_used() {
+    let used = |text: &str| {
+        let s = parse_scene("t.toml", text).unwrap();
+        let mut sampler = s.sampler();
+        s.render_sample(&mut sampler, glam::UVec2::new(4, 3), 0);
+        sampler.dimensions_used()
+    };
+    // A classic scene with no light at all: the pixel position only.
+    assert_eq!(used(MINIMAL), 1);
+    let lens = MINIMAL.replace("look_at = [0, 0, 0]", "look_at = [0, 0, 0]\naperture = 0.1");
+    assert_eq!(used(&lens), 2);
+    let moving =
+        MINIMAL.replace("material = \"red\"", "material = \"red\"\nmotion = { translate = [1, 0, 0] }");
+    assert_eq!(used(&moving), 2);
+    assert!(parse_scene("t.toml", &moving).unwrap().has_motion_blur());
+    let closed = moving.replace("look_at = [0, 0, 0]", "look_at = [0, 0, 0]\nshutter = [0, 0]");
+    assert_eq!(used(&closed), 1);
+}
+
+#[test]
+fn emitters_get_a_black_surface_and_a_light() {
+    let s = parse_scene("t.toml", &MINIMAL.replace("material = \"red\"", "emission = 5")).unwrap();
+    assert_eq!((s.world.materials.len(), s.world.lights.len()), (2, 1));
+    assert_eq!(s.world.prims[0].light, Some(0));
+}
+
+#[test]
+fn a_job_s_overrides_share_the_world() {
+    let mut s = parse_scene("t.toml", MINIMAL).unwrap();
+    let world = s.world.clone();
+    s.apply(Some(3), Some((40, 30)));
+    assert_eq!((s.width, s.height, s.spp), (40, 30, 3));
+    assert!(Arc::ptr_eq(&world, &s.world));
+}
+
+#[test]
+fn damaged_pixels_behind_a_good_header_fail_the_build_at_the_texture() {
+    // A real 2x2 PNG, its image data chunk then spoiled.
+    let img = image::RgbImage::from_pixel(2, 2, image::Rgb([200, 100, 50]));
+    let mut png = Vec::new();
+    image::DynamicImage::ImageRgb8(img)
+        .write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+        .unwrap();
+    let idat = png.windows(4).position(|w| w == b"IDAT").unwrap();
+    for b in &mut png[idat + 4..idat + 10] {
+        *b ^= 0xA5;
+    }
+    let bundle = Bundle {
+        name: "t.toml".into(),
+        text: format!("{MINIMAL}\n[textures.wood]\ntype = \"image\"\nfile = \"w.png\"\n"),
+        assets: vec![("w.png".into(), png)],
+    };
+    let desc = Description::parse(&bundle).expect("the header is good");
+    let e = build(&desc, &bundle).unwrap_err();
+    assert!(e.message.contains("textures.wood.file: \"w.png\" is not a readable image"), "{e}");
+    assert_eq!((e.file.as_str(), e.line), ("t.toml", 18));
+}
+
+/// The summary's per-item costs are at least what the renderer's types take.
+#[test]
+fn the_summary_costs_cover_the_renderer_types() {
+    use tessera_description::summary as s;
+    let size = |n: usize| n as u64;
+    assert!(size(std::mem::size_of::<crate::render::shape::Primitive>()) <= s::PRIMITIVE_BYTES);
+    assert!(size(std::mem::size_of::<[[u32; 3]; 3]>()) <= s::TRIANGLE_BYTES);
+    assert!(size(std::mem::size_of::<crate::render::bvh::Aabb>()) <= 24);
+    assert!(size(std::mem::size_of::<glam::Vec3>()) <= s::VEC3_BYTES);
+}
