@@ -15,6 +15,7 @@ use crate::local::{render_local, LocalOptions};
 
 mod checkpoint;
 mod convergence;
+mod farm;
 mod font;
 mod plot;
 mod reference;
@@ -119,6 +120,39 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 1024)]
         reference_spp: u32,
     },
+    /// The coordinator under load: simulated workers (valid sums without rendering, a set
+    /// batch time) and viewers against a coordinator process on loopback; prints commits
+    /// per second, the coordinator's CPU per batch and per viewer update, lease-grant and
+    /// merge latencies and bytes per viewer, for each size × workers × viewers.
+    Farm {
+        /// Image sizes WIDTHxHEIGHT, comma-separated [default: 1920x1080,3840x2160].
+        #[arg(long, value_delimiter = ',', value_parser = crate::parse_size, default_value = "1920x1080,3840x2160")]
+        sizes: Vec<(u32, u32)>,
+        /// Worker counts, comma-separated [default: 16,64,256].
+        #[arg(long, value_delimiter = ',', default_value = "16,64,256")]
+        workers: Vec<usize>,
+        /// Viewer counts, comma-separated; a 0 gives the rows after it their baseline
+        /// [default: 0,10,100].
+        #[arg(long, value_delimiter = ',', default_value = "0,10,100")]
+        viewers: Vec<usize>,
+        /// Seconds measured per case, after pass one [default: 2].
+        #[arg(long, default_value_t = 2.0)]
+        seconds: f64,
+        /// Simulated render times of a pass-two batch (32768 samples) in ms, comma-separated;
+        /// 0 answers at once and finds the coordinator's ceiling [default: 20,0].
+        #[arg(long, value_delimiter = ',', default_value = "20,0")]
+        batch_ms: Vec<f64>,
+        /// Samples per pixel of the job: pass two's batches are 32768 / (spp - 1) pixels
+        /// [default: 1024].
+        #[arg(long, default_value_t = 1024)]
+        spp: u32,
+        /// Credit each fake worker keeps (a real worker keeps 2 per thread) [default: 2].
+        #[arg(long, default_value_t = 2)]
+        credit: u32,
+        /// Updates per second each viewer asks for [default: 10, the coordinator's].
+        #[arg(long, default_value_t = 10.0)]
+        viewer_rate: f64,
+    },
     /// The BVH at scale: build time and traversal speed for meshes of 10k to 1M triangles.
     Bvh {
         /// The largest triangle count [default: 1000000].
@@ -153,6 +187,15 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
     match cmd {
         BenchCommand::Whitted { scene, runs } => whitted(&scene, runs.max(1)),
         BenchCommand::Bvh { triangles } => bvh(triangles),
+        BenchCommand::Farm { sizes, workers, viewers, seconds, batch_ms, spp, credit, viewer_rate } => {
+            if spp < 2 || credit == 0 || workers.contains(&0) {
+                anyhow::bail!("--spp must be at least 2, --credit and every --workers at least 1");
+            }
+            let opts =
+                farm::FarmOptions { sizes, workers, viewers, seconds, batch_ms, spp, credit, viewer_rate };
+            farm::run(opts).await?;
+            Ok(ExitCode::SUCCESS)
+        }
         BenchCommand::Convergence { scene, size, max_spp, reference_spp, reference, out } => {
             if max_spp == 0 {
                 anyhow::bail!("--max-spp must be at least 1");

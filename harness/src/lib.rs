@@ -1,0 +1,358 @@
+//! An in-process Tessera farm for tests and benchmarks: a real `CoordinatorService` served
+//! with tonic on loopback, fake workers that answer batches with valid sums without
+//! rendering, fake viewers that keep a framebuffer replica, and typed helpers for the
+//! client calls. Service behaviour (leases, failures, viewers) can then be tested without
+//! spawning processes or parsing the status table.
+//!
+//! It uses the coordinator only through `CoordinatorService::new`, `Timing`,
+//! `into_server`, `spawn_reaper` and the gRPC surface, so that it keeps working while the
+//! coordinator's internals change.
+#![forbid(unsafe_code)]
+#![deny(missing_docs)]
+
+mod viewer;
+mod worker;
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use tessera_coordinator::{CoordinatorService, Timing};
+use tessera_description::ids::{JobId, WorkerId};
+use tessera_description::job::JobState;
+use tessera_proto::v1 as pb;
+use tessera_proto::v1::coordinator_client::CoordinatorClient;
+use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
+use tonic::transport::{Channel, Endpoint};
+
+pub use viewer::FakeViewer;
+pub use worker::{pixel_value, valid_result, FakeWorker, ServeStats, REFERENCE_BATCH_SAMPLES};
+
+/// The small end-to-end test scene (64×48, 4 spp); sizes are usually overridden.
+pub const SMALL_SCENE: &str = include_str!("../../tests/scenes/small.toml");
+
+/// How long a harness call waits for the coordinator before it reports a timeout, so that
+/// a broken service fails a test instead of hanging it.
+pub const PATIENCE: Duration = Duration::from_secs(20);
+
+/// A gRPC client of the coordinator.
+pub type Client = CoordinatorClient<Channel>;
+
+/// What went wrong talking to the coordinator.
+#[derive(Debug, thiserror::Error)]
+pub enum HarnessError {
+    /// The connection could not be made or broke.
+    #[error("transport: {0}")]
+    Transport(#[from] tonic::transport::Error),
+    /// A call returned an error status.
+    #[error("call failed: {0}")]
+    Status(Box<tonic::Status>),
+    /// The coordinator refused a worker, with its reason.
+    #[error("refused by the coordinator: {0}")]
+    Refused(String),
+    /// The coordinator closed a stream.
+    #[error("the coordinator closed the stream")]
+    Closed,
+    /// Nothing came in time.
+    #[error("timed out waiting for {0}")]
+    Timeout(String),
+    /// The coordinator sent something the protocol does not allow here.
+    #[error("protocol: {0}")]
+    Protocol(String),
+    /// A socket could not be opened.
+    #[error("io: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+impl From<tonic::Status> for HarnessError {
+    fn from(s: tonic::Status) -> Self {
+        // Boxed: a `Status` is large, and every `Result` of this crate would carry its size.
+        HarnessError::Status(Box::new(s))
+    }
+}
+
+/// Results of this crate.
+pub type Result<T, E = HarnessError> = std::result::Result<T, E>;
+
+/// A job as `Status` reports it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct JobView {
+    /// The job.
+    pub id: JobId,
+    /// Its state (with the error when it failed).
+    pub state: JobState,
+    /// Image width.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Samples per pixel.
+    pub spp: u32,
+    /// The pass whose batches are being handed out.
+    pub pass: u32,
+    /// Samples merged.
+    pub samples_done: u64,
+    /// Samples in the job.
+    pub samples_total: u64,
+    /// Pass-one pixels merged.
+    pub pass_one_done: u64,
+}
+
+/// A worker as `Status` reports it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct WorkerView {
+    /// The worker.
+    pub id: WorkerId,
+    /// Its name.
+    pub name: String,
+    /// Batches leased to it now.
+    pub in_flight: u32,
+    /// Batches it returned that were merged.
+    pub batches_done: u64,
+}
+
+/// The answer to `Status`, typed.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct FarmStatus {
+    /// Jobs.
+    pub jobs: Vec<JobView>,
+    /// Connected workers.
+    pub workers: Vec<WorkerView>,
+}
+
+impl FarmStatus {
+    /// The worker with this id, if connected.
+    pub fn worker(&self, id: WorkerId) -> Option<&WorkerView> {
+        self.workers.iter().find(|w| w.id == id)
+    }
+}
+
+/// A job's image as `FetchImage` streams it.
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub struct Image {
+    /// Width.
+    pub width: u32,
+    /// Height.
+    pub height: u32,
+    /// Linear RGB f32 little-endian, top row first, exactly as it travelled.
+    pub bytes: Vec<u8>,
+}
+
+fn state_from_wire(state: i32, error: &str) -> JobState {
+    match pb::JobState::try_from(state).unwrap_or(pb::JobState::Unspecified) {
+        pb::JobState::Queued | pb::JobState::Unspecified => JobState::Queued,
+        pb::JobState::Running => JobState::Running,
+        pb::JobState::Done => JobState::Done,
+        pb::JobState::Cancelled => JobState::Cancelled,
+        pb::JobState::Failed => JobState::Failed(error.to_string()),
+        pb::JobState::Paused => JobState::Paused,
+    }
+}
+
+/// A channel to the coordinator at `url` (e.g. `http://127.0.0.1:7878`).
+pub async fn connect(url: &str) -> Result<Channel> {
+    let endpoint = Endpoint::from_shared(url.to_string())?.connect_timeout(Duration::from_secs(5));
+    Ok(endpoint.connect().await?)
+}
+
+/// A client on `channel`, with the coordinator's message limits.
+pub fn client(channel: &Channel) -> Client {
+    CoordinatorClient::new(channel.clone())
+        .max_decoding_message_size(tessera_coordinator::service::MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(tessera_coordinator::service::MAX_MESSAGE_BYTES)
+}
+
+/// Submits the scene `text` (named `name`) with `settings`; returns the job.
+pub async fn submit(
+    channel: &Channel,
+    name: &str,
+    text: &str,
+    settings: pb::RenderSettings,
+) -> Result<JobId> {
+    let request = pb::SubmitRequest {
+        protocol_version: pb::ProtocolVersion::Current as i32,
+        bundle: Some(pb::SceneBundle { name: name.into(), text: text.into(), assets: vec![] }),
+        settings: Some(settings),
+        priority: 0,
+    };
+    Ok(JobId(client(channel).submit(request).await?.into_inner().job_id))
+}
+
+/// The coordinator's jobs and workers.
+pub async fn status(channel: &Channel) -> Result<FarmStatus> {
+    let s = client(channel).status(pb::StatusRequest { job_id: 0 }).await?.into_inner();
+    let jobs = s
+        .jobs
+        .into_iter()
+        .map(|j| JobView {
+            id: JobId(j.job_id),
+            state: state_from_wire(j.state, &j.error),
+            width: j.width,
+            height: j.height,
+            spp: j.spp,
+            pass: j.pass,
+            samples_done: j.samples_done,
+            samples_total: j.samples_total,
+            pass_one_done: j.pass_one_done,
+        })
+        .collect();
+    let workers = s
+        .workers
+        .into_iter()
+        .map(|w| WorkerView {
+            id: WorkerId(w.worker_id),
+            name: w.name,
+            in_flight: w.batches_in_flight,
+            batches_done: w.batches_done,
+        })
+        .collect();
+    Ok(FarmStatus { jobs, workers })
+}
+
+/// One job's status.
+pub async fn job(channel: &Channel, id: JobId) -> Result<JobView> {
+    status(channel)
+        .await?
+        .jobs
+        .into_iter()
+        .find(|j| j.id == id)
+        .ok_or_else(|| HarnessError::Protocol(format!("{id} missing from Status")))
+}
+
+/// Polls the job's status until `done` holds of it, for at most `limit`.
+pub async fn wait_for(
+    channel: &Channel,
+    id: JobId,
+    limit: Duration,
+    mut done: impl FnMut(&JobView) -> bool,
+) -> Result<JobView> {
+    let start = Instant::now();
+    loop {
+        let j = job(channel, id).await?;
+        if done(&j) {
+            return Ok(j);
+        }
+        if start.elapsed() > limit {
+            return Err(HarnessError::Timeout(format!(
+                "{id} (last seen {:?}, {} samples)",
+                j.state, j.samples_done
+            )));
+        }
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+}
+
+/// A job's current image.
+pub async fn fetch_image(channel: &Channel, id: JobId) -> Result<Image> {
+    let mut stream = client(channel).fetch_image(pb::FetchImageRequest { job_id: id.0 }).await?.into_inner();
+    let mut image = Image { width: 0, height: 0, bytes: Vec::new() };
+    while let Some(chunk) = stream.message().await? {
+        image.width = chunk.width;
+        image.height = chunk.height;
+        image.bytes.extend_from_slice(&chunk.rgb);
+    }
+    Ok(image)
+}
+
+/// Pauses (`true`) or resumes (`false`) a job.
+pub async fn pause(channel: &Channel, id: JobId, paused: bool) -> Result<()> {
+    client(channel).pause(pb::PauseRequest { job_id: id.0, paused }).await?;
+    Ok(())
+}
+
+/// A coordinator service served in this process on 127.0.0.1, with its reaper running;
+/// stopped when dropped.
+pub struct Harness {
+    /// Its URL, for clients that want one.
+    pub url: String,
+    /// Its address.
+    pub addr: SocketAddr,
+    channel: Channel,
+    shutdown: Option<oneshot::Sender<()>>,
+    server: JoinHandle<()>,
+    reaper: JoinHandle<()>,
+}
+
+impl Harness {
+    /// A coordinator with the default timing.
+    pub async fn start() -> Result<Harness> {
+        Harness::start_with(Timing::default()).await
+    }
+
+    /// A coordinator with `timing` (short timeouts make lease expiry testable in seconds).
+    pub async fn start_with(timing: Timing) -> Result<Harness> {
+        let service = CoordinatorService::new(timing);
+        let reaper = service.spawn_reaper();
+        // Loopback TCP rather than an in-memory pipe: the same transport as production,
+        // and the coordinator sees real connection ends when a fake worker drops.
+        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
+        let addr = listener.local_addr()?;
+        let (shutdown, stop) = oneshot::channel::<()>();
+        let server = tokio::spawn(async move {
+            let _ = tonic::transport::Server::builder()
+                .add_service(service.into_server())
+                .serve_with_incoming_shutdown(
+                    tokio_stream::wrappers::TcpListenerStream::new(listener),
+                    async {
+                        let _ = stop.await;
+                    },
+                )
+                .await;
+        });
+        let url = format!("http://{addr}");
+        let channel = connect(&url).await?;
+        Ok(Harness { url, addr, channel, shutdown: Some(shutdown), server, reaper })
+    }
+
+    /// A channel to it (cheap to clone; one HTTP/2 connection).
+    pub fn channel(&self) -> Channel {
+        self.channel.clone()
+    }
+
+    /// A fresh connection of its own, as a separate process would have.
+    pub async fn new_channel(&self) -> Result<Channel> {
+        connect(&self.url).await
+    }
+
+    /// Submits the small test scene at `width`×`height` and `spp`.
+    pub async fn submit_small(&self, width: u32, height: u32, spp: u32) -> Result<JobId> {
+        let settings = pb::RenderSettings { spp, width, height, ..Default::default() };
+        submit(&self.channel, "small.toml", SMALL_SCENE, settings).await
+    }
+
+    /// The coordinator's jobs and workers.
+    pub async fn status(&self) -> Result<FarmStatus> {
+        status(&self.channel).await
+    }
+
+    /// One job's status.
+    pub async fn job(&self, id: JobId) -> Result<JobView> {
+        job(&self.channel, id).await
+    }
+
+    /// Waits (at most `PATIENCE`) until the job is over: done, cancelled or failed.
+    pub async fn wait_over(&self, id: JobId) -> Result<JobView> {
+        wait_for(&self.channel, id, PATIENCE, |j| j.state.is_over()).await
+    }
+
+    /// A job's current image.
+    pub async fn fetch_image(&self, id: JobId) -> Result<Image> {
+        fetch_image(&self.channel, id).await
+    }
+
+    /// Pauses (`true`) or resumes (`false`) a job.
+    pub async fn pause(&self, id: JobId, paused: bool) -> Result<()> {
+        pause(&self.channel, id, paused).await
+    }
+}
+
+impl Drop for Harness {
+    fn drop(&mut self) {
+        if let Some(s) = self.shutdown.take() {
+            let _ = s.send(());
+        }
+        // Streams still open would keep a graceful shutdown waiting; nothing of a test
+        // outlives its harness.
+        self.server.abort();
+        self.reaper.abort();
+    }
+}

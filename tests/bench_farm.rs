@@ -1,0 +1,37 @@
+//! End-to-end: a tiny `tessera bench farm` runs and prints its table (the figures are not
+//! checked: a benchmark is not a test, but it must keep working).
+
+mod common;
+
+use common::*;
+use std::time::Duration;
+
+#[test]
+fn a_tiny_farm_benchmark_prints_its_table() {
+    let out = run_with_timeout(
+        &[
+            "bench",
+            "farm",
+            "--sizes",
+            "64x64",
+            "--workers",
+            "2",
+            "--viewers",
+            "0,1",
+            "--seconds",
+            "1",
+            "--batch-ms",
+            "20",
+        ],
+        Duration::from_secs(60),
+    );
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
+    assert!(stdout.contains("commit/s") && stdout.contains("lease p50/99"), "{stdout}");
+    let rows: Vec<&str> = stdout
+        .lines()
+        .filter(|l| l.trim_start().starts_with("64x64") && l.split_whitespace().count() >= 15)
+        .collect();
+    assert_eq!(rows.len(), 2, "one row per case:\n{stdout}");
+    assert!(stdout.contains("targets:"), "{stdout}");
+}
