@@ -178,8 +178,15 @@ async fn wait(client: &mut CoordinatorClient<Channel>, job: JobId) -> Result<Job
                 }
                 r.into_inner()
             }
-            // A coordinator restarting on its data directory comes back with the job.
-            Err(s) if s.code() == tonic::Code::Unavailable => {
+            // A coordinator restarting on its data directory comes back with the job. A
+            // connection cut in the middle of a call surfaces as Unknown or Cancelled
+            // ("transport error"), not only as Unavailable: all three mean "lost".
+            Err(s)
+                if matches!(
+                    s.code(),
+                    tonic::Code::Unavailable | tonic::Code::Unknown | tonic::Code::Cancelled
+                ) =>
+            {
                 let since = *lost_since.get_or_insert_with(|| {
                     bar.suspend(|| eprintln!("{job}: lost the coordinator ({}); reconnecting", s.message()));
                     std::time::Instant::now()

@@ -274,7 +274,7 @@ fn real_batch_time(spp: u32) -> Result<Duration> {
         text: SMALL_SCENE.into(),
         assets: vec![],
     };
-    let scene = tessera_worker::scene::parse_bundle(&bundle)?;
+    let scene = tessera_worker::build::parse_bundle(&bundle)?;
     let per_pixel = u64::from(spp.max(2) - 1);
     let pixels = (REFERENCE_BATCH_SAMPLES / per_pixel).max(1) as u32;
     let pixels: Vec<glam::UVec2> =

@@ -1,0 +1,192 @@
+//! The queue driven by fake completions: batch sizes, coverage, leases, duplicates,
+//! restore.
+
+use super::*;
+
+fn drain(q: &mut PassQueue, now: Instant) -> Vec<BatchSpec> {
+    let mut out = Vec::new();
+    while let Some(l) = q.lease_next(WorkerId(1), now) {
+        out.push(l.spec.clone());
+    }
+    out
+}
+
+#[test]
+fn batches_cover_both_passes_exactly_once() {
+    let now = Instant::now();
+    for (w, h, spp) in [(1, 1, 1), (7, 5, 1), (33, 17, 4), (100, 80, 16), (1, 300, 3)] {
+        let mut q = PassQueue::new(w, h, spp);
+        let batches = drain(&mut q, now);
+        let mut samples = vec![0u32; (w * h) as usize];
+        for b in &batches {
+            for quad in &b.quads {
+                samples[(quad.y * w + quad.x) as usize] += b.samples.end - b.samples.start;
+            }
+            q.complete(b.id, now).unwrap();
+        }
+        assert!(samples.iter().all(|&s| s == spp), "{w}x{h}@{spp}");
+        assert!(q.is_finished());
+        assert_eq!(q.samples_done(), q.samples_total());
+        // Pass two never starts before pass one is fully cut, and ids follow the walk.
+        let passes: Vec<Pass> = batches.iter().map(|b| b.pass).collect();
+        assert!(passes.windows(2).all(|p| p[0] <= p[1]));
+        assert!(batches.windows(2).all(|b| b[0].id < b[1].id));
+    }
+}
+
+/// The merge of the last batch finishes the job even when nobody asks for more work
+/// after the last lease (a hang found with one worker on a tiny image).
+#[test]
+fn last_result_finishes_without_another_lease() {
+    let now = Instant::now();
+    for (w, h, spp) in [(1, 1, 1), (48, 30, 4), (7, 5, 1), (16, 16, 2)] {
+        let mut counting = PassQueue::new(w, h, spp);
+        let n = drain(&mut counting, now).len();
+        let mut q = PassQueue::new(w, h, spp);
+        let ids: Vec<BatchId> = (0..n).map(|_| q.lease_next(WorkerId(1), now).unwrap().spec.id).collect();
+        for id in ids {
+            assert!(!q.is_finished());
+            q.complete(id, now).unwrap();
+        }
+        assert!(q.is_finished(), "{w}x{h}@{spp}: all batches merged but not finished");
+    }
+}
+
+#[test]
+fn pass_one_batches_grow_from_small_to_max() {
+    let mut q = PassQueue::new(256, 256, 1);
+    let sizes: Vec<usize> = drain(&mut q, Instant::now()).iter().map(|b| b.quads.len()).collect();
+    assert_eq!(sizes[0], PASS_ONE_FIRST);
+    assert_eq!(sizes[1], PASS_ONE_FIRST * 2);
+    assert!(sizes.iter().all(|&s| s <= PASS_ONE_MAX));
+    assert!(sizes.contains(&PASS_ONE_MAX));
+}
+
+/// Exactly-once: a batch computed twice (a retry after its worker went silent) is
+/// merged once; the second result is refused.
+#[test]
+fn duplicate_results_are_refused() {
+    let now = Instant::now();
+    let mut q = PassQueue::new(16, 16, 1);
+    let first = q.lease_next(WorkerId(1), now).unwrap().spec.id;
+    assert_eq!(q.take_back_worker(WorkerId(1)), vec![first]);
+    let again = q.lease_next(WorkerId(2), now).unwrap();
+    assert_eq!((again.spec.id, again.attempt), (first, 2));
+    // The silent worker's late result arrives first and wins...
+    assert!(q.complete(first, now).is_ok());
+    // ...and the retry's result is a duplicate.
+    assert_eq!(q.complete(first, now), Err(CompleteError::NotOutstanding { batch: first }));
+}
+
+#[test]
+fn taken_back_batches_are_leased_again_oldest_first() {
+    let now = Instant::now();
+    let mut q = PassQueue::new(64, 64, 1);
+    let a = q.lease_next(WorkerId(1), now).unwrap().spec.id;
+    let b = q.lease_next(WorkerId(2), now).unwrap().spec.id;
+    let c = q.lease_next(WorkerId(1), now).unwrap().spec.id;
+    q.take_back_worker(WorkerId(1));
+    assert_eq!(q.lease_next(WorkerId(3), now).unwrap().spec.id, a);
+    assert_eq!(q.lease_next(WorkerId(3), now).unwrap().spec.id, c);
+    assert!(q.lease(b).is_some());
+    // A result for a batch waiting in the retry queue is still accepted once.
+    let d = q.lease_next(WorkerId(4), now).unwrap().spec.id;
+    q.take_back(d);
+    assert!(q.complete(d, now).is_ok());
+    assert_ne!(q.lease_next(WorkerId(4), now).unwrap().spec.id, d);
+}
+
+/// Stragglers: at the end of the last pass an idle worker gets a duplicate of the
+/// oldest lease that has run long; the first result wins, the second is refused.
+#[test]
+fn stragglers_get_speculative_duplicates_at_the_end() {
+    let t0 = Instant::now();
+    let ms = Duration::from_millis;
+    let mut q = PassQueue::new(8, 8, 1);
+    let first = q.lease_next(WorkerId(1), t0).unwrap().spec.id;
+    // Not at the end of the pass: no duplicates while there is new work.
+    assert!(q.lease_speculative(WorkerId(2), t0 + ms(5000), 2, ms(100)).is_none());
+    let mut rest = Vec::new();
+    while let Some(l) = q.lease_next(WorkerId(2), t0) {
+        rest.push(l.spec.id);
+    }
+    for id in &rest {
+        q.complete(*id, t0 + ms(10)).unwrap();
+    }
+    assert!(q.all_leased());
+    // Mean batch time 10 ms, patience 2: the straggler qualifies after 20 ms, but
+    // never before `min_age`; and never as a duplicate for its own holder.
+    assert!(q.lease_speculative(WorkerId(2), t0 + ms(50), 2, ms(100)).is_none());
+    assert!(q.lease_speculative(WorkerId(1), t0 + ms(500), 2, ms(100)).is_none());
+    let spare = q.lease_speculative(WorkerId(2), t0 + ms(500), 2, ms(100)).unwrap();
+    assert_eq!((spare.spec.id, spare.attempt), (first, 2));
+    // One duplicate per batch.
+    assert!(q.lease_speculative(WorkerId(3), t0 + ms(600), 2, ms(100)).is_none());
+    assert_eq!(q.leased_by(WorkerId(2)), 1);
+    assert!(q.complete(first, t0 + ms(510)).is_ok());
+    assert_eq!(q.complete(first, t0 + ms(900)), Err(CompleteError::NotOutstanding { batch: first }));
+    assert!(q.is_finished());
+    assert_eq!(q.leased_by(WorkerId(2)), 0);
+}
+
+/// A straggler's holder leaving hands the batch to its duplicate, not to the retry
+/// queue; the duplicate's holder leaving leaves the original lease alone.
+#[test]
+fn a_duplicate_takes_over_when_its_original_is_taken_back() {
+    let t0 = Instant::now();
+    let mut q = PassQueue::new(4, 4, 1);
+    let id = q.lease_next(WorkerId(1), t0).unwrap().spec.id;
+    assert!(q.lease_next(WorkerId(1), t0).is_none());
+    q.lease_speculative(WorkerId(2), t0 + Duration::from_secs(1), 2, Duration::ZERO).unwrap();
+    q.take_back_worker(WorkerId(3));
+    assert_eq!(q.take_back_worker(WorkerId(1)), vec![id]);
+    assert_eq!(q.lease(id).unwrap().worker, WorkerId(2));
+    assert!(q.lease_next(WorkerId(4), t0).is_none(), "nothing went back to the retry queue");
+    q.lease_speculative(WorkerId(4), t0 + Duration::from_secs(2), 2, Duration::ZERO).unwrap();
+    assert!(q.take_back_worker(WorkerId(4)).is_empty());
+    assert_eq!(q.lease(id).unwrap().worker, WorkerId(2));
+    q.complete(id, t0).unwrap();
+    assert!(q.is_finished());
+}
+
+/// A queue rebuilt from its `Completed` set hands out exactly the batches that were
+/// not merged, with the same ids and pixels, and the merged counts carry over.
+#[test]
+fn restore_resumes_exactly_the_unmerged_batches() {
+    let now = Instant::now();
+    for (w, h, spp, keep) in [(33, 17, 4, 7usize), (64, 64, 1, 3), (20, 9, 3, 0), (5, 5, 2, 1000)] {
+        let mut full = PassQueue::new(w, h, spp);
+        let all = drain(&mut full, now);
+        let mut q = PassQueue::new(w, h, spp);
+        let leased: Vec<BatchSpec> =
+            (0..keep.min(all.len())).map(|_| q.lease_next(WorkerId(1), now).unwrap().spec.clone()).collect();
+        // Merge out of order: every other batch, so there are gaps.
+        for b in leased.iter().step_by(2) {
+            q.complete(b.id, now).unwrap();
+        }
+        let done = q.completed();
+        let mut r = PassQueue::restore(w, h, spp, &done).unwrap();
+        assert_eq!(r.samples_done(), q.samples_done(), "{w}x{h}@{spp}");
+        assert_eq!(r.pass_one_pixels_done(), q.pass_one_pixels_done());
+        assert_eq!(r.completed(), done);
+        let mut rest = drain(&mut r, now);
+        rest.sort_by_key(|b| b.id);
+        let expect: Vec<BatchSpec> =
+            all.iter().filter(|b| !leased.iter().step_by(2).any(|l| l.id == b.id)).cloned().collect();
+        assert_eq!(rest, expect, "{w}x{h}@{spp}");
+        for b in &rest {
+            r.complete(b.id, now).unwrap();
+        }
+        assert!(r.is_finished());
+        assert_eq!(r.samples_done(), r.samples_total());
+        assert_eq!(r.completed(), Completed { below: all.len() as u64, above: vec![] });
+    }
+}
+
+#[test]
+fn restore_refuses_batches_the_job_does_not_have() {
+    let done = Completed { below: 0, above: vec![5, 100_000] };
+    assert!(matches!(PassQueue::restore(8, 8, 2, &done), Err(RestoreError::NoSuchBatch { id: 100_000, .. })));
+    let unordered = Completed { below: 3, above: vec![2] };
+    assert!(matches!(PassQueue::restore(8, 8, 2, &unordered), Err(RestoreError::Unordered { .. })));
+}

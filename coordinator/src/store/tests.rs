@@ -1,0 +1,172 @@
+//! The database: reopening, fallback to the previous checkpoint, truncation, garbage, a
+//! directory in use.
+
+use super::*;
+use crate::scheduler::Completed;
+
+fn record(id: u64) -> JobRecord {
+    JobRecord {
+        id: JobId(id),
+        bundle: std::sync::Arc::new(Bundle {
+            name: "scene.toml".into(),
+            text: "# a scene".into(),
+            assets: vec![("mesh.obj".into(), vec![1, 2, 3])],
+        }),
+        settings: JobSettings {
+            spp: Some(4),
+            size: Some((40, 30)),
+            time_limit: Some(std::time::Duration::from_millis(1500)),
+            noise: Some(0.02),
+        },
+        priority: -2,
+        state: JobState::Running,
+    }
+}
+
+fn checkpoint(id: u64, pixels: u32, below: u64) -> Checkpoint {
+    let n = pixels as usize * 3;
+    Checkpoint {
+        job: JobId(id),
+        width: pixels,
+        height: 3,
+        spp: 4,
+        completed: Completed { below, above: vec![below + 2] },
+        nonfinite_samples: 0,
+        samples_done: n as u64,
+        sums: vec![[below, 2, 3]; n],
+        counts: vec![1; n],
+        even: vec![below; n],
+        spent: std::time::Duration::from_millis(1234),
+    }
+}
+
+fn corrupt_part(dir: &Path, generation: i64, part: i64) {
+    let conn = Connection::open(dir.join(DB_FILE)).unwrap();
+    let data: Vec<u8> = conn
+        .query_row(
+            "SELECT data FROM checkpoint_parts WHERE generation = ?1 AND part = ?2",
+            [generation, part],
+            |r| r.get(0),
+        )
+        .unwrap();
+    let mut bad = data.clone();
+    bad[data.len() / 2] ^= 0x40;
+    conn.execute(
+        "UPDATE checkpoint_parts SET data = ?1 WHERE generation = ?2 AND part = ?3",
+        params![bad, generation, part],
+    )
+    .unwrap();
+}
+
+#[test]
+fn jobs_and_the_newest_checkpoint_survive_a_reopen() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let (mut store, loaded) = Store::open(dir.path()).unwrap();
+        assert!(loaded.jobs.is_empty() && loaded.problems.is_empty());
+        store.add_job(&record(1)).unwrap();
+        store
+            .add_job(&JobRecord { id: JobId(2), state: JobState::Failed("boom".into()), ..record(2) })
+            .unwrap();
+        for below in [10, 20, 30] {
+            store.save(&checkpoint(1, 50, below), &JobState::Running).unwrap();
+        }
+        store.set_state(JobId(1), &JobState::Paused).unwrap();
+    }
+    let (store, loaded) = Store::open(dir.path()).unwrap();
+    assert!(loaded.problems.is_empty(), "{:?}", loaded.problems);
+    assert_eq!(loaded.jobs.len(), 2);
+    let one = &loaded.jobs[0];
+    assert_eq!(one.record, JobRecord { state: JobState::Paused, ..record(1) });
+    assert_eq!(one.checkpoint, Some(checkpoint(1, 50, 30)));
+    assert_eq!(loaded.jobs[1].record.state, JobState::Failed("boom".into()));
+    assert!(loaded.jobs[1].checkpoint.is_none());
+    assert_eq!(store.max_job_id(), 2);
+    let generations: i64 = store
+        .conn
+        .query_row("SELECT COUNT(DISTINCT generation) FROM checkpoint_parts", [], |r| r.get(0))
+        .unwrap();
+    assert_eq!(generations, GENERATIONS_KEPT);
+}
+
+/// Bits changed on disk in the newest checkpoint: the one before it is used; both
+/// damaged: the job starts over. Either way the damage is reported.
+#[test]
+fn a_damaged_checkpoint_falls_back_to_the_last_good_one() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let (mut store, _) = Store::open(dir.path()).unwrap();
+        store.add_job(&record(1)).unwrap();
+        store.save(&checkpoint(1, 50, 10), &JobState::Running).unwrap();
+        store.save(&checkpoint(1, 50, 20), &JobState::Running).unwrap();
+    }
+    corrupt_part(dir.path(), 2, 1);
+    {
+        let (_, loaded) = Store::open(dir.path()).unwrap();
+        assert_eq!(loaded.jobs[0].checkpoint, Some(checkpoint(1, 50, 10)));
+        assert!(
+            loaded.problems.iter().any(|p| p.contains("checkpoint 2 is damaged")),
+            "{:?}",
+            loaded.problems
+        );
+    }
+    corrupt_part(dir.path(), 1, 0);
+    let (_, loaded) = Store::open(dir.path()).unwrap();
+    assert_eq!(loaded.jobs[0].checkpoint, None);
+    assert!(
+        loaded.problems.iter().any(|p| p.contains("restarts from the beginning")),
+        "{:?}",
+        loaded.problems
+    );
+}
+
+/// A truncated file: SQLite's page check finds it, what reads back is kept, the file
+/// is moved aside and rebuilt, and the rebuilt one opens clean.
+#[test]
+fn a_truncated_database_is_rebuilt_from_what_reads_back() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let (mut store, _) = Store::open(dir.path()).unwrap();
+        store.add_job(&record(1)).unwrap();
+        store.save(&checkpoint(1, 4000, 10), &JobState::Running).unwrap();
+        store.save(&checkpoint(1, 4000, 20), &JobState::Running).unwrap();
+    }
+    let path = dir.path().join(DB_FILE);
+    let len = std::fs::metadata(&path).unwrap().len();
+    std::fs::OpenOptions::new().write(true).open(&path).unwrap().set_len(len * 3 / 4).unwrap();
+    let (_, loaded) = Store::open(dir.path()).unwrap();
+    assert!(!loaded.problems.is_empty());
+    assert!(loaded.moved_aside.as_ref().is_some_and(|p| p.exists()));
+    assert_eq!(loaded.jobs.len(), 1);
+    // Whatever survived is whole; nothing half-read is resumed from.
+    if let Some(c) = &loaded.jobs[0].checkpoint {
+        assert!([checkpoint(1, 4000, 10), checkpoint(1, 4000, 20)].contains(c));
+    }
+    let again = Store::open(dir.path()).unwrap().1;
+    assert!(again.problems.is_empty(), "{:?}", again.problems);
+    assert_eq!(again.jobs[0].checkpoint, loaded.jobs[0].checkpoint);
+}
+
+#[test]
+fn garbage_and_a_second_opener_are_clear_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(dir.path().join(DB_FILE), vec![0x5a; 8192]).unwrap();
+    let e = Store::open(dir.path()).unwrap_err();
+    assert!(matches!(e, StoreError::Damaged { .. }), "{e}");
+    assert!(e.to_string().contains("move it aside"), "{e}");
+
+    let dir = tempfile::tempdir().unwrap();
+    let _first = Store::open(dir.path()).unwrap();
+    let e = Store::open(dir.path()).unwrap_err();
+    assert!(matches!(e, StoreError::InUse { .. }), "{e}");
+}
+
+#[test]
+fn bundles_round_trip_and_refuse_truncation() {
+    let b = record(1).bundle;
+    let bytes = encode_bundle(&b);
+    assert_eq!(decode_bundle(&bytes).as_ref(), Some(&*b));
+    for n in [0, 5, bytes.len() - 1] {
+        assert_eq!(decode_bundle(&bytes[..n]), None);
+    }
+}
