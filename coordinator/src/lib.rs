@@ -6,7 +6,6 @@
 pub mod checkpoint;
 pub mod farm;
 pub mod persist;
-pub mod rounds;
 pub mod scheduler;
 pub mod service;
 pub mod store;

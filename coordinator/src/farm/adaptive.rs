@@ -27,8 +27,8 @@ pub(crate) fn converged(fb: &Framebuffer, q: Quad, target: Option<f32>) -> bool 
         return false;
     }
     let tile = |v: u32, size: u32| {
-        let start = v / crate::rounds::TILE * crate::rounds::TILE;
-        (start, (start + crate::rounds::TILE).min(size))
+        let start = v / crate::scheduler::rounds::TILE * crate::scheduler::rounds::TILE;
+        (start, (start + crate::scheduler::rounds::TILE).min(size))
     };
     let ((x0, x1), (y0, y1)) = (tile(q.x, fb.width()), tile(q.y, fb.height()));
     let (mut sum, mut n) = (0.0f64, 0u32);

@@ -2,13 +2,18 @@
 //! workers, taking them back, and accepting each batch's result exactly once. No I/O, no
 //! tokio, no prost: the time comes in as an argument, so tests drive it with a fake clock.
 
+mod batch;
+mod cut;
+pub mod rounds;
+
 use std::collections::{BTreeMap, BTreeSet, HashMap};
-use std::ops::Range;
 use std::time::{Duration, Instant};
 
-use crate::rounds::Rounds;
 use tessera_description::ids::{BatchId, WorkerId};
-use tessera_film::quadtree::{Quad, Walk};
+use tessera_film::quadtree::Quad;
+
+pub use batch::{BatchSpec, CompleteError, Completed, Lease, Pass, RestoreError};
+use cut::{Cut, FixedSpp, InRounds};
 
 /// Pixels in the first pass-one batch: small, so that the first mosaic shows at once.
 pub const PASS_ONE_FIRST: usize = 16;
@@ -20,125 +25,6 @@ pub const PASS_TWO_SAMPLES: u64 = 32_768;
 /// The most pixels in a pass-two batch (bounds message sizes at low spp).
 pub const PASS_TWO_MAX_PIXELS: usize = 8192;
 
-/// Which pass a batch belongs to.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, PartialOrd, Ord)]
-pub enum Pass {
-    /// The first sample of every pixel, painted as mosaic blocks.
-    One,
-    /// The remaining samples of every pixel.
-    Two,
-}
-
-impl Pass {
-    /// 1 or 2, as on the wire and in status.
-    pub fn number(self) -> u32 {
-        match self {
-            Pass::One => 1,
-            Pass::Two => 2,
-        }
-    }
-}
-
-/// A run of consecutive pixels of the walk, with the samples to take of each.
-#[derive(Debug, Clone, PartialEq, Eq)]
-pub struct BatchSpec {
-    /// The batch's id, its position among the job's batches.
-    pub id: BatchId,
-    /// The pass.
-    pub pass: Pass,
-    /// The pixels in walk order; in pass one each with the block it paints.
-    pub quads: Vec<Quad>,
-    /// Sample indices taken of every pixel.
-    pub samples: Range<u32>,
-}
-
-impl BatchSpec {
-    /// Samples in the batch.
-    pub fn sample_count(&self) -> u64 {
-        self.quads.len() as u64 * u64::from(self.samples.end - self.samples.start)
-    }
-}
-
-/// A batch leased to a worker.
-#[derive(Debug, Clone)]
-pub struct Lease {
-    /// What to render.
-    pub spec: BatchSpec,
-    /// Who renders it.
-    pub worker: WorkerId,
-    /// 1 for the first lease of the batch, 2 for the next, and so on.
-    pub attempt: u32,
-    /// When it was leased.
-    pub since: Instant,
-}
-
-/// Why a result was not accepted.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum CompleteError {
-    /// The batch's result was merged already (a retry or a late lease finished second), or
-    /// the batch never existed.
-    #[error("{batch} is not outstanding (already merged, or never cut)")]
-    NotOutstanding {
-        /// The batch.
-        batch: BatchId,
-    },
-}
-
-/// Which batches of a job are merged: every id below `below`, and the ids in `above`. This
-/// is all a checkpoint needs besides the framebuffer, because the cut of the walk into
-/// batches is deterministic: the same image and spp give the same batches with the same ids.
-#[derive(Debug, Clone, Default, PartialEq, Eq)]
-pub struct Completed {
-    /// Every batch id below this one is merged.
-    pub below: u64,
-    /// Merged ids above `below`, ascending (those finished out of order).
-    pub above: Vec<u64>,
-}
-
-impl Completed {
-    fn contains(&self, id: u64) -> bool {
-        id < self.below || self.above.binary_search(&id).is_ok()
-    }
-
-    /// One past the highest merged id.
-    pub fn end(&self) -> u64 {
-        self.above.last().map_or(self.below, |&a| a + 1).max(self.below)
-    }
-}
-
-/// Why a queue could not be rebuilt from a checkpoint.
-#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
-pub enum RestoreError {
-    /// The checkpoint names batches this job does not have.
-    #[error("the checkpoint names batch {id}, but a {width}x{height} image at {spp} spp has only {batches} batches")]
-    NoSuchBatch {
-        /// The id named.
-        id: u64,
-        /// Batches the job has.
-        batches: u64,
-        /// Image width.
-        width: u32,
-        /// Image height.
-        height: u32,
-        /// Samples per pixel.
-        spp: u32,
-    },
-    /// The sample counts of a tile fit no round (a checkpoint of another job).
-    #[error("tile {tile} holds {count} samples in a pixel, which no round ends at")]
-    Rounds {
-        /// The tile.
-        tile: u32,
-        /// The count found.
-        count: u32,
-    },
-    /// The merged ids are not ascending, or repeat one below `below`.
-    #[error("the checkpoint's list of merged batches is not ascending above {below}")]
-    Unordered {
-        /// The watermark.
-        below: u64,
-    },
-}
-
 /// The batches of one job: those not cut yet (the rest of the walk), those waiting to be
 /// leased again, those leased, and how many are done.
 #[derive(Debug)]
@@ -146,14 +32,9 @@ pub struct PassQueue {
     width: u32,
     height: u32,
     spp: u32,
-    pass: Pass,
-    walk: std::iter::Peekable<Walk>,
-    /// Whether the walk of the last pass is exhausted. Known as soon as the last batch is
-    /// cut (the walk is peeked), so that the merge of the last result finishes the job
-    /// whether or not anyone asks for more work afterwards.
-    cut_all: bool,
+    /// Where new batches come from: one type per mode of pass two.
+    cut: Cut,
     next_id: u64,
-    next_pass_one_size: usize,
     /// Batches whose lease was taken back, waiting to be leased again, oldest first.
     retry: BTreeMap<BatchId, (BatchSpec, u32)>,
     leased: HashMap<BatchId, Lease>,
@@ -165,11 +46,6 @@ pub struct PassQueue {
     done_above: BTreeSet<u64>,
     /// Mean time from lease to merge, for judging which leases are stragglers.
     mean_batch_time: Option<Duration>,
-    /// Pass two in rounds over tiles (jobs with a time budget or noise target).
-    rounds: Option<Rounds>,
-    /// In rounds mode, the number of pass-one batches, once pass one is cut: pass-two
-    /// batch ids follow them, derived from (round, tile).
-    pass_one_batches: Option<u64>,
     samples_done: u64,
     pass_one_pixels_done: u64,
 }
@@ -177,48 +53,44 @@ pub struct PassQueue {
 impl PassQueue {
     /// The batches of a `width × height` image at `spp` samples per pixel.
     pub fn new(width: u32, height: u32, spp: u32) -> Self {
+        let spp = spp.max(1);
+        Self::with_cut(width, height, spp, Cut::Fixed(FixedSpp::new(width, height, spp)))
+    }
+
+    /// The batches of a job whose pass two runs in rounds over tiles (see `rounds.rs`).
+    pub fn with_rounds(width: u32, height: u32, spp: u32) -> Self {
+        let spp = spp.max(1);
+        Self::with_cut(width, height, spp, Cut::Rounds(InRounds::new(width, height, spp)))
+    }
+
+    fn with_cut(width: u32, height: u32, spp: u32, cut: Cut) -> Self {
         PassQueue {
             width,
             height,
-            spp: spp.max(1),
-            pass: Pass::One,
-            walk: Walk::new(width, height).peekable(),
-            cut_all: width == 0 || height == 0,
+            spp,
+            cut,
             next_id: 0,
-            next_pass_one_size: PASS_ONE_FIRST,
             retry: BTreeMap::new(),
             leased: HashMap::new(),
             spares: HashMap::new(),
             done_below: 0,
             done_above: BTreeSet::new(),
             mean_batch_time: None,
-            rounds: None,
-            pass_one_batches: None,
             samples_done: 0,
             pass_one_pixels_done: 0,
         }
     }
 
-    /// The batches of a job whose pass two runs in rounds over tiles (see `rounds.rs`).
-    pub fn with_rounds(width: u32, height: u32, spp: u32) -> Self {
-        let mut q = PassQueue::new(width, height, spp);
-        q.rounds = Some(Rounds::new(width, height, q.spp));
-        q
-    }
-
     /// The (round, tile) of a pass-two batch of a job in rounds.
     pub fn round_of(&self, batch: BatchId) -> Option<(u32, u32)> {
-        let (rounds, first) = (self.rounds.as_ref()?, self.pass_one_batches?);
-        let k = batch.0.checked_sub(first)?;
-        let tiles = u64::from(rounds.tile_count().max(1));
-        Some(((k / tiles) as u32 + 1, (k % tiles) as u32))
+        self.cut.rounds()?.round_of(batch)
     }
 
     /// Schedules round `round` of tile `tile` for `active` pixels (`None`: all of the
     /// tile); an empty list or a round past the last closes the tile.
     pub fn schedule_round(&mut self, tile: u32, round: u32, active: Option<Vec<Quad>>) {
-        if let Some(r) = self.rounds.as_mut() {
-            r.schedule(tile, round, active);
+        if let Some(r) = self.cut.rounds_mut() {
+            r.rounds.schedule(tile, round, active);
         }
     }
 
@@ -237,19 +109,19 @@ impl PassQueue {
     ) -> Result<Self, RestoreError> {
         let mut q = Self::restore_with(PassQueue::with_rounds(width, height, spp), completed)?;
         let pixels = u64::from(width) * u64::from(height);
-        if !(q.cut_all && q.retry.is_empty() && q.pass_one_pixels_done == pixels) {
+        if !(q.cut.cut_all() && q.retry.is_empty() && q.pass_one_pixels_done == pixels) {
             return Ok(q);
         }
         let spp = q.spp;
-        let rounds = q.rounds.as_mut().expect("made with rounds");
+        let rounds = &mut q.cut.rounds_mut().expect("made with rounds").rounds;
         rounds.start_restored();
         let mut extra = 0u64;
         for t in 0..rounds.tile_count() {
             let tile = rounds.tile_pixels(t);
             let count = |p: &Quad| counts[(p.y * width + p.x) as usize];
             let most = tile.iter().map(count).max().unwrap_or(1);
-            let round = crate::rounds::round_reaching(most, spp)
-                .ok_or(RestoreError::Rounds { tile: t, count: most })?;
+            let round =
+                rounds::round_reaching(most, spp).ok_or(RestoreError::Rounds { tile: t, count: most })?;
             extra += tile.iter().map(|p| u64::from(count(p) - 1)).sum::<u64>();
             let next = match (round, active) {
                 (0, _) | (_, None) => None,
@@ -277,7 +149,7 @@ impl PassQueue {
         }
         let end = completed.end();
         while q.next_id < end {
-            let Some(spec) = q.cut() else {
+            let Some(spec) = q.cut.cut(&mut q.next_id) else {
                 let id = completed.above.last().copied().unwrap_or(end - 1);
                 return Err(RestoreError::NoSuchBatch { id, batches: q.next_id, width, height, spp: q.spp });
             };
@@ -296,10 +168,11 @@ impl PassQueue {
     /// that follow may then rely on every pixel's first sample.
     fn maybe_start_rounds(&mut self) {
         let pixels = u64::from(self.width) * u64::from(self.height);
-        let pass_one_over = self.cut_all && self.retry.is_empty() && self.pass_one_pixels_done == pixels;
-        if let Some(r) = self.rounds.as_mut() {
-            if pass_one_over && !r.started() {
-                r.start();
+        let pass_one_over =
+            self.cut.cut_all() && self.retry.is_empty() && self.pass_one_pixels_done == pixels;
+        if let Some(r) = self.cut.rounds_mut() {
+            if pass_one_over && !r.rounds.started() {
+                r.rounds.start();
             }
         }
     }
@@ -329,10 +202,7 @@ impl PassQueue {
 
     /// The pass whose batches are being cut now.
     pub fn pass(&self) -> Pass {
-        match &self.rounds {
-            Some(r) if r.started() => Pass::Two,
-            _ => self.pass,
-        }
+        self.cut.pass()
     }
 
     /// Samples in the whole job.
@@ -357,51 +227,10 @@ impl PassQueue {
 
     /// Whether every batch has been merged.
     pub fn is_finished(&self) -> bool {
-        self.cut_all
+        self.cut.cut_all()
             && self.retry.is_empty()
             && self.leased.is_empty()
-            && self.rounds.as_ref().is_none_or(|r| r.finished())
-    }
-
-    /// Cuts the next batch off the walk, moving on to pass two when pass one is cut.
-    fn cut(&mut self) -> Option<BatchSpec> {
-        loop {
-            if self.cut_all {
-                return None;
-            }
-            let pass = self.pass;
-            let (size, samples) = match self.pass {
-                Pass::One => {
-                    let size = self.next_pass_one_size;
-                    self.next_pass_one_size = (size * 2).min(PASS_ONE_MAX);
-                    (size, 0..1)
-                }
-                Pass::Two => {
-                    let per_pixel = u64::from(self.spp - 1);
-                    let size = (PASS_TWO_SAMPLES / per_pixel).clamp(1, PASS_TWO_MAX_PIXELS as u64);
-                    (size as usize, 1..self.spp)
-                }
-            };
-            let quads: Vec<Quad> = self.walk.by_ref().take(size).collect();
-            if self.walk.peek().is_none() {
-                if self.rounds.is_some() {
-                    // Pass two comes in rounds over tiles, not off the walk.
-                    self.cut_all = true;
-                    self.pass_one_batches = Some(self.next_id + u64::from(!quads.is_empty()));
-                } else if self.pass == Pass::One && self.spp > 1 {
-                    self.pass = Pass::Two;
-                    self.walk = Walk::new(self.width, self.height).peekable();
-                } else {
-                    self.cut_all = true;
-                }
-            }
-            if quads.is_empty() {
-                continue;
-            }
-            let id = BatchId(self.next_id);
-            self.next_id += 1;
-            return Some(BatchSpec { id, pass, quads, samples });
-        }
+            && self.cut.rounds().is_none_or(|r| r.rounds.finished())
     }
 
     /// Leases the next batch to `worker`: a batch taken back from another worker first
@@ -409,9 +238,9 @@ impl PassQueue {
     pub fn lease_next(&mut self, worker: WorkerId, now: Instant) -> Option<&Lease> {
         let (spec, attempt) = match self.retry.pop_first() {
             Some((_, (spec, attempts))) => (spec, attempts + 1),
-            None => match self.cut() {
+            None => match self.cut.cut(&mut self.next_id) {
                 Some(spec) => (spec, 1),
-                None => (self.next_round()?, 1),
+                None => (self.cut.rounds_mut()?.next_round()?, 1),
             },
         };
         let id = spec.id;
@@ -419,20 +248,10 @@ impl PassQueue {
         self.leased.get(&id)
     }
 
-    /// The next ready round of a tile, as a batch.
-    fn next_round(&mut self) -> Option<BatchSpec> {
-        let first = self.pass_one_batches?;
-        let rounds = self.rounds.as_mut()?;
-        let tiles = u64::from(rounds.tile_count());
-        let (round, tile, quads, samples) = rounds.take()?;
-        let id = BatchId(first + u64::from(round - 1) * tiles + u64::from(tile));
-        Some(BatchSpec { id, pass: Pass::Two, quads, samples })
-    }
-
     /// Whether every batch is cut and leased: the end of the last pass, where an idle
     /// worker has nothing to do but duplicate a straggler.
     pub fn all_leased(&self) -> bool {
-        self.cut_all && self.retry.is_empty() && self.rounds.as_ref().is_none_or(|r| r.idle())
+        self.cut.cut_all() && self.retry.is_empty() && self.cut.rounds().is_none_or(|r| r.rounds.idle())
     }
 
     /// A speculative duplicate for `worker` of the oldest lease that has run for longer
@@ -542,10 +361,7 @@ impl PassQueue {
         self.leased.clear();
         self.spares.clear();
         self.retry.clear();
-        self.cut_all = true;
-        if let Some(r) = self.rounds.as_mut() {
-            r.abandon();
-        }
+        self.cut.abandon();
     }
 }
 

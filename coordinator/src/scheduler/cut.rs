@@ -1,0 +1,242 @@
+//! Where a job's batches come from: the walk cut into ordered runs, and one type per mode
+//! of pass two. `FixedSpp` is the paper's two passes (pass two walks the order again,
+//! every pixel to the job's spp); `InRounds` cuts pass one off the walk and then hands out
+//! rounds over tiles (jobs with a time budget or noise target). The lease machinery in
+//! `PassQueue` is the same for both.
+
+use std::iter::Peekable;
+
+use tessera_description::ids::BatchId;
+use tessera_film::quadtree::{Quad, Walk};
+
+use super::rounds::Rounds;
+use super::{BatchSpec, Pass, PASS_ONE_FIRST, PASS_ONE_MAX, PASS_TWO_MAX_PIXELS, PASS_TWO_SAMPLES};
+
+/// A walk of the image cut into batches whose size doubles from `PASS_ONE_FIRST` to
+/// `PASS_ONE_MAX` (pass one) or is fixed by the spp (pass two).
+#[derive(Debug)]
+struct WalkCut {
+    walk: Peekable<Walk>,
+    next_pass_one_size: usize,
+}
+
+impl WalkCut {
+    fn new(width: u32, height: u32) -> Self {
+        WalkCut { walk: Walk::new(width, height).peekable(), next_pass_one_size: PASS_ONE_FIRST }
+    }
+
+    /// The next run of the walk for `pass`, and whether the walk is exhausted after it
+    /// (known at once, the walk is peeked, so that the last merge can finish the job).
+    fn take(&mut self, pass: Pass, spp: u32) -> (Vec<Quad>, bool) {
+        let size = match pass {
+            Pass::One => {
+                let size = self.next_pass_one_size;
+                self.next_pass_one_size = (size * 2).min(PASS_ONE_MAX);
+                size
+            }
+            Pass::Two => {
+                let per_pixel = u64::from(spp - 1);
+                (PASS_TWO_SAMPLES / per_pixel).clamp(1, PASS_TWO_MAX_PIXELS as u64) as usize
+            }
+        };
+        let quads: Vec<Quad> = self.walk.by_ref().take(size).collect();
+        let exhausted = self.walk.peek().is_none();
+        (quads, exhausted)
+    }
+}
+
+/// The paper's two passes: pass one off the walk, then pass two off the walk again.
+#[derive(Debug)]
+pub(super) struct FixedSpp {
+    width: u32,
+    height: u32,
+    spp: u32,
+    pass: Pass,
+    walk: WalkCut,
+    cut_all: bool,
+}
+
+impl FixedSpp {
+    pub(super) fn new(width: u32, height: u32, spp: u32) -> Self {
+        FixedSpp {
+            width,
+            height,
+            spp,
+            pass: Pass::One,
+            walk: WalkCut::new(width, height),
+            cut_all: width == 0 || height == 0,
+        }
+    }
+
+    /// Cuts the next batch, moving on to pass two when pass one is cut.
+    pub(super) fn cut(&mut self, next_id: &mut u64) -> Option<BatchSpec> {
+        loop {
+            if self.cut_all {
+                return None;
+            }
+            let pass = self.pass;
+            let samples = match pass {
+                Pass::One => 0..1,
+                Pass::Two => 1..self.spp,
+            };
+            let (quads, exhausted) = self.walk.take(pass, self.spp);
+            if exhausted {
+                if self.pass == Pass::One && self.spp > 1 {
+                    self.pass = Pass::Two;
+                    self.walk = WalkCut::new(self.width, self.height);
+                } else {
+                    self.cut_all = true;
+                }
+            }
+            if quads.is_empty() {
+                continue;
+            }
+            let id = BatchId(*next_id);
+            *next_id += 1;
+            return Some(BatchSpec { id, pass, quads, samples });
+        }
+    }
+
+    pub(super) fn cut_all(&self) -> bool {
+        self.cut_all
+    }
+
+    pub(super) fn pass(&self) -> Pass {
+        self.pass
+    }
+
+    pub(super) fn abandon(&mut self) {
+        self.cut_all = true;
+    }
+}
+
+/// Pass one off the walk, then pass two in rounds over tiles (see `rounds.rs`).
+#[derive(Debug)]
+pub(super) struct InRounds {
+    walk: WalkCut,
+    /// Whether pass one is cut whole.
+    cut_all: bool,
+    /// The number of pass-one batches, once pass one is cut: pass-two batch ids follow
+    /// them, derived from (round, tile).
+    pass_one_batches: Option<u64>,
+    pub(super) rounds: Rounds,
+}
+
+impl InRounds {
+    pub(super) fn new(width: u32, height: u32, spp: u32) -> Self {
+        InRounds {
+            walk: WalkCut::new(width, height),
+            cut_all: width == 0 || height == 0,
+            pass_one_batches: None,
+            rounds: Rounds::new(width, height, spp),
+        }
+    }
+
+    /// Cuts the next pass-one batch; `None` once pass one is cut (rounds come from
+    /// `next_round`).
+    pub(super) fn cut(&mut self, next_id: &mut u64) -> Option<BatchSpec> {
+        loop {
+            if self.cut_all {
+                return None;
+            }
+            let (quads, exhausted) = self.walk.take(Pass::One, 1);
+            if exhausted {
+                self.cut_all = true;
+                self.pass_one_batches = Some(*next_id + u64::from(!quads.is_empty()));
+            }
+            if quads.is_empty() {
+                continue;
+            }
+            let id = BatchId(*next_id);
+            *next_id += 1;
+            return Some(BatchSpec { id, pass: Pass::One, quads, samples: 0..1 });
+        }
+    }
+
+    pub(super) fn cut_all(&self) -> bool {
+        self.cut_all
+    }
+
+    /// The next ready round of a tile, as a batch.
+    pub(super) fn next_round(&mut self) -> Option<BatchSpec> {
+        let first = self.pass_one_batches?;
+        let tiles = u64::from(self.rounds.tile_count());
+        let (round, tile, quads, samples) = self.rounds.take()?;
+        let id = BatchId(first + u64::from(round - 1) * tiles + u64::from(tile));
+        Some(BatchSpec { id, pass: Pass::Two, quads, samples })
+    }
+
+    /// The (round, tile) of a pass-two batch.
+    pub(super) fn round_of(&self, batch: BatchId) -> Option<(u32, u32)> {
+        let k = batch.0.checked_sub(self.pass_one_batches?)?;
+        let tiles = u64::from(self.rounds.tile_count().max(1));
+        Some(((k / tiles) as u32 + 1, (k % tiles) as u32))
+    }
+
+    pub(super) fn pass(&self) -> Pass {
+        if self.rounds.started() {
+            Pass::Two
+        } else {
+            Pass::One
+        }
+    }
+
+    pub(super) fn abandon(&mut self) {
+        self.cut_all = true;
+        self.rounds.abandon();
+    }
+}
+
+/// A job's batches by the mode of its pass two.
+#[derive(Debug)]
+pub(super) enum Cut {
+    /// The paper's two passes.
+    Fixed(FixedSpp),
+    /// Pass two in rounds.
+    Rounds(InRounds),
+}
+
+impl Cut {
+    pub(super) fn cut(&mut self, next_id: &mut u64) -> Option<BatchSpec> {
+        match self {
+            Cut::Fixed(f) => f.cut(next_id),
+            Cut::Rounds(r) => r.cut(next_id),
+        }
+    }
+
+    /// Whether the walk (of the last pass cut off it) is exhausted.
+    pub(super) fn cut_all(&self) -> bool {
+        match self {
+            Cut::Fixed(f) => f.cut_all(),
+            Cut::Rounds(r) => r.cut_all(),
+        }
+    }
+
+    pub(super) fn pass(&self) -> Pass {
+        match self {
+            Cut::Fixed(f) => f.pass(),
+            Cut::Rounds(r) => r.pass(),
+        }
+    }
+
+    pub(super) fn rounds(&self) -> Option<&InRounds> {
+        match self {
+            Cut::Fixed(_) => None,
+            Cut::Rounds(r) => Some(r),
+        }
+    }
+
+    pub(super) fn rounds_mut(&mut self) -> Option<&mut InRounds> {
+        match self {
+            Cut::Fixed(_) => None,
+            Cut::Rounds(r) => Some(r),
+        }
+    }
+
+    pub(super) fn abandon(&mut self) {
+        match self {
+            Cut::Fixed(f) => f.abandon(),
+            Cut::Rounds(r) => r.abandon(),
+        }
+    }
+}
