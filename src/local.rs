@@ -15,6 +15,8 @@ use tokio::net::TcpListener;
 use tokio::process::{Child, Command};
 use tokio_stream::wrappers::TcpListenerStream;
 
+use crate::report::rate;
+
 /// Arguments of `tessera render`.
 #[derive(Debug, clap::Args)]
 #[deny(missing_docs)]
@@ -142,7 +144,7 @@ async fn start_job(
     match (found.as_slice(), c.resume) {
         ([], _) => {
             if c.resume {
-                crate::remote::report_recovery(&c.dir, &recovery);
+                crate::report::report_recovery(&c.dir, &recovery);
                 bail!(
                     "nothing to resume: the checkpoint in {} holds no job that reads back",
                     c.dir.display()
@@ -158,7 +160,7 @@ async fn start_job(
                     c.dir.display()
                 );
             }
-            crate::remote::report_recovery(&c.dir, &recovery);
+            crate::report::report_recovery(&c.dir, &recovery);
             Ok((service, *id))
         }
         (_, true) => bail!(
@@ -326,15 +328,6 @@ fn progress_bar() -> ProgressBar {
             .progress_chars("=> "),
     );
     bar
-}
-
-/// Samples per second in human units.
-pub fn rate(samples_per_second: f64) -> String {
-    if samples_per_second >= 1e6 {
-        format!("{:.2} Msamples/s", samples_per_second / 1e6)
-    } else {
-        format!("{:.0} ksamples/s", samples_per_second / 1e3)
-    }
 }
 
 fn update_bar(bar: &ProgressBar, p: &JobProgress) {

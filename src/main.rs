@@ -5,6 +5,7 @@ mod bench;
 mod compare;
 mod local;
 mod remote;
+mod report;
 
 use std::net::SocketAddr;
 use std::path::PathBuf;

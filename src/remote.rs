@@ -2,12 +2,14 @@
 //! watch, fetch and cancel jobs over gRPC.
 
 use std::net::SocketAddr;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{anyhow, bail, Context, Result};
-use tessera_coordinator::{CoordinatorService, Recovery, Timing};
+use tessera_coordinator::{CoordinatorService, Timing};
+
+use crate::report::report_recovery;
 use tessera_description::bundle::Bundle;
 use tessera_description::ids::JobId;
 use tessera_description::job::{JobProgress, JobSettings, JobState};
@@ -47,24 +49,6 @@ pub struct SubmitArgs {
     /// Priority: jobs with a higher one are served first, equal ones oldest first.
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub priority: i32,
-}
-
-/// Says what was found in a data directory: jobs taken up again, and any damage.
-pub fn report_recovery(dir: &Path, recovery: &Recovery) {
-    for p in &recovery.problems {
-        eprintln!("warning: {}: {p}", dir.display());
-    }
-    for r in &recovery.resumed {
-        let pct = r.samples_kept as f64 / r.samples_total.max(1) as f64 * 100.0;
-        eprintln!(
-            "resumed job {} ({}) from {}: {pct:.1}% done, {} of {} samples kept",
-            r.id.0,
-            r.state.name(),
-            dir.display(),
-            r.samples_kept,
-            r.samples_total
-        );
-    }
 }
 
 /// Runs a coordinator until Ctrl-C or SIGTERM; with a data directory, its jobs survive.
@@ -213,7 +197,7 @@ async fn wait(client: &mut CoordinatorClient<Channel>, job: JobId) -> Result<Job
         bar.set_prefix(s.pass.to_string());
         bar.set_position((s.samples_done as f64 / total * 1000.0) as u64);
         let waiting = if response.workers.is_empty() { ", waiting for workers" } else { "" };
-        bar.set_message(format!("{}{waiting}", crate::local::rate(s.samples_per_second)));
+        bar.set_message(format!("{}{waiting}", crate::report::rate(s.samples_per_second)));
         if s.state.is_over() {
             bar.finish_and_clear();
             return Ok(s);
@@ -282,7 +266,7 @@ pub async fn status(url: &str) -> Result<ExitCode> {
             done,
             j.spp,
             j.priority,
-            crate::local::rate(j.samples_per_second),
+            crate::report::rate(j.samples_per_second),
             j.scene,
             j.width,
             j.height,

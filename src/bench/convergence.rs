@@ -13,7 +13,7 @@ use rayon::prelude::*;
 use tessera_description::bundle::Bundle;
 use tessera_film::fixed;
 use tessera_film::quadtree::{fifo_walk_in, ChildOrder};
-use tessera_worker::batch::render_batch;
+use tessera_worker::batch::{render_batch, Sums};
 use tessera_worker::build::parse_bundle;
 use tessera_worker::render::{SamplerKind, Scene};
 
@@ -28,7 +28,7 @@ pub fn render_image(scene: &Scene, samples: std::ops::Range<u32>) -> Vec<f32> {
         .into_par_iter()
         .map(|row| {
             let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, h - 1 - row)).collect();
-            let r = render_batch(scene, &pixels, samples.clone());
+            let r = render_batch(scene, &pixels, samples.clone(), Sums::Radiance);
             r.sums.iter().map(|&s| fixed::mean(s, n)).collect()
         })
         .collect();

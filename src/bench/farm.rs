@@ -280,7 +280,12 @@ fn real_batch_time(spp: u32) -> Result<Duration> {
     let pixels: Vec<glam::UVec2> =
         (0..pixels).map(|i| glam::UVec2::new(i % scene.width, i / scene.width)).collect();
     let t = Instant::now();
-    std::hint::black_box(tessera_worker::batch::render_batch(&scene, &pixels, 1..spp.max(2)));
+    std::hint::black_box(tessera_worker::batch::render_batch(
+        &scene,
+        &pixels,
+        1..spp.max(2),
+        tessera_worker::batch::Sums::Radiance,
+    ));
     Ok(t.elapsed())
 }
 

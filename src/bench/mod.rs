@@ -8,7 +8,7 @@ use anyhow::{anyhow, Result};
 use glam::UVec2;
 use rayon::prelude::*;
 use tessera_description::bundle::Bundle;
-use tessera_worker::batch::render_batch;
+use tessera_worker::batch::{render_batch, Sums};
 use tessera_worker::build::parse_bundle;
 
 use crate::local::{render_local, LocalOptions};
@@ -255,7 +255,7 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
                         .into_par_iter()
                         .map(|y| {
                             let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, y)).collect();
-                            render_batch(&parsed, &pixels, 0..n).sums.iter().sum::<u64>()
+                            render_batch(&parsed, &pixels, 0..n, Sums::Radiance).sums.iter().sum::<u64>()
                         })
                         .collect()
                 });
@@ -302,12 +302,12 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             println!(
                 "median one process:   {:.3} s ({})",
                 s.as_secs_f64(),
-                crate::local::rate(samples as f64 / s.as_secs_f64())
+                crate::report::rate(samples as f64 / s.as_secs_f64())
             );
             println!(
                 "median farm:          {:.3} s ({})",
                 f.as_secs_f64(),
-                crate::local::rate(samples as f64 / f.as_secs_f64())
+                crate::report::rate(samples as f64 / f.as_secs_f64())
             );
             println!(
                 "farm overhead:        {:+.1} % (medians), {:+.1} % (fastest runs)",
@@ -334,7 +334,7 @@ fn whitted(path: &std::path::Path, runs: usize) -> Result<ExitCode> {
     let (mut a, mut b) = (Vec::new(), Vec::new());
     for _ in 0..runs {
         let t = Instant::now();
-        a = render_batch(&scene, &pixels, 0..n).sums;
+        a = render_batch(&scene, &pixels, 0..n, Sums::Radiance).sums;
         full = full.min(t.elapsed());
         let t = Instant::now();
         let mut sampler = scene.sampler();
@@ -363,12 +363,12 @@ fn whitted(path: &std::path::Path, runs: usize) -> Result<ExitCode> {
     println!(
         "full renderer (BVH, Cook's integrator): {:.3} s ({})",
         full.as_secs_f64(),
-        crate::local::rate(samples / full.as_secs_f64())
+        crate::report::rate(samples / full.as_secs_f64())
     );
     println!(
         "minimal Whitted tracer:                 {:.3} s ({})",
         plain.as_secs_f64(),
-        crate::local::rate(samples / plain.as_secs_f64())
+        crate::report::rate(samples / plain.as_secs_f64())
     );
     println!("time ratio full / minimal: {:.3}", full.as_secs_f64() / plain.as_secs_f64());
     println!("largest pixel difference: {max_diff:.2e} (same rays, same shading)");

@@ -19,14 +19,19 @@ pub struct BatchSums {
     pub even: Vec<u64>,
 }
 
-/// Renders samples `samples` of each pixel. The result depends only on the scene and the
-/// arguments: fixed-point sums make it independent of how the work is split.
-pub fn render_batch(scene: &Scene, pixels: &[UVec2], samples: Range<u32>) -> BatchSums {
-    render_batch_split(scene, pixels, samples, false)
+/// Which sums a batch returns besides the radiance sums.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sums {
+    /// The radiance sums only.
+    Radiance,
+    /// Also the luminance of even-indexed samples (jobs with a noise target).
+    WithEven,
 }
 
-/// `render_batch`, also summing the luminance of even-indexed samples when `even` is set.
-pub fn render_batch_split(scene: &Scene, pixels: &[UVec2], samples: Range<u32>, even: bool) -> BatchSums {
+/// Renders samples `samples` of each pixel. The result depends only on the scene and the
+/// arguments: fixed-point sums make it independent of how the work is split.
+pub fn render_batch(scene: &Scene, pixels: &[UVec2], samples: Range<u32>, want: Sums) -> BatchSums {
+    let even = want == Sums::WithEven;
     let mut sampler = scene.sampler();
     let mut sums = Vec::with_capacity(pixels.len() * 3);
     let mut evens = Vec::with_capacity(if even { pixels.len() } else { 0 });

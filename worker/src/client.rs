@@ -17,7 +17,7 @@ use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tracing::{debug, info, warn};
 
-use crate::batch::render_batch_split;
+use crate::batch::{render_batch, Sums};
 use crate::render::Scene;
 
 /// Built scenes a worker keeps at once, by content hash; the least recently used goes
@@ -75,7 +75,12 @@ impl Pool {
                         let start = Instant::now();
                         let b = &task.batch;
                         let range = b.sample_start..b.sample_end;
-                        let sums = render_batch_split(&task.scene, &task.pixels, range, b.even_sums);
+                        let sums = render_batch(
+                            &task.scene,
+                            &task.pixels,
+                            range,
+                            if b.even_sums { Sums::WithEven } else { Sums::Radiance },
+                        );
                         let _ = task.reply.send(pb::BatchResult {
                             job_id: b.job_id,
                             batch_id: b.batch_id,

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use glam::UVec2;
 use tessera_description::bundle::Bundle;
 use tessera_film::fixed;
-use tessera_worker::batch::render_batch;
+use tessera_worker::batch::{render_batch, Sums};
 
 const SIZE: (u32, u32) = (64, 40);
 const SPP: u32 = 8;
@@ -26,7 +26,7 @@ fn render_tiny(path: &Path) -> Vec<u8> {
     let mut out = Vec::with_capacity((w * h * 3) as usize);
     for row in 0..h {
         let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, h - 1 - row)).collect();
-        let sums = render_batch(&scene, &pixels, 0..SPP);
+        let sums = render_batch(&scene, &pixels, 0..SPP, Sums::Radiance);
         out.extend(sums.sums.iter().map(|&s| srgb8(fixed::mean(s, SPP))));
     }
     out

@@ -2,7 +2,7 @@
 
 use glam::UVec2;
 use tessera_film::fixed;
-use tessera_worker::batch::render_batch;
+use tessera_worker::batch::{render_batch, Sums};
 use tessera_worker::build::parse_scene;
 
 /// Renders a scene text; returns width, height and linear RGB, top row first. Fails on any
@@ -13,7 +13,7 @@ pub fn render(text: &str) -> (u32, u32, Vec<[f32; 3]>) {
     let mut out = Vec::with_capacity((w * h) as usize);
     for row in 0..h {
         let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, h - 1 - row)).collect();
-        let r = render_batch(&scene, &pixels, 0..scene.spp);
+        let r = render_batch(&scene, &pixels, 0..scene.spp, Sums::Radiance);
         assert_eq!(r.nonfinite, 0, "non-finite samples in row {row}");
         out.extend(r.sums.chunks(3).map(|s| [0, 1, 2].map(|c| fixed::mean(s[c], scene.spp))));
     }
