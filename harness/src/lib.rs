@@ -267,6 +267,7 @@ pub struct Harness {
     /// Its address.
     pub addr: SocketAddr,
     channel: Channel,
+    service: CoordinatorService,
     shutdown: Option<oneshot::Sender<()>>,
     server: JoinHandle<()>,
     reaper: JoinHandle<()>,
@@ -282,6 +283,7 @@ impl Harness {
     pub async fn start_with(timing: Timing) -> Result<Harness> {
         let service = CoordinatorService::new(timing);
         let reaper = service.spawn_reaper();
+        let handle = service.clone();
         // Loopback TCP rather than an in-memory pipe: the same transport as production,
         // and the coordinator sees real connection ends when a fake worker drops.
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
@@ -300,7 +302,12 @@ impl Harness {
         });
         let url = format!("http://{addr}");
         let channel = connect(&url).await?;
-        Ok(Harness { url, addr, channel, shutdown: Some(shutdown), server, reaper })
+        Ok(Harness { url, addr, channel, service: handle, shutdown: Some(shutdown), server, reaper })
+    }
+
+    /// The service itself, for what only the coordinator can see (how viewers were fed).
+    pub fn service(&self) -> &CoordinatorService {
+        &self.service
     }
 
     /// A channel to it (cheap to clone; one HTTP/2 connection).

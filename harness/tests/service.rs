@@ -237,11 +237,9 @@ async fn a_viewer_joining_mid_job_gets_a_reset_snapshot_then_converges() {
 }
 
 /// Invariant (proto `FramebufferUpdate.reset`): only the first update of a stream is a
-/// reset. Today a viewer that joins before the first merge gets `reset` on every update
-/// until something is merged (`feed_viewer` derives it from `sent == 0`); harmless for a
-/// replica, which then holds an empty image, but not the contract.
+/// reset, also for a viewer that joins before the first merge (the old feeder derived it
+/// from "nothing sent yet" and repeated it until something was merged).
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "coordinator bug: reset repeats until the first merge; see the test's comment"]
 async fn only_the_first_update_of_a_stream_is_a_reset() {
     let h = Harness::start().await.unwrap();
     let job = h.submit_small(W, H, SPP).await.unwrap();
@@ -252,4 +250,29 @@ async fn only_the_first_update_of_a_stream_is_a_reset() {
     let _a = serving(&h, "a").await;
     assert_converged(&h, &mut viewer, job).await;
     assert_eq!(viewer.resets, 1, "resets in one stream");
+}
+
+/// Invariant (ARCHITECTURE, viewers never slow rendering): viewers in step are fed the
+/// delta one publisher computed for the job, not a scan of their own per tick; a viewer
+/// makes its own updates only to join (and to catch up, should it fall behind).
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn viewers_in_step_share_the_publishers_deltas() {
+    let h = Harness::start().await.unwrap();
+    let job = h.submit_small(160, 120, 256).await.unwrap();
+    let mut viewers = Vec::new();
+    for _ in 0..3 {
+        viewers.push(FakeViewer::watch(&h.channel(), job.0, 0.0, true).await.unwrap());
+    }
+    // Slow enough that the job spans many publisher ticks.
+    let w = FakeWorker::connect(&h.channel(), "slow", 2).await.unwrap();
+    tokio::spawn(w.serve(Duration::from_millis(10), Arc::new(ServeStats::new(false))));
+    assert_eq!(h.wait_over(job).await.unwrap().state, JobState::Done);
+    let image = h.fetch_image(job).await.unwrap();
+    for v in &mut viewers {
+        v.until_final().await.unwrap();
+        assert!(v.image_bytes().unwrap() == image.bytes, "a replica differs from FetchImage");
+    }
+    let fed = h.service().viewer_updates();
+    eprintln!("viewer updates: {fed:?}");
+    assert!(fed.shared > 3 * fed.own, "most updates come from shared deltas: {fed:?}");
 }

@@ -28,7 +28,7 @@ use tracing::{info, warn};
 use crate::farm::Farm;
 
 pub use durability::{Recovery, Resumed, SubmitFailure};
-pub use viewers::{WATCH_CHUNK_PIXELS, WATCH_DEFAULT_RATE};
+pub use viewers::{ViewerUpdates, WATCH_CHUNK_PIXELS, WATCH_DEFAULT_RATE};
 pub use workers::MAX_CREDIT;
 
 /// Timing of the worker protocol.

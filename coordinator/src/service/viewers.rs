@@ -7,6 +7,7 @@
 //! scanning and encoding happen outside it.
 
 use std::collections::HashMap;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -46,6 +47,19 @@ pub(super) struct Delta {
 #[derive(Default)]
 pub(super) struct Feeds {
     by_job: Mutex<HashMap<JobId, watch::Receiver<Arc<Delta>>>>,
+    /// Updates sent from a publisher's shared delta.
+    shared: AtomicU64,
+    /// Updates a viewer's task made from a snapshot of its own (joining, or behind).
+    own: AtomicU64,
+}
+
+/// How viewers' updates were made, since the coordinator started.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct ViewerUpdates {
+    /// Sent from the delta one publisher computed for every viewer of a job.
+    pub shared: u64,
+    /// Made by a viewer's own task from a snapshot (a viewer joining or catching up).
+    pub own: u64,
 }
 
 /// A job's framebuffer and status at one moment, taken under the lock.
@@ -92,6 +106,14 @@ impl ViewSnapshot {
 }
 
 impl CoordinatorService {
+    /// How viewers' updates were made so far: shared deltas against per-viewer catch-ups.
+    pub fn viewer_updates(&self) -> ViewerUpdates {
+        ViewerUpdates {
+            shared: self.feeds.shared.load(Ordering::Relaxed),
+            own: self.feeds.own.load(Ordering::Relaxed),
+        }
+    }
+
     /// A snapshot of what viewers see of `job`, or `None` if there is no such job.
     fn view_snapshot(&self, job: JobId) -> Option<ViewSnapshot> {
         let farm = self.farm();
@@ -226,12 +248,21 @@ impl CoordinatorService {
             let fresh = !seen.as_ref().is_some_and(|d| Arc::ptr_eq(d, &delta));
             seen = Some(delta.clone());
             let over = match sent {
-                // In step with the publisher: its delta, shared, as it is.
-                Some(v) if fresh && delta.from == v && !delta.updates.is_empty() => {
+                // In step with the publisher: its delta, shared, as it is. Pixel states are
+                // absolute (sums and counts, not increments), so a delta from `from` brings
+                // any replica between `from` and `to` to `to`; a replica that caught up on
+                // its own is therefore in step again with the next delta.
+                Some(v)
+                    if fresh
+                        && delta.from <= v
+                        && (v < delta.to || delta.over)
+                        && !delta.updates.is_empty() =>
+                {
                     for u in &delta.updates {
                         if tx.send(Ok(u.clone())).await.is_err() {
                             return;
                         }
+                        self.feeds.shared.fetch_add(1, Ordering::Relaxed);
                     }
                     sent = Some(delta.to);
                     delta.over
@@ -245,6 +276,7 @@ impl CoordinatorService {
                         if tx.send(Ok(u)).await.is_err() {
                             return;
                         }
+                        self.feeds.own.fetch_add(1, Ordering::Relaxed);
                     }
                     sent = Some(snap.fb.version());
                     snap.over
