@@ -217,15 +217,17 @@ async fn case(
     let warm = warm.elapsed().as_secs_f64();
     tokio::time::sleep(Duration::from_millis(500)).await;
     let done = |s: &tessera_harness::FarmStatus| s.workers.iter().map(|w| w.batches_done).sum::<u64>();
-    let (c0, b0, d0) =
-        (cpu_ticks(&pid)?, cpu_ticks("self")?, done(&tessera_harness::status(&channel).await?));
-    let t0 = Instant::now();
+    // Commits and CPU are taken between the two Status answers (a loaded coordinator may
+    // answer late), the viewers' and workers' counts while `measuring` is set.
+    let d0 = done(&tessera_harness::status(&channel).await?);
+    let (c0, b0, t0) = (cpu_ticks(&pid)?, cpu_ticks("self")?, Instant::now());
     stats.set_measuring(true);
     tokio::time::sleep(Duration::from_secs_f64(opts.seconds)).await;
     stats.set_measuring(false);
     let window = t0.elapsed().as_secs_f64();
     let status = tessera_harness::status(&channel).await?;
     let (c1, b1, d1) = (cpu_ticks(&pid)?, cpu_ticks("self")?, done(&status));
+    let span = t0.elapsed().as_secs_f64();
     if status.jobs.iter().any(|j| j.id == job && j.state.is_over()) {
         note = " (job ended)";
     }
@@ -247,7 +249,7 @@ async fn case(
     let lease = std::mem::take(&mut *stats.lease_micros.lock().unwrap_or_else(|e| e.into_inner()));
     let merge = std::mem::take(&mut *merge_micros.lock().unwrap_or_else(|e| e.into_inner()));
     Ok(Figures {
-        commits_per_s: commits as f64 / window,
+        commits_per_s: commits as f64 / span,
         cpu: c1.saturating_sub(c0) as f64 / ticks,
         commits,
         updates: counts.iter().map(|c| c.updates.load(Ordering::Relaxed)).sum(),
@@ -260,7 +262,7 @@ async fn case(
         bytes_per_viewer_s: per_viewer.iter().map(|p| p.1).sum::<f64>() / n,
         simulated_worker_cpu: stats.simulated_micros.load(Ordering::Relaxed) as f64 / 1e6,
         bench_cpu: b1.saturating_sub(b0) as f64 / ticks,
-        window,
+        window: span,
         warm,
         note,
     })
