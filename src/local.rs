@@ -13,7 +13,6 @@ use tessera_description::ids::JobId;
 use tessera_description::job::{JobProgress, JobSettings, JobState};
 use tokio::net::TcpListener;
 use tokio::process::{Child, Command};
-use tokio_stream::wrappers::TcpListenerStream;
 
 use crate::report::rate;
 
@@ -230,7 +229,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
     let server = tokio::spawn(
         tonic::transport::Server::builder()
             .add_service(service.clone().into_server())
-            .serve_with_incoming(TcpListenerStream::new(listener)),
+            .serve_with_incoming(tessera_coordinator::service::incoming(listener)),
     );
     let reaper = service.spawn_reaper();
     let url = format!("http://{addr}");

@@ -74,7 +74,7 @@ pub async fn serve_coordinator(
     tonic::transport::Server::builder()
         .add_service(service.clone().into_server())
         .serve_with_incoming_shutdown(
-            tokio_stream::wrappers::TcpListenerStream::new(listener),
+            tessera_coordinator::service::incoming(listener),
             crate::shutdown_signal(),
         )
         .await

@@ -292,12 +292,9 @@ impl Harness {
         let server = tokio::spawn(async move {
             let _ = tonic::transport::Server::builder()
                 .add_service(service.into_server())
-                .serve_with_incoming_shutdown(
-                    tokio_stream::wrappers::TcpListenerStream::new(listener),
-                    async {
-                        let _ = stop.await;
-                    },
-                )
+                .serve_with_incoming_shutdown(tessera_coordinator::service::incoming(listener), async {
+                    let _ = stop.await;
+                })
                 .await;
         });
         let url = format!("http://{addr}");

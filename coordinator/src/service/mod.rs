@@ -194,3 +194,18 @@ impl CoordinatorService {
         })
     }
 }
+
+/// The connections a listener accepts, with Nagle's algorithm off: the work stream sends
+/// small messages (a batch, a result with credit) that must not wait for the previous
+/// one's acknowledgement (tens of milliseconds with delayed ACKs). tonic's own
+/// `tcp_nodelay` applies only to listeners it binds itself.
+pub fn incoming(
+    listener: tokio::net::TcpListener,
+) -> impl tokio_stream::Stream<Item = std::io::Result<tokio::net::TcpStream>> {
+    use tokio_stream::StreamExt;
+    tokio_stream::wrappers::TcpListenerStream::new(listener).map(|conn| {
+        let conn = conn?;
+        conn.set_nodelay(true)?;
+        Ok(conn)
+    })
+}
