@@ -253,3 +253,15 @@ async fn only_the_first_update_of_a_stream_is_a_reset() {
     assert_converged(&h, &mut viewer, job).await;
     assert_eq!(viewer.resets, 1, "resets in one stream");
 }
+
+/// A viewer of protocol version 1 sends no version and could not read the pixels: its
+/// watch is refused with a reason, not answered with updates it would show as blank.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_viewer_of_another_protocol_is_refused_with_a_reason() {
+    let h = Harness::start().await.unwrap();
+    let job = h.submit_small(W, H, SPP).await.unwrap();
+    let old = tessera_proto::v1::WatchRequest { job_id: job.0, ..Default::default() };
+    let status = tessera_harness::client(&h.channel()).watch(old).await.unwrap_err();
+    assert_eq!(status.code(), tonic::Code::FailedPrecondition);
+    assert!(status.message().contains("protocol version 0"), "{}", status.message());
+}

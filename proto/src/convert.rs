@@ -346,6 +346,19 @@ mod tests {
         assert_eq!(pixels_from_wire(&[], 10).unwrap().count(), 0);
     }
 
+    /// Version 1 sent the runs inline as field 6: exactly the payload's bytes. Wrapping
+    /// them in one bytes field costs its tag and length prefix, 2 to 4 bytes an update.
+    #[test]
+    fn the_payload_costs_one_length_prefix_over_inline_runs() {
+        let pixels: Vec<_> = (0..65536).map(|i| pixel(i * 2, 7)).collect();
+        let payload = pixels_to_wire(&pixels);
+        let bare = pb::FramebufferUpdate { job_id: 1, width: 512, height: 256, ..Default::default() };
+        let full = pb::FramebufferUpdate { pixels: payload.clone(), ..bare.clone() };
+        let over = full.encoded_len() - bare.encoded_len() - payload.len();
+        assert_eq!(over, 1 + prost::length_delimiter_len(payload.len()));
+        assert!(over <= 4);
+    }
+
     #[test]
     fn bad_pixel_payloads_are_refused_with_reasons() {
         let wire = pixels_to_wire(&[pixel(4, 1), pixel(5, 2)]);
