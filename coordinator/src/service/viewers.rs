@@ -279,7 +279,7 @@ mod tests {
     use tessera_description::job::JobSettings;
     use tessera_description::Bundle;
 
-    /// The updates of one viewer's stream until one carries pixels (after its snapshot).
+    /// Reads one viewer's updates until one carries pixels, and returns those.
     async fn next_pixels(rx: &mut mpsc::Receiver<Result<pb::FramebufferUpdate, Status>>) -> Bytes {
         loop {
             let u = rx.recv().await.expect("the stream stays open").expect("no error");
