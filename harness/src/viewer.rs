@@ -3,7 +3,8 @@
 
 use std::time::{Duration, Instant};
 
-use tessera_film::framebuffer::{Framebuffer, PixelState};
+use tessera_film::framebuffer::Framebuffer;
+use tessera_proto::convert::pixels_from_wire;
 use tessera_proto::v1 as pb;
 use tonic::transport::Channel;
 use tonic::Streaming;
@@ -35,7 +36,14 @@ impl FakeViewer {
     /// Watches job `job` at up to `max_rate` updates a second (0: the coordinator's
     /// default), keeping a replica if `keep_replica`.
     pub async fn watch(channel: &Channel, job: u64, max_rate: f64, keep_replica: bool) -> Result<FakeViewer> {
-        let stream = client(channel).watch(pb::WatchRequest { job_id: job, max_rate }).await?.into_inner();
+        let stream = client(channel)
+            .watch(pb::WatchRequest {
+                job_id: job,
+                max_rate,
+                protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
+            })
+            .await?
+            .into_inner();
         Ok(FakeViewer {
             stream,
             keep_replica,
@@ -57,25 +65,25 @@ impl FakeViewer {
         self.bytes += prost::Message::encoded_len(&u) as u64;
         self.updates += 1;
         if u.reset {
+            if u.protocol_version != tessera_proto::PROTOCOL_VERSION as i32 {
+                return Err(HarnessError::Protocol(format!(
+                    "the coordinator speaks protocol version {}",
+                    u.protocol_version
+                )));
+            }
             self.resets += 1;
             self.replica = None;
             self.version = 0;
         }
         if self.keep_replica {
             let n = u64::from(u.width) * u64::from(u.height);
-            for r in &u.runs {
-                if r.sums.len() != r.counts.len() * 3 || u64::from(r.start) + r.counts.len() as u64 > n {
-                    return Err(HarnessError::Protocol(format!("malformed pixel run at {}", r.start)));
-                }
-            }
+            let pixels = pixels_from_wire(&u.pixels, n).map_err(|e| HarnessError::Protocol(e.to_string()))?;
             let fb = self.replica.get_or_insert_with(|| Framebuffer::new(u.width, u.height));
             if (fb.width(), fb.height()) != (u.width, u.height) {
                 return Err(HarnessError::Protocol("the image size changed mid-stream".into()));
             }
-            for r in &u.runs {
-                for (k, (s, &count)) in r.sums.chunks_exact(3).zip(&r.counts).enumerate() {
-                    fb.set(&PixelState { index: r.start + k as u32, sums: [s[0], s[1], s[2]], count });
-                }
+            for p in pixels {
+                fb.set(&p);
             }
         }
         if u.chunk_end {

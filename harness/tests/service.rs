@@ -276,3 +276,15 @@ async fn viewers_in_step_share_the_publishers_deltas() {
     eprintln!("viewer updates: {fed:?}");
     assert!(fed.shared > 3 * fed.own, "most updates come from shared deltas: {fed:?}");
 }
+
+/// A viewer of protocol version 1 sends no version and could not read the pixels: its
+/// watch is refused with a reason, not answered with updates it would show as blank.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_viewer_of_another_protocol_is_refused_with_a_reason() {
+    let h = Harness::start().await.unwrap();
+    let job = h.submit_small(W, H, SPP).await.unwrap();
+    let old = tessera_proto::v1::WatchRequest { job_id: job.0, ..Default::default() };
+    let status = tessera_harness::client(&h.channel()).watch(old).await.unwrap_err();
+    assert_eq!(status.code(), tonic::Code::FailedPrecondition);
+    assert!(status.message().contains("protocol version 0"), "{}", status.message());
+}

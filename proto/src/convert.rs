@@ -2,13 +2,17 @@
 //! one place so that the coordinator and every client read and write the wire alike.
 //!
 //! On the wire, 0 means "none" for ids and "keep the scene's" for settings; here those are
-//! `Option`s.
+//! `Option`s. A watch update's pixels travel as an encoded `PixelRuns`
+//! ([`pixels_to_wire`], [`pixels_from_wire`]).
 
 use std::time::Duration;
 
+use bytes::Bytes;
+use prost::Message;
 use tessera_description::ids::{BatchId, JobId, WorkerId};
 use tessera_description::job::{JobProgress, JobSettings, JobState};
 use tessera_description::Bundle;
+use tessera_film::PixelState;
 
 use crate::v1 as pb;
 
@@ -21,6 +25,66 @@ pub enum WireError {
     /// A job state this build does not know (or unspecified).
     #[error("unknown job state {0}")]
     UnknownState(i32),
+}
+
+/// Why a watch update's pixel payload is refused (a coordinator speaking nonsense).
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum PixelsError {
+    /// The payload is not an encoded `PixelRuns` (e.g. cut short).
+    #[error("the pixel payload does not decode: {0}")]
+    Decode(#[from] prost::DecodeError),
+    /// A run does not fit the image or its arrays disagree.
+    #[error("malformed pixel run at {start}: {reason}")]
+    Run {
+        /// First pixel.
+        start: u32,
+        /// What is wrong.
+        reason: &'static str,
+    },
+}
+
+/// Pixels as a watch update carries them: consecutive indices grouped into runs, encoded
+/// once, so that every viewer of the chunk shares this buffer. No pixels: an empty payload.
+pub fn pixels_to_wire(pixels: &[PixelState]) -> Bytes {
+    if pixels.is_empty() {
+        return Bytes::new();
+    }
+    let mut runs: Vec<pb::PixelRun> = Vec::new();
+    for p in pixels {
+        match runs.last_mut() {
+            Some(r) if r.start as usize + r.counts.len() == p.index as usize => {
+                r.sums.extend_from_slice(&p.sums);
+                r.counts.push(p.count);
+            }
+            _ => runs.push(pb::PixelRun { start: p.index, sums: p.sums.to_vec(), counts: vec![p.count] }),
+        }
+    }
+    Bytes::from(pb::PixelRuns { runs }.encode_to_vec())
+}
+
+/// A watch update's pixels from the wire, for an image of `image_pixels` pixels. The
+/// whole payload is decoded and every run checked before the first pixel is yielded, so a
+/// replica that applies them either takes the whole chunk or nothing.
+pub fn pixels_from_wire(
+    payload: &[u8],
+    image_pixels: u64,
+) -> Result<impl Iterator<Item = PixelState>, PixelsError> {
+    let runs = pb::PixelRuns::decode(payload)?.runs;
+    for r in &runs {
+        if r.sums.len() != r.counts.len() * 3 {
+            return Err(PixelsError::Run { start: r.start, reason: "sums are not 3 per pixel" });
+        }
+        if u64::from(r.start) + r.counts.len() as u64 > image_pixels {
+            return Err(PixelsError::Run { start: r.start, reason: "run extends past the image" });
+        }
+    }
+    Ok(runs.into_iter().flat_map(|r| {
+        (0..r.counts.len()).map(move |k| PixelState {
+            index: r.start + k as u32,
+            sums: [r.sums[3 * k], r.sums[3 * k + 1], r.sums[3 * k + 2]],
+            count: r.counts[k],
+        })
+    }))
 }
 
 /// A bundle as it travels.
@@ -262,6 +326,48 @@ mod tests {
         let wire = status_to_wire(&p);
         assert_eq!(wire.error, "out of memory");
         assert_eq!(status_from_wire(wire), Ok(p));
+    }
+
+    fn pixel(index: u32, count: u32) -> PixelState {
+        PixelState { index, sums: [u64::from(index), 1 << 40, 3], count }
+    }
+
+    #[test]
+    fn pixels_round_trip_in_runs() {
+        let pixels = vec![pixel(4, 1), pixel(5, 2), pixel(6, 1), pixel(0, 9), pixel(9, 1)];
+        let wire = pixels_to_wire(&pixels);
+        let runs = pb::PixelRuns::decode(wire.clone()).unwrap().runs;
+        assert_eq!(
+            runs.iter().map(|r| (r.start, r.counts.len())).collect::<Vec<_>>(),
+            [(4, 3), (0, 1), (9, 1)]
+        );
+        assert_eq!(pixels_from_wire(&wire, 10).unwrap().collect::<Vec<_>>(), pixels);
+        assert!(pixels_to_wire(&[]).is_empty());
+        assert_eq!(pixels_from_wire(&[], 10).unwrap().count(), 0);
+    }
+
+    /// Version 1 sent the runs inline as field 6: exactly the payload's bytes. Wrapping
+    /// them in one bytes field costs its tag and length prefix, 2 to 4 bytes an update.
+    #[test]
+    fn the_payload_costs_one_length_prefix_over_inline_runs() {
+        let pixels: Vec<_> = (0..65536).map(|i| pixel(i * 2, 7)).collect();
+        let payload = pixels_to_wire(&pixels);
+        let bare = pb::FramebufferUpdate { job_id: 1, width: 512, height: 256, ..Default::default() };
+        let full = pb::FramebufferUpdate { pixels: payload.clone(), ..bare.clone() };
+        let over = full.encoded_len() - bare.encoded_len() - payload.len();
+        assert_eq!(over, 1 + prost::length_delimiter_len(payload.len()));
+        assert!(over <= 4);
+    }
+
+    #[test]
+    fn bad_pixel_payloads_are_refused_with_reasons() {
+        let wire = pixels_to_wire(&[pixel(4, 1), pixel(5, 2)]);
+        assert!(matches!(pixels_from_wire(&wire[..wire.len() - 1], 10), Err(PixelsError::Decode(_))));
+        let err = pixels_from_wire(&wire, 5).err().unwrap();
+        assert_eq!(err, PixelsError::Run { start: 4, reason: "run extends past the image" });
+        let odd = pb::PixelRuns { runs: vec![pb::PixelRun { start: 0, sums: vec![1], counts: vec![1] }] };
+        let err = pixels_from_wire(&odd.encode_to_vec(), 10).err().unwrap();
+        assert!(err.to_string().contains("3 per pixel"), "{err}");
     }
 
     #[test]

@@ -169,14 +169,11 @@ async fn case(
                     let now = Instant::now();
                     let mut sent = stats.sent.lock().unwrap_or_else(|e| e.into_inner());
                     let mut lat = merge_micros.lock().unwrap_or_else(|e| e.into_inner());
-                    for r in &u.runs {
-                        for (k, &c) in r.counts.iter().enumerate() {
-                            let i = r.start + k as u32;
-                            if c > 1 {
-                                if let Some(t) = sent.remove(&(job.0, i % width, i / width)) {
-                                    lat.push(now.duration_since(t).as_micros() as u64);
-                                }
-                            }
+                    let n = u64::from(u.width) * u64::from(u.height);
+                    let Ok(pixels) = tessera_proto::convert::pixels_from_wire(&u.pixels, n) else { return };
+                    for p in pixels.filter(|p| p.count > 1) {
+                        if let Some(t) = sent.remove(&(job.0, p.index % width, p.index / width)) {
+                            lat.push(now.duration_since(t).as_micros() as u64);
                         }
                     }
                 }

@@ -47,7 +47,11 @@ impl Watch {
     ) -> Result<tonic::Streaming<pb::FramebufferUpdate>, ConnectError> {
         let mut client = tessera_proto::connect::client(endpoint).await?;
         let stream = client
-            .watch(pb::WatchRequest { job_id: job_to_wire(job), max_rate })
+            .watch(pb::WatchRequest {
+                job_id: job_to_wire(job),
+                max_rate,
+                protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
+            })
             .await
             .map_err(|s| ConnectError::Refused(s.message().to_string()))?
             .into_inner();

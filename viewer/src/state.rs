@@ -2,8 +2,8 @@
 //! `Framebuffer` the coordinator keeps, so that it resolves to the same bits.
 
 use tessera_description::ids::JobId;
-use tessera_film::framebuffer::{Framebuffer, PixelState};
-use tessera_proto::convert::{job_from_wire, state_name};
+use tessera_film::framebuffer::Framebuffer;
+use tessera_proto::convert::{job_from_wire, pixels_from_wire, state_name, PixelsError};
 use tessera_proto::v1 as pb;
 
 /// Why an update could not be applied (a coordinator speaking nonsense).
@@ -17,14 +17,12 @@ pub enum UpdateError {
         /// Now.
         now: (u32, u32),
     },
-    /// A run does not fit the image or its arrays disagree.
-    #[error("malformed pixel run at {start}: {reason}")]
-    Run {
-        /// First pixel.
-        start: u32,
-        /// What is wrong.
-        reason: &'static str,
-    },
+    /// The pixel payload does not decode, or a run in it does not fit the image.
+    #[error(transparent)]
+    Pixels(#[from] PixelsError),
+    /// The stream's first update names another protocol (one of version 1 names none).
+    #[error("the coordinator speaks protocol version {0}, this viewer {current}", current = tessera_proto::PROTOCOL_VERSION as i32)]
+    Protocol(i32),
 }
 
 /// A job as the viewer sees it.
@@ -52,30 +50,26 @@ impl Replica {
     /// Applies one update; checks it all before changing anything. The first update of a
     /// stream starts the replica afresh.
     pub fn apply(&mut self, u: pb::FramebufferUpdate) -> Result<(), UpdateError> {
+        if u.reset && u.protocol_version != tessera_proto::PROTOCOL_VERSION as i32 {
+            return Err(UpdateError::Protocol(u.protocol_version));
+        }
+        // A reset drops the old image, so only a size it has not yet seen can disagree.
+        let fb = if u.reset { None } else { self.fb.as_ref() };
+        let size = (u.width, u.height);
+        let n = u64::from(u.width) * u64::from(u.height);
+        if n == 0 || fb.is_some_and(|fb| (fb.width(), fb.height()) != size) {
+            let was = fb.map_or((0, 0), |fb| (fb.width(), fb.height()));
+            return Err(UpdateError::Size { was, now: size });
+        }
+        let pixels = pixels_from_wire(&u.pixels, n)?;
         if u.reset {
             self.fb = None;
             self.version = 0;
             self.finished = false;
         }
-        let size = (u.width, u.height);
-        let n = u64::from(u.width) * u64::from(u.height);
-        if n == 0 || self.fb.as_ref().is_some_and(|fb| (fb.width(), fb.height()) != size) {
-            let was = self.fb.as_ref().map_or((0, 0), |fb| (fb.width(), fb.height()));
-            return Err(UpdateError::Size { was, now: size });
-        }
-        for r in &u.runs {
-            if r.sums.len() != r.counts.len() * 3 {
-                return Err(UpdateError::Run { start: r.start, reason: "sums are not 3 per pixel" });
-            }
-            if u64::from(r.start) + r.counts.len() as u64 > n {
-                return Err(UpdateError::Run { start: r.start, reason: "run extends past the image" });
-            }
-        }
         let fb = self.fb.get_or_insert_with(|| Framebuffer::new(u.width, u.height));
-        for r in &u.runs {
-            for (k, (s, &count)) in r.sums.chunks_exact(3).zip(&r.counts).enumerate() {
-                fb.set(&PixelState { index: r.start + k as u32, sums: [s[0], s[1], s[2]], count });
-            }
+        for p in pixels {
+            fb.set(&p);
         }
         self.job = job_from_wire(u.job_id);
         if u.chunk_end {
@@ -128,33 +122,78 @@ impl Replica {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use prost::Message;
+    use tessera_film::PixelState;
+    use tessera_proto::convert::pixels_to_wire;
 
-    fn update(runs: Vec<pb::PixelRun>) -> pb::FramebufferUpdate {
+    fn update(pixels: impl Into<bytes::Bytes>) -> pb::FramebufferUpdate {
         pb::FramebufferUpdate {
             job_id: 1,
             width: 2,
             height: 2,
             version: 1,
             chunk_end: true,
-            runs,
+            pixels: pixels.into(),
             ..Default::default()
         }
+    }
+
+    fn runs(runs: Vec<pb::PixelRun>) -> Vec<u8> {
+        pb::PixelRuns { runs }.encode_to_vec()
     }
 
     #[test]
     fn hostile_updates_are_refused_untouched() {
         let mut r = Replica::new();
         let bad = pb::PixelRun { start: 3, sums: vec![1, 2, 3, 4, 5, 6], counts: vec![1, 1] };
-        assert!(matches!(r.apply(update(vec![bad])), Err(UpdateError::Run { .. })));
+        assert!(matches!(
+            r.apply(update(runs(vec![bad]))),
+            Err(UpdateError::Pixels(PixelsError::Run { .. }))
+        ));
         let bad = pb::PixelRun { start: 0, sums: vec![1], counts: vec![1] };
-        assert!(matches!(r.apply(update(vec![bad])), Err(UpdateError::Run { .. })));
+        assert!(matches!(
+            r.apply(update(runs(vec![bad]))),
+            Err(UpdateError::Pixels(PixelsError::Run { .. }))
+        ));
         let ok = pb::PixelRun { start: 0, sums: vec![1 << 24, 0, 0], counts: vec![1] };
-        r.apply(update(vec![ok])).unwrap();
-        let mut resized = update(vec![]);
+        r.apply(update(runs(vec![ok]))).unwrap();
+        let mut resized = update(Vec::new());
         resized.width = 3;
         assert!(matches!(r.apply(resized), Err(UpdateError::Size { .. })));
         // The root pixel paints the whole frame (mosaic).
         let (_, _, img) = r.image().unwrap();
         assert!(img.chunks(3).all(|p| p == [1.0, 0.0, 0.0]));
+    }
+
+    #[test]
+    fn a_truncated_payload_is_refused_and_changes_nothing() {
+        let mut r = Replica::new();
+        let first = PixelState { index: 0, sums: [1 << 24, 0, 0], count: 1 };
+        r.apply(update(pixels_to_wire(&[first]))).unwrap();
+        let before = (r.image(), r.version, r.job, r.finished);
+        let more = [1, 2, 3].map(|index| PixelState { index, sums: [0, 1 << 24, 0], count: 2 });
+        let wire = pixels_to_wire(&more);
+        let mut cut = update(wire.slice(..wire.len() - 2));
+        cut.version = 2;
+        cut.r#final = true;
+        let err = r.apply(cut).unwrap_err();
+        assert!(matches!(err, UpdateError::Pixels(PixelsError::Decode(_))), "{err:?}");
+        assert!(err.to_string().contains("does not decode"), "{err}");
+        assert_eq!((r.image(), r.version, r.job, r.finished), before);
+    }
+
+    #[test]
+    fn a_stream_of_another_protocol_is_refused_untouched() {
+        let mut r = Replica::new();
+        let mut first = update(Vec::new());
+        first.reset = true;
+        first.protocol_version = tessera_proto::PROTOCOL_VERSION as i32;
+        r.apply(first.clone()).unwrap();
+        assert_eq!(r.version, 1);
+        // A version 1 coordinator names no version; its pixels would be lost silently.
+        first.protocol_version = 0;
+        first.version = 5;
+        assert_eq!(r.apply(first), Err(UpdateError::Protocol(0)));
+        assert_eq!(r.version, 1);
     }
 }

@@ -25,6 +25,14 @@ impl Coordinator for CoordinatorService {
 
     async fn watch(&self, request: Request<pb::WatchRequest>) -> Result<Response<Self::WatchStream>, Status> {
         let req = request.into_inner();
+        // A viewer of another version could not read the pixels (one of version 1 sends 0).
+        if req.protocol_version != pb::ProtocolVersion::Current as i32 {
+            return Err(Status::failed_precondition(format!(
+                "viewer speaks protocol version {}, coordinator {}: run the same tessera build",
+                req.protocol_version,
+                pb::ProtocolVersion::Current as i32
+            )));
+        }
         let job = self.pick_job(req.job_id)?;
         let rate =
             if req.max_rate > 0.0 { req.max_rate.min(WATCH_DEFAULT_RATE * 10.0) } else { WATCH_DEFAULT_RATE };

@@ -4,13 +4,16 @@
 //! viewer at that version; a viewer that fell behind (it reads slowly, or asked for a
 //! lower rate) catches up from a snapshot of its own, streamed a chunk at a time. Every
 //! snapshot is a copy-on-write clone taken under the farm's lock in microseconds; the
-//! scanning and encoding happen outside it.
+//! scanning and encoding happen outside it. A chunk's pixels are encoded to bytes once
+//! (`convert::pixels_to_wire`), so handing a delta to a viewer clones a reference count,
+//! and tonic copies those bytes to each stream without encoding them again.
 
 use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
+use bytes::Bytes;
 use tessera_description::ids::JobId;
 use tessera_description::job::JobState;
 use tessera_film::Framebuffer;
@@ -30,7 +33,8 @@ pub const WATCH_DEFAULT_RATE: f64 = 10.0;
 /// A publisher with nothing new still sends the status this often (samples/s, workers).
 const STATUS_REFRESH: Duration = Duration::from_secs(1);
 
-/// One delta of a job's framebuffer, encoded once and shared by every viewer at `from`.
+/// One delta of a job's framebuffer, encoded once and shared by every viewer at `from`:
+/// cloning an update clones its status and a pointer to its pixels.
 #[derive(Debug, Default)]
 pub(super) struct Delta {
     /// The version the delta starts from.
@@ -72,7 +76,8 @@ struct ViewSnapshot {
 
 impl ViewSnapshot {
     /// The updates bringing a replica at version `since` to this snapshot, one chunk at a
-    /// time; at least one update, so that a viewer always hears the status.
+    /// time, each chunk's pixels encoded once; at least one update, so that a viewer always
+    /// hears the status. The first update with `reset` also names the protocol version.
     fn updates(
         &self,
         job: JobId,
@@ -93,11 +98,12 @@ impl ViewSnapshot {
                 height: self.fb.height(),
                 version: self.fb.version(),
                 chunk_end: end,
-                runs: pixels.map_or_else(Vec::new, |p| runs(&p)),
+                pixels: pixels.map_or_else(Bytes::new, |p| convert::pixels_to_wire(&p)),
                 status: Some(self.status.clone()),
                 workers: self.workers,
                 r#final: self.over && end,
                 reset: reset && first,
+                protocol_version: if reset && first { tessera_proto::PROTOCOL_VERSION as i32 } else { 0 },
             };
             first = false;
             Some(update)
@@ -298,17 +304,57 @@ impl CoordinatorService {
     }
 }
 
-/// Consecutive pixels grouped into runs.
-fn runs(pixels: &[tessera_film::PixelState]) -> Vec<pb::PixelRun> {
-    let mut out: Vec<pb::PixelRun> = Vec::new();
-    for p in pixels {
-        match out.last_mut() {
-            Some(r) if r.start as usize + r.counts.len() == p.index as usize => {
-                r.sums.extend_from_slice(&p.sums);
-                r.counts.push(p.count);
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Timing;
+    use tessera_description::job::JobSettings;
+    use tessera_description::Bundle;
+
+    /// Reads one viewer's updates until one carries pixels, and returns those.
+    async fn next_pixels(rx: &mut mpsc::Receiver<Result<pb::FramebufferUpdate, Status>>) -> Bytes {
+        loop {
+            let u = rx.recv().await.expect("the stream stays open").expect("no error");
+            if !u.pixels.is_empty() {
+                return u.pixels;
             }
-            _ => out.push(pb::PixelRun { start: p.index, sums: p.sums.to_vec(), counts: vec![p.count] }),
         }
     }
-    out
+
+    /// Two viewers in step with the publisher receive the same delta: one encoding, the
+    /// same buffer behind both copies.
+    #[tokio::test]
+    async fn viewers_in_step_share_the_encoded_delta() {
+        let service = CoordinatorService::new(Timing::default());
+        let bundle = Bundle {
+            name: "small.toml".into(),
+            text: include_str!("../../../tests/scenes/small.toml").into(),
+            assets: vec![],
+        };
+        let job = service.submit(bundle, JobSettings::sized(Some(2), Some((8, 8))), 0).await.unwrap();
+        let interval = Duration::from_millis(10);
+        let (tx_a, mut a) = mpsc::channel(1);
+        let (tx_b, mut b) = mpsc::channel(1);
+        tokio::spawn(service.clone().feed_viewer(job, interval, tx_a));
+        tokio::spawn(service.clone().feed_viewer(job, interval, tx_b));
+        // Each viewer's own snapshot (nothing rendered yet), then the publisher's baseline.
+        for rx in [&mut a, &mut b] {
+            let u = rx.recv().await.unwrap().unwrap();
+            assert!(u.reset && u.chunk_end && u.pixels.is_empty());
+            assert_eq!(u.protocol_version, tessera_proto::PROTOCOL_VERSION as i32);
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        let w = service.farm().add_worker("w".into(), 1, Instant::now());
+        let lease = service.farm().assign(w, Instant::now()).unwrap();
+        let sums = vec![1 << 24; lease.batch.quads.len() * 3];
+        let r =
+            crate::farm::BatchResult { job, batch: lease.batch.id, sums: &sums, even: None, nonfinite: 0 };
+        service.farm().complete(w, &r, Instant::now()).unwrap();
+        service.notify();
+        let (pa, pb) = tokio::join!(next_pixels(&mut a), next_pixels(&mut b));
+        assert_eq!(pa.as_ptr(), pb.as_ptr());
+        let pixels: Vec<_> = convert::pixels_from_wire(&pa, 64).unwrap().collect();
+        assert_eq!(pixels.len(), lease.batch.quads.len());
+        service.shutdown();
+    }
 }
