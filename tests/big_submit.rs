@@ -16,14 +16,16 @@ use tessera_proto::connect::EndpointConfig;
 use tessera_proto::v1 as pb;
 
 /// Triangles of the one OBJ grid, and the meshes that use it: the bundle carries the mesh
-/// once (a few MB, uploaded in milliseconds on loopback) while validation scans it for
-/// every use, so the submit spends its time validating.
+/// once (10 MB) while validation scans it for every use, long enough (seconds in the dev
+/// profile) for a poll every 10 ms to see it.
 const TRIANGLES: usize = 300_000;
 const MESHES: usize = 24;
 /// The image, which no figure of the listed job may depend on the triangles for.
 const WIDTH: u32 = 64;
 const HEIGHT: u32 = 48;
 const SPP: u32 = 8;
+/// What the coordinator logs as it starts validating a submitted scene.
+const VALIDATING: &str = "validating a submitted scene";
 
 /// Writes grid.obj (a regular grid of `TRIANGLES` triangles) and scene.toml using it
 /// `MESHES` times; returns the scene's path.
@@ -82,16 +84,17 @@ fn status_answers_while_a_huge_scene_is_validated() {
             priority: 0,
         };
         let submitted = Arc::new(AtomicBool::new(false));
-        let start = Instant::now();
         let polling = tokio::spawn({
-            let (submitted, mut poller) = (submitted.clone(), poller.clone());
+            let (submitted, mut poller, log) = (submitted.clone(), poller.clone(), coord.proc.stderr.clone());
             async move {
-                // (sent, answered, jobs listed) of each call made until the submit returned.
+                // (validating, answered, jobs listed) of each call made until the submit
+                // returned; validating: the coordinator had logged that it started
+                // validating before the call was sent.
                 let mut calls = Vec::new();
                 while !submitted.load(Ordering::SeqCst) {
-                    let sent = Instant::now();
+                    let validating = log.lock().unwrap().contains(VALIDATING);
                     let r = poller.status(pb::StatusRequest { job_id: 0 }).await.unwrap().into_inner();
-                    calls.push((sent, Instant::now(), r.jobs.len()));
+                    calls.push((validating, Instant::now(), r.jobs.len()));
                     tokio::time::sleep(Duration::from_millis(10)).await;
                 }
                 calls
@@ -101,12 +104,14 @@ fn status_answers_while_a_huge_scene_is_validated() {
         let done = Instant::now();
         submitted.store(true, Ordering::SeqCst);
         let calls = polling.await.unwrap();
-        // Answered strictly before the Submit response, and not listing the job yet: the
-        // coordinator was still taking the scene in (the job enters the farm once valid).
-        let in_flight = calls.iter().filter(|&&(s, a, jobs)| s >= start && a < done && jobs == 0).count();
+        // Sent once validation had begun, answered strictly before the Submit response and
+        // listing no job yet (it enters the farm once valid): answered during validation.
+        // Calls are sequential, so were validation under the farm's lock, at most one
+        // call (the one it blocked) would count.
+        let during = calls.iter().filter(|&&(v, answered, jobs)| v && answered < done && jobs == 0).count();
         assert!(
-            in_flight >= 3,
-            "only {in_flight} of {} Status calls were answered while the submit was in flight",
+            during >= 3,
+            "only {during} of {} Status calls were answered while the scene was validated",
             calls.len()
         );
 
