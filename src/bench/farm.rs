@@ -94,7 +94,8 @@ fn percentiles(mut v: Vec<u64>) -> Option<(f64, f64)> {
     Some((at(50), at(99)))
 }
 
-async fn start_coordinator() -> Result<(Child, String)> {
+/// A coordinator process on a free loopback port, its log drained; killed when dropped.
+pub(super) async fn start_coordinator() -> Result<(Child, String)> {
     let mut child = Command::new(std::env::current_exe()?)
         .args(["coordinator", "--listen", "127.0.0.1:0"])
         .env("RUST_LOG", "info")

@@ -19,6 +19,7 @@ mod farm;
 mod font;
 mod plot;
 mod reference;
+mod submit;
 mod viewers;
 
 /// The benchmarks.
@@ -153,6 +154,16 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 10.0)]
         viewer_rate: f64,
     },
+    /// A huge scene submitted while another client polls Status: submit time, Status
+    /// latency during it, client-side validation time and the coordinator's peak memory.
+    Submit {
+        /// Triangles of the one OBJ mesh [default: 500000].
+        #[arg(long, default_value_t = 500_000)]
+        triangles: usize,
+        /// `[[mesh]]` entries using it, each placed differently [default: 24].
+        #[arg(long, default_value_t = 24)]
+        meshes: usize,
+    },
     /// The BVH at scale: build time and traversal speed for meshes of 10k to 1M triangles.
     Bvh {
         /// The largest triangle count [default: 1000000].
@@ -194,6 +205,13 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             let opts =
                 farm::FarmOptions { sizes, workers, viewers, seconds, batch_ms, spp, credit, viewer_rate };
             farm::run(opts).await?;
+            Ok(ExitCode::SUCCESS)
+        }
+        BenchCommand::Submit { triangles, meshes } => {
+            if triangles == 0 || meshes == 0 {
+                anyhow::bail!("--triangles and --meshes must be at least 1");
+            }
+            submit::run(submit::SubmitOptions { triangles, meshes }).await?;
             Ok(ExitCode::SUCCESS)
         }
         BenchCommand::Convergence { scene, size, max_spp, reference_spp, reference, out } => {

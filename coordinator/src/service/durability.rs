@@ -152,6 +152,9 @@ impl CoordinatorService {
         settings: JobSettings,
         priority: i32,
     ) -> Result<JobId, SubmitFailure> {
+        // A huge scene takes seconds to validate: say when it starts, not only when it is queued.
+        let bytes = bundle.text.len() + bundle.assets.iter().map(|(_, a)| a.len()).sum::<usize>();
+        info!(scene = %bundle.name, bytes, "validating a submitted scene");
         let this = self.clone();
         let id = tokio::task::spawn_blocking(move || {
             let job = Job::prepare(JobId(0), Arc::new(bundle), settings, priority)?;
