@@ -30,6 +30,12 @@ use super::{lock, CoordinatorService};
 pub const WATCH_CHUNK_PIXELS: usize = 1 << 16;
 /// Updates per second a viewer gets unless it asks for fewer; the publisher's rate.
 pub const WATCH_DEFAULT_RATE: f64 = 10.0;
+/// The most bytes per second the coordinator sends all its viewers together. Viewers
+/// never slow rendering: past this, each viewer gets fewer (larger, coalesced) updates
+/// instead of the coordinator spending the workers' CPU on encoding and sending. 32 MB/s
+/// is a 1080p frame's worth of changed pixels about once a second, and a few percent of
+/// one core.
+pub const VIEWER_BYTES_PER_SECOND: f64 = 32e6;
 /// A publisher with nothing new still sends the status this often (samples/s, workers).
 const STATUS_REFRESH: Duration = Duration::from_secs(1);
 
@@ -51,10 +57,43 @@ pub(super) struct Delta {
 #[derive(Default)]
 pub(super) struct Feeds {
     by_job: Mutex<HashMap<JobId, watch::Receiver<Arc<Delta>>>>,
+    /// The bytes all viewers may still be sent now.
+    budget: Budget,
     /// Updates sent from a publisher's shared delta.
     shared: AtomicU64,
     /// Updates a viewer's task made from a snapshot of its own (joining, or behind).
     own: AtomicU64,
+}
+
+/// A token bucket of bytes for all viewers together, refilled at
+/// `VIEWER_BYTES_PER_SECOND` and holding at most one second's worth.
+#[derive(Debug)]
+struct Budget {
+    /// Bytes that may be sent now (negative: owed), and when that was worked out.
+    state: Mutex<(f64, Instant)>,
+}
+
+impl Default for Budget {
+    fn default() -> Self {
+        Budget { state: Mutex::new((VIEWER_BYTES_PER_SECOND, Instant::now())) }
+    }
+}
+
+impl Budget {
+    /// Spends `bytes`; returns how long to wait before sending them.
+    fn spend(&self, bytes: usize) -> Duration {
+        let mut state = lock(&self.state);
+        let now = Instant::now();
+        let (tokens, at) = &mut *state;
+        let refill = now.saturating_duration_since(*at).as_secs_f64() * VIEWER_BYTES_PER_SECOND;
+        *tokens = (*tokens + refill).min(VIEWER_BYTES_PER_SECOND) - bytes as f64;
+        *at = now;
+        if *tokens >= 0.0 {
+            Duration::ZERO
+        } else {
+            Duration::from_secs_f64(-*tokens / VIEWER_BYTES_PER_SECOND)
+        }
+    }
 }
 
 /// How viewers' updates were made, since the coordinator started.
@@ -117,6 +156,15 @@ impl CoordinatorService {
         ViewerUpdates {
             shared: self.feeds.shared.load(Ordering::Relaxed),
             own: self.feeds.own.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Waits until the viewers' byte budget allows sending `u`.
+    async fn within_budget(&self, u: &pb::FramebufferUpdate) {
+        use prost::Message;
+        let wait = self.feeds.budget.spend(u.encoded_len());
+        if !wait.is_zero() {
+            tokio::time::sleep(wait).await;
         }
     }
 
@@ -265,6 +313,7 @@ impl CoordinatorService {
                         && !delta.updates.is_empty() =>
                 {
                     for u in &delta.updates {
+                        self.within_budget(u).await;
                         if tx.send(Ok(u.clone())).await.is_err() {
                             return;
                         }
@@ -279,6 +328,7 @@ impl CoordinatorService {
                 _ => {
                     let Some(snap) = self.view_snapshot(job) else { return };
                     for u in snap.updates(job, sent.unwrap_or(0), sent.is_none()) {
+                        self.within_budget(&u).await;
                         if tx.send(Ok(u)).await.is_err() {
                             return;
                         }
@@ -356,5 +406,16 @@ mod tests {
         let pixels: Vec<_> = convert::pixels_from_wire(&pa, 64).unwrap().collect();
         assert_eq!(pixels.len(), lease.batch.quads.len());
         service.shutdown();
+    }
+
+    /// The budget lets a second's worth through at once, then makes senders wait in
+    /// proportion to what they send.
+    #[test]
+    fn the_viewer_budget_makes_senders_wait_past_its_rate() {
+        let b = Budget::default();
+        assert_eq!(b.spend(VIEWER_BYTES_PER_SECOND as usize / 2), Duration::ZERO);
+        assert_eq!(b.spend(VIEWER_BYTES_PER_SECOND as usize / 2 - 1000), Duration::ZERO);
+        let wait = b.spend(VIEWER_BYTES_PER_SECOND as usize / 4);
+        assert!(wait > Duration::from_millis(200) && wait <= Duration::from_millis(251), "{wait:?}");
     }
 }
