@@ -7,7 +7,7 @@ use std::ops::Range;
 
 use glam::Vec3;
 
-use crate::bundle::check_asset_path;
+use crate::bundle::{check_asset_path, unreadable};
 use crate::limits;
 use crate::model::{box_faces, placed_rect, Color, Location, Material, Object, Shape};
 use crate::obj::scan_obj;
@@ -188,10 +188,8 @@ impl Validator<'_> {
 
     pub(crate) fn mesh(&mut self, span: &Range<usize>, d: &MeshDef) -> R<()> {
         let path = check_asset_path(&d.file).map_err(|e| self.ctx.err(span, format!("mesh.file: {e}")))?;
-        let bytes = self.assets.get(&path).ok_or_else(|| {
-            self.ctx
-                .err(span, format!("mesh.file: cannot read {:?} (relative to the scene's folder)", d.file))
-        })?;
+        let bytes = (self.assets.get(&path))
+            .ok_or_else(|| self.ctx.err(span, unreadable(self.assets, "mesh.file", &d.file)))?;
         let text = std::str::from_utf8(bytes)
             .map_err(|_| self.ctx.err(span, format!("mesh.file: {:?} is not text", d.file)))?;
         let counts = scan_obj(text).map_err(|e| self.ctx.err(span, format!("mesh {:?}: {e}", d.file)))?;

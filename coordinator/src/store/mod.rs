@@ -101,7 +101,7 @@ fn decode_bundle(mut bytes: &[u8]) -> Option<Bundle> {
         let path = String::from_utf8(field()?.to_vec()).ok()?;
         assets.push((path, field()?.to_vec()));
     }
-    Some(Bundle { name, text, assets })
+    Some(Bundle { name, text, assets, refused: Vec::new() })
 }
 
 fn blake3_of(bytes: &[u8]) -> Vec<u8> {

@@ -11,6 +11,7 @@ fn record(id: u64) -> JobRecord {
             name: "scene.toml".into(),
             text: "# a scene".into(),
             assets: vec![("mesh.obj".into(), vec![1, 2, 3])],
+            refused: vec![],
         }),
         settings: JobSettings {
             spp: Some(4),

@@ -104,6 +104,7 @@ fn damaged_pixels_behind_a_good_header_fail_the_build_at_the_texture() {
         name: "t.toml".into(),
         text: format!("{MINIMAL}\n[textures.wood]\ntype = \"image\"\nfile = \"w.png\"\n"),
         assets: vec![("w.png".into(), png)],
+        refused: vec![],
     };
     let desc = Description::parse(&bundle).expect("the header is good");
     let e = build(&desc, &bundle).unwrap_err();
