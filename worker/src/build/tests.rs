@@ -138,6 +138,6 @@ fn geometry_a_transform_overflows_fails_the_build_at_the_object() {
     for o in desc.objects.iter_mut().skip(1) {
         o.transform.scale = glam::Vec3::splat(1e30);
     }
-    let e = build(&desc, &far).err().expect("overflowing geometry is refused");
+    let Err(e) = build(&desc, &far) else { panic!("overflowing geometry is refused") };
     assert_eq!(e.to_string(), "t.toml:18:1: the transformed geometry overflows to non-finite coordinates");
 }
