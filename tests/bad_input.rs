@@ -187,3 +187,42 @@ fn bad_halt_conditions_are_clear_errors() {
         assert!(e.contains("--time") && e.contains("duration"), "{time}: {e}");
     }
 }
+
+/// Trust 6: a mesh that is a symlink out of the scene's folder is refused by `render` and
+/// `submit` alike, saying why, with no image, no job and nothing of the outside file quoted;
+/// a mesh that is a FIFO is refused at once rather than hanging the client.
+#[test]
+fn assets_that_leave_the_scene_folder_or_are_no_files_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let outside = tempfile::tempdir().unwrap();
+    let secret = outside.path().join("passwd");
+    std::fs::write(&secret, "root:x:0:0:root:/root:/bin/bash\n").unwrap();
+    std::os::unix::fs::symlink(&secret, dir.path().join("m.obj")).unwrap();
+    let good = std::fs::read_to_string(small_scene()).unwrap();
+    let scene = write_scene(dir.path(), &format!("{good}\n[[mesh]]\nfile = \"m.obj\"\nmaterial = \"red\"\n"));
+    let out = dir.path().join("o.png");
+    let want = "mesh.file: cannot read \"m.obj\": it leads outside the scene's folder (through a symlink); \
+                assets must lie beneath it";
+    let e = stderr_of(&["render", &scene, "-o", out.to_str().unwrap()]);
+    assert!(e.contains("bad.toml:") && e.ends_with(want) && !e.contains("root:x"), "{e}");
+    assert!(!out.exists(), "no image for a refused scene");
+    let coord = Coordinator::start(&[]);
+    let e = stderr_of(&["submit", &scene, "--coordinator", &coord.url]);
+    assert!(e.contains("bad.toml:") && e.ends_with(want) && !e.contains("root:x"), "{e}");
+    assert!(coord.job(1).is_none(), "the scene never reached the coordinator");
+    assert!(coord.status().contains("no workers connected"), "the coordinator still serves");
+
+    std::fs::remove_file(dir.path().join("m.obj")).unwrap();
+    if std::process::Command::new("mkfifo").arg(dir.path().join("m.obj")).status().is_ok_and(|s| s.success())
+    {
+        let o = run_with_timeout(
+            &["render", &scene, "-o", out.to_str().unwrap()],
+            std::time::Duration::from_secs(60),
+        );
+        let e = String::from_utf8(o.stderr).unwrap();
+        assert!(!o.status.success() && e.contains("it is a FIFO, not a regular file"), "{e}");
+        assert!(!out.exists());
+    } else {
+        eprintln!("skipped the FIFO case: mkfifo is not available");
+    }
+}

@@ -23,6 +23,20 @@ pub enum StoreError {
         /// What went wrong.
         source: Box<dyn std::error::Error + Send + Sync>,
     },
+    /// The disk holding the database is full (ENOSPC, SQLite's "disk is full").
+    #[error("{path}: no space left on its disk; free some and start again")]
+    NoSpace {
+        /// The file.
+        path: PathBuf,
+    },
+    /// The database or its directory cannot be written: permissions, a read-only mount.
+    #[error("{path} cannot be written: {detail}; the data directory must be writable")]
+    NotWritable {
+        /// The file.
+        path: PathBuf,
+        /// The system's account ("Permission denied (os error 13)").
+        detail: String,
+    },
     /// Another coordinator (or render) holds the database.
     #[error("{path} is in use by another coordinator or render; one process per data directory")]
     InUse {

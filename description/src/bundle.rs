@@ -1,7 +1,11 @@
 //! Scene bundles: a scene file with the assets it references, named by a content hash so
 //! that a scene travels once per worker and job and a silently different copy is caught.
 
+use std::fs::{File, OpenOptions};
+use std::io::Read;
 use std::path::{Path, PathBuf};
+
+use crate::limits;
 
 /// A scene file and its assets.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -12,6 +16,34 @@ pub struct Bundle {
     pub text: String,
     /// Assets by the relative path the scene uses, sorted by path.
     pub assets: Vec<(String, Vec<u8>)>,
+    /// Assets the scene names that were not read, with why: for messages only, neither
+    /// hashed nor sent.
+    pub refused: Vec<(String, AssetRefusal)>,
+}
+
+/// Why an asset a scene names was not read.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum AssetRefusal {
+    /// It resolves (through a symlink) to a file outside the scene's folder.
+    #[error("it leads outside the scene's folder (through a symlink); assets must lie beneath it")]
+    Outside,
+    /// It is a FIFO, a device, a directory or a socket.
+    #[error("it is {kind}, not a regular file")]
+    NotRegular {
+        /// What it is, with its article ("a FIFO").
+        kind: &'static str,
+    },
+    /// It is larger than [`limits::MAX_ASSET_BYTES`].
+    #[error("it is larger than the limit of {limit} bytes ({size} bytes)")]
+    TooLarge {
+        /// Its size (at least), in bytes.
+        size: u64,
+        /// The limit.
+        limit: u64,
+    },
+    /// It cannot be opened or read (missing, permissions).
+    #[error("{0}")]
+    Io(String),
 }
 
 /// Why a bundle could not be read.
@@ -31,29 +63,161 @@ pub enum BundleError {
         /// The file.
         path: PathBuf,
     },
+    /// The scene file is a FIFO, a device, a directory or a socket.
+    #[error("cannot read scene {path}: it is {kind}, not a regular file")]
+    NotRegular {
+        /// The file.
+        path: PathBuf,
+        /// What it is, with its article ("a FIFO").
+        kind: &'static str,
+    },
+    /// The scene file is larger than [`limits::MAX_SCENE_BYTES`].
+    #[error("cannot read scene {path}: it is larger than the limit of {limit} bytes ({size} bytes)")]
+    TooLarge {
+        /// The file.
+        path: PathBuf,
+        /// Its size (at least), in bytes.
+        size: u64,
+        /// The limit.
+        limit: u64,
+    },
+}
+
+/// Why [`read_regular`] read nothing.
+enum Unread {
+    NotRegular(&'static str),
+    TooLarge(u64),
+    Io(std::io::Error),
+}
+
+impl From<std::io::Error> for Unread {
+    fn from(e: std::io::Error) -> Self {
+        Unread::Io(e)
+    }
+}
+
+impl From<Unread> for AssetRefusal {
+    fn from(u: Unread) -> Self {
+        match u {
+            Unread::NotRegular(kind) => AssetRefusal::NotRegular { kind },
+            Unread::TooLarge(size) => AssetRefusal::TooLarge { size, limit: limits::MAX_ASSET_BYTES },
+            Unread::Io(e) => AssetRefusal::Io(e.to_string()),
+        }
+    }
+}
+
+/// What a file that is not a regular file is, for messages.
+fn kind_of(t: std::fs::FileType) -> &'static str {
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::FileTypeExt;
+        if t.is_fifo() {
+            return "a FIFO";
+        }
+        if t.is_char_device() || t.is_block_device() {
+            return "a device";
+        }
+        if t.is_socket() {
+            return "a socket";
+        }
+    }
+    if t.is_dir() {
+        "a directory"
+    } else if t.is_symlink() {
+        "a symlink"
+    } else {
+        "not a file"
+    }
+}
+
+/// Reads a regular file of at most `limit` bytes. The type and size are checked before it
+/// is opened (opening a device can have effects of its own) and again on the open file,
+/// which is opened non-blocking so that a FIFO swapped in between cannot hang the open;
+/// the read stops at `limit + 1` bytes so that a file growing under us cannot exceed it.
+/// With `nofollow`, a symlink swapped in for the last component is refused too.
+fn read_regular(path: &Path, limit: u64, nofollow: bool) -> Result<Vec<u8>, Unread> {
+    let check = |meta: &std::fs::Metadata| -> Result<(), Unread> {
+        if !meta.is_file() {
+            return Err(Unread::NotRegular(kind_of(meta.file_type())));
+        }
+        if meta.len() > limit {
+            return Err(Unread::TooLarge(meta.len()));
+        }
+        Ok(())
+    };
+    check(&std::fs::metadata(path)?)?;
+    let mut options = OpenOptions::new();
+    options.read(true);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::OpenOptionsExt;
+        let follow = if nofollow { libc::O_NOFOLLOW } else { 0 };
+        options.custom_flags(libc::O_NONBLOCK | follow);
+    }
+    let file: File = options.open(path)?;
+    let meta = file.metadata()?;
+    check(&meta)?;
+    let mut data = Vec::with_capacity(meta.len() as usize);
+    file.take(limit + 1).read_to_end(&mut data)?;
+    if data.len() as u64 > limit {
+        return Err(Unread::TooLarge(data.len() as u64));
+    }
+    Ok(data)
+}
+
+/// Reads the asset `rel` (normalised by [`check_asset_path`]) beneath `root`, a
+/// canonical folder. The path is resolved with every symlink (`canonicalize`) and must
+/// stay beneath `root`: std does this without a new dependency (`cap-std` would also
+/// close the race of a folder swapped for a symlink between resolving and opening, which
+/// matters against a local attacker racing the client, not against a scene handed to it).
+fn read_asset(root: &Path, rel: &str) -> Result<Vec<u8>, AssetRefusal> {
+    let resolved = std::fs::canonicalize(root.join(rel)).map_err(|e| AssetRefusal::Io(e.to_string()))?;
+    if !resolved.starts_with(root) {
+        return Err(AssetRefusal::Outside);
+    }
+    // The resolved path has no symlinks left: one appearing now is refused, not followed.
+    Ok(read_regular(&resolved, limits::MAX_ASSET_BYTES, true)?)
 }
 
 impl Bundle {
     /// Reads a scene file and the assets it references (meshes, image textures), by paths
-    /// relative to the scene's folder. A reference that escapes the folder or names no
-    /// readable file is left out here; parsing then reports it with its location.
+    /// relative to the scene's folder. Only regular files beneath the folder are read (no
+    /// symlink out of it, no FIFO or device), each within [`limits::MAX_ASSET_BYTES`] and
+    /// the scene within [`limits::MAX_SCENE_BYTES`]. A reference that escapes the folder
+    /// or names no readable file is left out here, with why in `refused`; parsing then
+    /// reports it with its location.
     pub fn read(path: &Path) -> Result<Bundle, BundleError> {
-        let bytes =
-            std::fs::read(path).map_err(|source| BundleError::Read { path: path.to_owned(), source })?;
+        let bytes = read_regular(path, limits::MAX_SCENE_BYTES, false).map_err(|u| match u {
+            Unread::NotRegular(kind) => BundleError::NotRegular { path: path.to_owned(), kind },
+            Unread::TooLarge(size) => {
+                BundleError::TooLarge { path: path.to_owned(), size, limit: limits::MAX_SCENE_BYTES }
+            }
+            Unread::Io(source) => BundleError::Read { path: path.to_owned(), source },
+        })?;
         let text = String::from_utf8(bytes).map_err(|_| BundleError::NotText { path: path.to_owned() })?;
-        let dir = path.parent().unwrap_or(Path::new("."));
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        let root = std::fs::canonicalize(dir);
         let mut assets: Vec<(String, Vec<u8>)> = Vec::new();
+        let mut refused: Vec<(String, AssetRefusal)> = Vec::new();
         for reference in asset_references(&text) {
             let Ok(rel) = check_asset_path(&reference) else { continue };
-            if assets.iter().any(|(p, _)| *p == rel) {
+            if assets.iter().any(|(p, _)| *p == rel) || refused.iter().any(|(p, _)| *p == rel) {
                 continue;
             }
-            if let Ok(data) = std::fs::read(dir.join(&rel)) {
-                assets.push((rel, data));
+            let read = match &root {
+                Ok(root) => read_asset(root, &rel),
+                Err(e) => Err(AssetRefusal::Io(e.to_string())),
+            };
+            match read {
+                Ok(data) => assets.push((rel, data)),
+                Err(why) => refused.push((rel, why)),
             }
         }
         assets.sort();
-        Ok(Bundle { name: path.display().to_string(), text, assets })
+        Ok(Bundle { name: path.display().to_string(), text, assets, refused })
     }
 
     /// The content hash: blake3 over the text and every asset, each length-prefixed so
@@ -79,6 +243,11 @@ impl Assets for Bundle {
         let rel = check_asset_path(path).ok()?;
         self.assets.binary_search_by(|(p, _)| p.as_str().cmp(&rel)).ok().map(|i| self.assets[i].1.as_slice())
     }
+
+    fn refusal(&self, path: &str) -> Option<&AssetRefusal> {
+        let rel = check_asset_path(path).ok()?;
+        self.refused.iter().find(|(p, _)| *p == rel).map(|(_, why)| why)
+    }
 }
 
 /// Where a scene's assets (meshes, images) come from: by the relative path the scene
@@ -86,6 +255,22 @@ impl Assets for Bundle {
 pub trait Assets {
     /// The bytes of the asset at `path`, if the bundle has it.
     fn get(&self, path: &str) -> Option<&[u8]>;
+
+    /// Why the asset at `path` is missing, if that is known.
+    fn refusal(&self, _path: &str) -> Option<&AssetRefusal> {
+        None
+    }
+}
+
+/// The message for an asset `file` (as the scene writes it) that `assets` lacks.
+pub(crate) fn unreadable(assets: &dyn Assets, what: &str, file: &str) -> String {
+    match assets.refusal(file) {
+        Some(AssetRefusal::Io(e)) => {
+            format!("{what}: cannot read {file:?} (relative to the scene's folder): {e}")
+        }
+        Some(why) => format!("{what}: cannot read {file:?}: {why}"),
+        None => format!("{what}: cannot read {file:?} (relative to the scene's folder)"),
+    }
 }
 
 /// No assets at all.
@@ -143,12 +328,150 @@ mod tests {
 
     #[test]
     fn hash_names_content_not_path() {
-        let a = Bundle { name: "a.toml".into(), text: "x".into(), assets: vec![] };
+        let a = Bundle { name: "a.toml".into(), text: "x".into(), assets: vec![], refused: vec![] };
         let b = Bundle { name: "b.toml".into(), ..a.clone() };
         let c = Bundle { text: "y".into(), ..a.clone() };
         assert_eq!(a.hash(), b.hash());
         assert_ne!(a.hash(), c.hash());
         let d = Bundle { assets: vec![("m.obj".into(), b"v".to_vec())], ..a.clone() };
         assert_ne!(a.hash(), d.hash());
+    }
+
+    /// A scene in a fresh folder naming the mesh `m.obj`.
+    fn scene() -> (tempfile::TempDir, PathBuf) {
+        let dir = tempfile::tempdir().unwrap();
+        let scene = dir.path().join("s.toml");
+        let text = "[render]\nwidth = 4\nheight = 4\n[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\n\
+                    [materials.red]\ncolor = 1\n[[mesh]]\nfile = \"m.obj\"\nmaterial = \"red\"\n";
+        std::fs::write(&scene, text).unwrap();
+        (dir, scene)
+    }
+
+    /// Reads the scene, parses it and returns the one-line error about `m.obj`.
+    fn refusal(scene: &Path) -> String {
+        let started = std::time::Instant::now();
+        let bundle = Bundle::read(scene).unwrap();
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(5),
+            "reading took {:?}",
+            started.elapsed()
+        );
+        assert!(bundle.assets.is_empty(), "{:?}", bundle.assets.iter().map(|a| &a.0).collect::<Vec<_>>());
+        let e = crate::Description::parse(&bundle).unwrap_err().to_string();
+        assert!(!e.contains('\n'), "{e}");
+        assert!(e.starts_with(&format!("{}:9:1: mesh.file: cannot read \"m.obj\"", scene.display())), "{e}");
+        e
+    }
+
+    #[test]
+    fn a_symlink_out_of_the_folder_is_refused_and_nothing_outside_is_quoted() {
+        let (dir, scene) = scene();
+        let outside = tempfile::tempdir().unwrap();
+        let secret = outside.path().join("secret.obj");
+        std::fs::write(&secret, "root:x:0:0:root:/root:/bin/bash\n").unwrap();
+        std::os::unix::fs::symlink(&secret, dir.path().join("m.obj")).unwrap();
+        let e = refusal(&scene);
+        assert!(e.ends_with(
+            "it leads outside the scene's folder (through a symlink); assets must lie beneath it"
+        ));
+        assert!(!e.contains("root:x"), "{e}");
+        // A folder inside that is a symlink out of it is refused the same way.
+        std::fs::remove_file(dir.path().join("m.obj")).unwrap();
+        std::os::unix::fs::symlink(outside.path(), dir.path().join("sub")).unwrap();
+        std::fs::write(&scene, std::fs::read_to_string(&scene).unwrap().replace("m.obj", "sub/secret.obj"))
+            .unwrap();
+        let bundle = Bundle::read(&scene).unwrap();
+        assert!(bundle.assets.is_empty());
+        assert_eq!(bundle.refused, vec![("sub/secret.obj".to_string(), AssetRefusal::Outside)]);
+    }
+
+    #[test]
+    fn a_symlink_inside_the_folder_is_followed() {
+        let (dir, scene) = scene();
+        std::fs::create_dir(dir.path().join("meshes")).unwrap();
+        std::fs::write(dir.path().join("meshes/tri.obj"), "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+        std::os::unix::fs::symlink("meshes/tri.obj", dir.path().join("m.obj")).unwrap();
+        let bundle = Bundle::read(&scene).unwrap();
+        assert_eq!(bundle.assets.len(), 1);
+        crate::Description::parse(&bundle).unwrap();
+    }
+
+    #[test]
+    fn a_symlink_to_dev_zero_is_refused_without_reading_it() {
+        let (dir, scene) = scene();
+        std::os::unix::fs::symlink("/dev/zero", dir.path().join("m.obj")).unwrap();
+        assert!(refusal(&scene).ends_with(
+            "it leads outside the scene's folder (through a symlink); assets must lie beneath it"
+        ));
+    }
+
+    #[test]
+    fn a_fifo_is_refused_at_once() {
+        let (dir, scene) = scene();
+        let fifo = dir.path().join("m.obj");
+        match std::process::Command::new("mkfifo").arg(&fifo).status() {
+            Ok(s) if s.success() => {}
+            other => {
+                eprintln!("skipped: mkfifo is not available ({other:?})");
+                return;
+            }
+        }
+        assert!(refusal(&scene).ends_with("cannot read \"m.obj\": it is a FIFO, not a regular file"));
+    }
+
+    #[test]
+    fn a_fifo_opened_is_refused_without_hanging() {
+        // The check after opening: a FIFO swapped in after the first check must not hang.
+        let dir = tempfile::tempdir().unwrap();
+        let fifo = dir.path().join("m.obj");
+        match std::process::Command::new("mkfifo").arg(&fifo).status() {
+            Ok(s) if s.success() => {}
+            other => {
+                eprintln!("skipped: mkfifo is not available ({other:?})");
+                return;
+            }
+        }
+        let mut options = OpenOptions::new();
+        std::os::unix::fs::OpenOptionsExt::custom_flags(options.read(true), libc::O_NONBLOCK);
+        let file = options.open(&fifo).unwrap();
+        assert!(!file.metadata().unwrap().is_file());
+    }
+
+    #[test]
+    fn a_directory_named_like_a_mesh_is_refused() {
+        let (dir, scene) = scene();
+        std::fs::create_dir(dir.path().join("m.obj")).unwrap();
+        assert!(refusal(&scene).ends_with("cannot read \"m.obj\": it is a directory, not a regular file"));
+    }
+
+    #[test]
+    fn an_oversized_asset_is_refused_before_reading() {
+        let (dir, scene) = scene();
+        // Sparse: no disk space taken, and a read of it would take seconds and a gigabyte.
+        let f = File::create(dir.path().join("m.obj")).unwrap();
+        f.set_len(limits::MAX_ASSET_BYTES + 1).unwrap();
+        let e = refusal(&scene);
+        assert!(e.ends_with("it is larger than the limit of 1073741824 bytes (1073741825 bytes)"), "{e}");
+    }
+
+    #[test]
+    fn a_missing_asset_says_why() {
+        let (_dir, scene) = scene();
+        assert!(refusal(&scene)
+            .ends_with("(relative to the scene's folder): No such file or directory (os error 2)"));
+    }
+
+    #[test]
+    fn the_scene_file_itself_is_checked() {
+        let (dir, scene) = scene();
+        let e = Bundle::read(dir.path()).unwrap_err().to_string();
+        assert!(e.ends_with("it is a directory, not a regular file"), "{e}");
+        File::options().write(true).open(&scene).unwrap().set_len(limits::MAX_SCENE_BYTES + 1).unwrap();
+        let e = Bundle::read(&scene).unwrap_err().to_string();
+        assert!(e.contains("larger than the limit of 67108864 bytes"), "{e}");
+        assert!(matches!(
+            Bundle::read(Path::new("/dev/null")),
+            Err(BundleError::NotRegular { kind: "a device", .. })
+        ));
     }
 }

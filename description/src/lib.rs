@@ -33,7 +33,7 @@ mod tests;
 /// when every worker runs the same renderer.
 pub const RENDERER_VERSION: &str = env!("CARGO_PKG_VERSION");
 
-pub use bundle::{Assets, Bundle, NoAssets};
+pub use bundle::{AssetRefusal, Assets, Bundle, NoAssets};
 pub use error::SceneError;
 pub use ids::{BatchId, JobId, WorkerId};
 pub use job::{JobSettings, JobState};

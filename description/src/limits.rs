@@ -10,3 +10,12 @@ pub const MAX_SPP: u32 = 1 << 20;
 pub const MAX_DEPTH: u32 = 64;
 /// The most triangles in a scene.
 pub const MAX_TRIANGLES: usize = 1 << 26;
+/// The largest scene file, in bytes (64 MiB): scene text is small; meshes and images are
+/// assets.
+pub const MAX_SCENE_BYTES: u64 = 64 << 20;
+/// The largest asset (mesh or image) a scene may reference, in bytes (1 GiB): the whole
+/// bundle is held in memory by the client, the coordinator and every worker.
+pub const MAX_ASSET_BYTES: u64 = 1 << 30;
+/// The farthest from the origin a placed object may reach in world space: products of two
+/// coordinates (cross products, squared lengths) then stay finite in `f32`.
+pub const MAX_COORDINATE: f64 = 1e18;

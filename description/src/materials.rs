@@ -7,7 +7,7 @@ use std::ops::Range;
 
 use glam::Vec3;
 
-use crate::bundle::check_asset_path;
+use crate::bundle::{check_asset_path, unreadable};
 use crate::model::{CheckerSpace, Classic, Color, Material, Texture, TextureKind};
 use crate::schema::{black, ColorOrTexture, MaterialDef, Rgb, TextureDef};
 use crate::validate::{Validator, R};
@@ -78,12 +78,8 @@ impl Validator<'_> {
                     .as_deref()
                     .ok_or_else(|| ctx.err(span, format!("{} is required", what("file"))))?;
                 let path = check_asset_path(file).map_err(|e| ctx.err(span, e))?;
-                let bytes = self.assets.get(&path).ok_or_else(|| {
-                    ctx.err(
-                        span,
-                        format!("{}: cannot read {file:?} (relative to the scene's folder)", what("file")),
-                    )
-                })?;
+                let bytes = (self.assets.get(&path))
+                    .ok_or_else(|| ctx.err(span, unreadable(self.assets, &what("file"), file)))?;
                 let (width, height) = image_size(bytes).map_err(|e| {
                     ctx.err(span, format!("{}: {file:?} is not a readable image: {e}", what("file")))
                 })?;

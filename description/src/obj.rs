@@ -54,15 +54,6 @@ trait Sink {
     fn triangle(&mut self, t: [[u32; 3]; 3]);
 }
 
-impl Sink for ObjCounts {
-    fn position(&mut self, _: Vec3) {}
-    fn normal(&mut self, _: Vec3) {}
-    fn uv(&mut self, _: Vec2) {}
-    fn triangle(&mut self, _: [[u32; 3]; 3]) {
-        self.triangles += 1;
-    }
-}
-
 impl Sink for ObjMesh {
     fn position(&mut self, p: Vec3) {
         self.p.push(p);
@@ -78,11 +69,35 @@ impl Sink for ObjMesh {
     }
 }
 
+/// What a scan keeps: the triangle count and the largest |coordinate| per axis.
+#[derive(Default)]
+struct Scan {
+    triangles: usize,
+    extent: Vec3,
+}
+
+impl Sink for Scan {
+    fn position(&mut self, p: Vec3) {
+        self.extent = self.extent.max(p.abs());
+    }
+    fn normal(&mut self, _: Vec3) {}
+    fn uv(&mut self, _: Vec2) {}
+    fn triangle(&mut self, _: [[u32; 3]; 3]) {
+        self.triangles += 1;
+    }
+}
+
 /// Checks OBJ text and counts what it holds, storing nothing per vertex.
 pub fn scan_obj(text: &str) -> Result<ObjCounts, ObjError> {
-    let mut sink = ObjCounts::default();
+    scan_obj_extent(text).map(|(counts, _)| counts)
+}
+
+/// [`scan_obj`], with the largest |coordinate| of a position on each axis (a box around
+/// the origin holding every vertex, for checking where a transform takes them).
+pub fn scan_obj_extent(text: &str) -> Result<(ObjCounts, Vec3), ObjError> {
+    let mut sink = Scan::default();
     let counts = read(text, &mut sink)?;
-    Ok(ObjCounts { triangles: sink.triangles, ..counts })
+    Ok((ObjCounts { triangles: sink.triangles, ..counts }, sink.extent))
 }
 
 /// Parses OBJ text into a mesh (object space).

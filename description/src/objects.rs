@@ -7,10 +7,10 @@ use std::ops::Range;
 
 use glam::Vec3;
 
-use crate::bundle::check_asset_path;
+use crate::bundle::{check_asset_path, unreadable};
 use crate::limits;
 use crate::model::{box_faces, placed_rect, Color, Location, Material, Object, Shape};
-use crate::obj::scan_obj;
+use crate::obj::scan_obj_extent;
 use crate::schema::{BoxDef, MeshDef, RectangleDef, Rgb, SphereDef, TransformDef, TriangleDef};
 use crate::transform::Trs;
 use crate::validate::{Validator, R};
@@ -85,6 +85,38 @@ impl Validator<'_> {
         Ok((start, Some(end)))
     }
 
+    /// Checks that an object whose points lie within `extent` (largest |coordinate| per
+    /// axis) and `radius` around them stays within [`limits::MAX_COORDINATE`] of the
+    /// origin wherever its placement takes it: a transform that overflows would make it
+    /// vanish (or fill the image with NaN) without a word. Rotations keep lengths and a
+    /// motion interpolates between its ends, so |t| + |s|·r at both ends bounds it all.
+    fn check_reach(
+        &self,
+        span: &Range<usize>,
+        what: &str,
+        extent: Vec3,
+        radius: f32,
+        place: &(Trs, Option<Trs>),
+    ) -> R<()> {
+        // In f64: the squares of coordinates near 1e20 already overflow f32.
+        let r = extent.as_dvec3().length() + f64::from(radius);
+        let (start, end) = place;
+        let reach = |t: &Trs| t.translate.as_dvec3().length() + f64::from(t.scale.abs().max_element()) * r;
+        let far = end.as_ref().map_or(reach(start), |e| reach(start).max(reach(e)));
+        let matrix_finite = start.matrix().is_finite() && end.as_ref().is_none_or(|e| e.matrix().is_finite());
+        if !(far <= limits::MAX_COORDINATE) || !matrix_finite {
+            return Err(self.ctx.err(
+                span,
+                format!(
+                    "{what}: its transform takes it {far:.3e} from the origin, beyond the limit of {:e}; \
+                     its coordinates would overflow",
+                    limits::MAX_COORDINATE
+                ),
+            ));
+        }
+        Ok(())
+    }
+
     fn push(
         &mut self,
         span: &Range<usize>,
@@ -120,6 +152,7 @@ impl Validator<'_> {
                 .ctx
                 .err(span, "sphere: lights cannot move (give `emission` or `motion`, not both)"));
         }
+        self.check_reach(span, "sphere", center.abs(), d.radius, &(trs, motion))?;
         self.push(span, Shape::Sphere { center, radius: d.radius }, (material, emission), (trs, motion));
         Ok(())
     }
@@ -152,6 +185,7 @@ impl Validator<'_> {
         let v = self.ctx.finite(span, "rectangle.v", d.v.0)?;
         let (material, emission) = self.surface(span, "rectangle", d.material.as_ref(), d.emission)?;
         let (trs, motion) = self.placement(span, "rectangle", &d.transform, &d.motion)?;
+        self.check_reach(span, "rectangle", c.abs() + u.abs() + v.abs(), 0.0, &(trs, motion))?;
         self.check_rect(span, "rectangle", (c, u, v), emission.is_some(), &trs, motion.is_some())?;
         self.push(span, Shape::Rectangle { center: c, u, v }, (material, emission), (trs, motion));
         Ok(())
@@ -167,6 +201,7 @@ impl Validator<'_> {
         }
         let material = self.material_of(span, &d.material)?;
         let (trs, motion) = self.placement(span, "box", &d.transform, &d.motion)?;
+        self.check_reach(span, "box", lo.abs().max(hi.abs()), 0.0, &(trs, motion))?;
         for face in box_faces(lo, hi) {
             self.check_rect(span, "box", face, false, &trs, motion.is_some())?;
         }
@@ -181,6 +216,8 @@ impl Validator<'_> {
         }
         let material = self.material_of(span, &d.material)?;
         let place = self.placement(span, "triangle", &d.transform, &d.motion)?;
+        let extent = vertices.iter().fold(Vec3::ZERO, |e, v| e.max(v.abs()));
+        self.check_reach(span, "triangle", extent, 0.0, &place)?;
         self.count_triangles(span, 1)?;
         self.push(span, Shape::Triangle { vertices }, (material, None), place);
         Ok(())
@@ -188,15 +225,21 @@ impl Validator<'_> {
 
     pub(crate) fn mesh(&mut self, span: &Range<usize>, d: &MeshDef) -> R<()> {
         let path = check_asset_path(&d.file).map_err(|e| self.ctx.err(span, format!("mesh.file: {e}")))?;
-        let bytes = self.assets.get(&path).ok_or_else(|| {
-            self.ctx
-                .err(span, format!("mesh.file: cannot read {:?} (relative to the scene's folder)", d.file))
-        })?;
+        let bytes = (self.assets.get(&path))
+            .ok_or_else(|| self.ctx.err(span, unreadable(self.assets, "mesh.file", &d.file)))?;
         let text = std::str::from_utf8(bytes)
             .map_err(|_| self.ctx.err(span, format!("mesh.file: {:?} is not text", d.file)))?;
-        let counts = scan_obj(text).map_err(|e| self.ctx.err(span, format!("mesh {:?}: {e}", d.file)))?;
+        let (counts, extent) =
+            scan_obj_extent(text).map_err(|e| self.ctx.err(span, format!("mesh {:?}: {e}", d.file)))?;
+        if counts.triangles == 0 {
+            // An empty mesh would draw nothing, without a word.
+            return Err(self
+                .ctx
+                .err(span, format!("mesh {:?} has no faces (`f`): it would draw nothing", d.file)));
+        }
         let material = self.material_of(span, &d.material)?;
         let place = self.placement(span, "mesh", &d.transform, &d.motion)?;
+        self.check_reach(span, "mesh", extent, 0.0, &place)?;
         self.count_triangles(span, counts.triangles)?;
         self.push(span, Shape::Mesh { file: path, counts }, (material, None), place);
         Ok(())

@@ -120,7 +120,7 @@ color = [1, 0, 0]
     const QUAD: &[u8] = b"v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3 4\n";
 
     fn bundle(extra: &str, assets: Vec<(String, Vec<u8>)>) -> Bundle {
-        Bundle { name: "t.toml".into(), text: format!("{BASE}{extra}"), assets }
+        Bundle { name: "t.toml".into(), text: format!("{BASE}{extra}"), assets, refused: vec![] }
     }
 
     #[test]

@@ -162,3 +162,58 @@ fn the_triangle_budget_counts_every_use_before_building() {
         .unwrap_err();
     assert!(e.message.contains("more than") && e.message.contains("triangles") && e.line == 22, "{e}");
 }
+
+/// Assets holding only `m.obj`.
+struct OneMesh(&'static [u8]);
+impl Assets for OneMesh {
+    fn get(&self, path: &str) -> Option<&[u8]> {
+        (path == "m.obj").then_some(self.0)
+    }
+}
+
+#[test]
+fn an_empty_mesh_is_refused_with_its_location() {
+    let text = format!("{MINIMAL}\n[[mesh]]\nfile = \"m.obj\"\nmaterial = \"red\"\n");
+    for empty in [&b""[..], b"# nothing\n", b"v 0 0 0\nv 1 0 0\nv 0 1 0\n"] {
+        let e = parse_scene_with_assets("t.toml", &text, &OneMesh(empty)).unwrap_err();
+        assert_eq!(e.to_string(), "t.toml:18:1: mesh \"m.obj\" has no faces (`f`): it would draw nothing");
+    }
+}
+
+#[test]
+fn a_transform_that_overflows_is_refused_with_its_location() {
+    let far = b"v 1e20 0 0\nv 0 1e20 0\nv 0 0 1e20\nf 1 2 3\n";
+    let mesh = |t: &str| format!("{MINIMAL}\n[[mesh]]\nfile = \"m.obj\"\nmaterial = \"red\"\n{t}\n");
+    let e =
+        parse_scene_with_assets("t.toml", &mesh("transform = { scale = 1e30 }"), &OneMesh(far)).unwrap_err();
+    assert_eq!((e.line, e.column), (18, 1), "{e}");
+    assert!(e.message.starts_with("mesh: its transform takes it 1.732e50 from the origin"), "{e}");
+    assert!(e.message.ends_with("beyond the limit of 1e18; its coordinates would overflow"), "{e}");
+    // The motion's end counts too; an ordinary transform of the same mesh is fine.
+    let moving = mesh("motion = { scale = 1e30 }");
+    assert!(parse_scene_with_assets("t.toml", &moving, &OneMesh(far))
+        .unwrap_err()
+        .message
+        .contains("overflow"));
+    let near = b"v 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 2 3\n";
+    parse_scene_with_assets(
+        "t.toml",
+        &mesh("transform = { scale = 1e6, rotate = [0, 45, 0] }"),
+        &OneMesh(near),
+    )
+    .unwrap();
+    // Spheres, boxes, rectangles and triangles the same.
+    let e = err(&MINIMAL.replace("radius = 1", "radius = 1e30\ntransform = { scale = 1e30 }"));
+    assert!(e.message.starts_with("sphere: its transform takes it") && e.line == 13, "{e}");
+    let e = err(&MINIMAL.replace("center = [0, 0, 0]", "center = [3e38, 3e38, 0]"));
+    assert!(e.message.contains("overflow"), "{e}");
+    let e = err(&format!(
+        "{MINIMAL}\n[[triangle]]\nvertices = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]\nmaterial = \"red\"\n\
+         transform = {{ translate = [1e19, 0, 0] }}\n"
+    ));
+    assert!(e.message.starts_with("triangle: its transform takes it 1.000e19") && e.line == 18, "{e}");
+    let e = err(&format!(
+        "{MINIMAL}\n[[box]]\nmin = [0, 0, 0]\nmax = [1e10, 1, 1]\nmaterial = \"red\"\ntransform = {{ scale = 1e10 }}\n"
+    ));
+    assert!(e.message.starts_with("box: its transform"), "{e}");
+}

@@ -105,7 +105,7 @@ pub fn bundle_to_wire(b: &Bundle) -> pb::SceneBundle {
 pub fn bundle_from_wire(b: pb::SceneBundle) -> Bundle {
     let mut assets: Vec<(String, Vec<u8>)> = b.assets.into_iter().map(|a| (a.path, a.data)).collect();
     assets.sort();
-    Bundle { name: b.name, text: b.text, assets }
+    Bundle { name: b.name, text: b.text, assets, refused: Vec::new() }
 }
 
 /// Job settings as they travel.
@@ -249,6 +249,7 @@ mod tests {
             name: "s.toml".into(),
             text: "x = 1".into(),
             assets: vec![("a.obj".into(), vec![1, 2]), ("b.png".into(), vec![3])],
+            refused: vec![],
         };
         assert_eq!(bundle_from_wire(bundle_to_wire(&b)), b);
         let mut wire = bundle_to_wire(&b);

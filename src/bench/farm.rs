@@ -275,6 +275,7 @@ fn real_batch_time(spp: u32) -> Result<Duration> {
         name: "small.toml".into(),
         text: SMALL_SCENE.into(),
         assets: vec![],
+        refused: vec![],
     };
     let scene = tessera_worker::build::parse_bundle(&bundle)?;
     let per_pixel = u64::from(spp.max(2) - 1);

@@ -342,7 +342,7 @@ mod tests {
                          [materials.red]\ncolor = 1\n[[sphere]]\nmaterial = \"red\"\n";
 
     fn job(job_id: u64, text: &str, spp: u32, size: (u32, u32)) -> pb::JobScene {
-        let bundle = Bundle { name: "t.toml".into(), text: text.into(), assets: vec![] };
+        let bundle = Bundle { name: "t.toml".into(), text: text.into(), assets: vec![], refused: vec![] };
         pb::JobScene {
             job_id,
             scene_hash: bundle.hash(),

@@ -19,7 +19,7 @@ fn result<'a>(a: &Assignment, sums: &'a [u64], even: Option<&'a [u64]>) -> Batch
 const SCENE: &str = include_str!("../../../tests/scenes/small.toml");
 
 fn bundle() -> Bundle {
-    Bundle { name: "small.toml".into(), text: SCENE.into(), assets: vec![] }
+    Bundle { name: "small.toml".into(), text: SCENE.into(), assets: vec![], refused: vec![] }
 }
 
 fn settings(w: u32, h: u32, spp: u32) -> JobSettings {

@@ -278,6 +278,7 @@ mod tests {
             name: "small.toml".into(),
             text: include_str!("../../../tests/scenes/small.toml").into(),
             assets: vec![],
+            refused: vec![],
         }
     }
 

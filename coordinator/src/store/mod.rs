@@ -38,6 +38,46 @@ impl Drop for Removal<'_> {
     }
 }
 
+/// Removes a database file this start created, with its journal, when dropped unarmed:
+/// a start that fails must not leave an empty `jobs.db` that looks like a damaged one.
+struct Created<'a> {
+    path: &'a Path,
+    armed: bool,
+}
+
+impl Drop for Created<'_> {
+    fn drop(&mut self) {
+        if self.armed {
+            let _ = std::fs::remove_file(self.path);
+            let _ = std::fs::remove_file(self.path.with_extension("db-journal"));
+        }
+    }
+}
+
+/// A full disk or an unwritable file as the error that says so, from the system's error.
+fn io_error(path: &Path, e: std::io::Error) -> StoreError {
+    match e.raw_os_error() {
+        Some(libc::ENOSPC) | Some(libc::EDQUOT) => StoreError::NoSpace { path: path.to_owned() },
+        Some(libc::EACCES) | Some(libc::EPERM) | Some(libc::EROFS) => {
+            StoreError::NotWritable { path: path.to_owned(), detail: e.to_string() }
+        }
+        _ => StoreError::Open { path: path.to_owned(), source: e.into() },
+    }
+}
+
+/// A full disk or an unwritable file as the error that says so, from SQLite's error;
+/// `None` for every other error.
+fn sqlite_error(path: &Path, e: &rusqlite::Error) -> Option<StoreError> {
+    let rusqlite::Error::SqliteFailure(f, _) = e else { return None };
+    match f.code {
+        rusqlite::ErrorCode::DiskFull => Some(StoreError::NoSpace { path: path.to_owned() }),
+        rusqlite::ErrorCode::ReadOnly | rusqlite::ErrorCode::PermissionDenied => {
+            Some(StoreError::NotWritable { path: path.to_owned(), detail: e.to_string() })
+        }
+        _ => None,
+    }
+}
+
 /// The open database.
 #[derive(Debug)]
 pub struct Store {
@@ -101,7 +141,7 @@ fn decode_bundle(mut bytes: &[u8]) -> Option<Bundle> {
         let path = String::from_utf8(field()?.to_vec()).ok()?;
         assets.push((path, field()?.to_vec()));
     }
-    Some(Bundle { name, text, assets })
+    Some(Bundle { name, text, assets, refused: Vec::new() })
 }
 
 fn blake3_of(bytes: &[u8]) -> Vec<u8> {
@@ -114,17 +154,34 @@ impl Store {
     /// what reads back whole is kept, the file is moved aside, and a new one is written.
     pub fn open(dir: &Path) -> Result<(Store, Loaded), StoreError> {
         let path = dir.join(DB_FILE);
-        std::fs::create_dir_all(dir)
-            .map_err(|e| StoreError::Open { path: path.clone(), source: e.into() })?;
+        std::fs::create_dir_all(dir).map_err(|e| io_error(&path, e))?;
+        // A new database file is created here, not by SQLite, so that a directory that
+        // cannot take it says why (SQLite says only "unable to open database file"), and so
+        // that it is removed again if the start fails before its tables are written.
+        let mut created = Created { path: &path, armed: false };
+        match std::fs::OpenOptions::new().write(true).create_new(true).open(&path) {
+            Ok(_) => created.armed = true,
+            Err(e) if e.kind() == std::io::ErrorKind::AlreadyExists => {}
+            Err(e) => return Err(io_error(&path, e)),
+        }
+        // A directory SQLite can create no journal in fails the first write: better now.
+        if let Err(e) = std::fs::OpenOptions::new().append(true).open(&path) {
+            return Err(io_error(&path, e));
+        }
         let stall = std::env::var(FAULT_STALL_ENV)
             .ok()
             .and_then(|v| v.parse().ok())
             .map(std::time::Duration::from_millis);
         let mut problems = Vec::new();
         if let Some((mut store, jobs)) = Self::open_clean(&path, &mut problems)? {
+            created.armed = false;
             store.stall = stall;
             problems.iter().for_each(|p| warn!("{p}"));
             return Ok((store, Loaded { jobs, problems, moved_aside: None }));
+        }
+        if created.armed {
+            // A file this start created and SQLite then found wanting: nothing to salvage.
+            return Err(StoreError::Damaged { path: path.clone(), detail: problems.join("; ") });
         }
         let jobs = Self::salvage(&path, &mut problems)?;
         let stamp =
@@ -180,12 +237,17 @@ impl Store {
                 return Ok(None);
             }
             Err(e) => {
+                if let Some(e) = sqlite_error(path, &e) {
+                    return Err(e);
+                }
                 problems.push(format!("{}: SQLite cannot check it: {e}", path.display()));
                 return Ok(None);
             }
         }
-        let write_err =
-            |source: rusqlite::Error| StoreError::Write { path: path.to_owned(), source: Box::new(source) };
+        let write_err = |source: rusqlite::Error| {
+            sqlite_error(path, &source)
+                .unwrap_or_else(|| StoreError::Write { path: path.to_owned(), source: Box::new(source) })
+        };
         let version: i64 = conn.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(write_err)?;
         if version == 0 {
             conn.execute_batch(&format!(
@@ -214,6 +276,9 @@ impl Store {
         match store.read_jobs(problems) {
             Ok(jobs) => Ok(Some((store, jobs))),
             Err(e) => {
+                if let Some(e) = sqlite_error(path, &e) {
+                    return Err(e);
+                }
                 problems.push(format!("{}: reading it back failed: {e}", path.display()));
                 Ok(None)
             }
@@ -248,8 +313,10 @@ impl Store {
     }
 
     fn connect(path: &Path) -> Result<Connection, StoreError> {
-        let conn = Connection::open(path)
-            .map_err(|e| StoreError::Open { path: path.to_owned(), source: e.into() })?;
+        let conn = Connection::open(path).map_err(|e| {
+            sqlite_error(path, &e)
+                .unwrap_or_else(|| StoreError::Open { path: path.to_owned(), source: e.into() })
+        })?;
         // One process per data directory: an exclusive lock held for the connection's life.
         let setup = conn.execute_batch(
             "PRAGMA locking_mode = EXCLUSIVE; PRAGMA journal_mode = DELETE; PRAGMA synchronous = FULL;
@@ -260,7 +327,8 @@ impl Store {
             Err(rusqlite::Error::SqliteFailure(e, _)) if e.code == rusqlite::ErrorCode::DatabaseBusy => {
                 Err(StoreError::InUse { path: path.to_owned() })
             }
-            Err(e) => Err(StoreError::Damaged { path: path.to_owned(), detail: e.to_string() }),
+            Err(e) => Err(sqlite_error(path, &e)
+                .unwrap_or_else(|| StoreError::Damaged { path: path.to_owned(), detail: e.to_string() })),
         }
     }
 

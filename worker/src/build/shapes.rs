@@ -13,6 +13,9 @@ use crate::render::light::Light;
 use crate::render::shape::{Mesh, Primitive, Rect, Shape};
 use crate::render::transform::{Motion, Trs};
 
+/// The error for geometry that a transform overflowed.
+const NOT_FINITE: &str = "the transformed geometry overflows to non-finite coordinates";
+
 /// What the objects make, in the order the renderer indexes it.
 #[derive(Default)]
 pub(super) struct Shapes {
@@ -45,6 +48,9 @@ impl Shapes {
                     Some(_) => Sphere::new(*center, *radius),
                     None => Sphere::new(trs.matrix().transform_point3(*center), radius * trs.scale.abs().x),
                 };
+                if !(shape.center.is_finite() && shape.radius.is_finite()) {
+                    return Err(err(o.at, NOT_FINITE.into()));
+                }
                 let light = o.emission.map(|radiance| {
                     self.lights.push(Light::Sphere { sphere: shape.clone(), radiance });
                     self.lights.len() as u32 - 1
@@ -63,7 +69,7 @@ impl Shapes {
                     tris: vec![[[0, u32::MAX, u32::MAX], [1, u32::MAX, u32::MAX], [2, u32::MAX, u32::MAX]]],
                     ..Mesh::default()
                 };
-                self.mesh(mesh, o.material, &trs, motion);
+                self.mesh(mesh, o, &trs, motion, err)?;
             }
             S::Mesh { file, .. } => {
                 let uses = |f: &String| {
@@ -90,7 +96,7 @@ impl Shapes {
                     self.read[file].0.clone()
                 };
                 let mesh = Mesh { p: m.p, n: m.n, uv: m.uv, tris: m.tris };
-                self.mesh(mesh, o.material, &trs, motion);
+                self.mesh(mesh, o, &trs, motion, err)?;
             }
         }
         Ok(())
@@ -112,7 +118,15 @@ impl Shapes {
         self.push(Shape::Rect(rect), o.material, light, motion);
     }
 
-    fn mesh(&mut self, mut mesh: Mesh, material: u32, trs: &Trs, motion: Option<u32>) {
+    /// Adds a mesh of object `o`, baked into world space unless it moves.
+    fn mesh(
+        &mut self,
+        mut mesh: Mesh,
+        o: &Object,
+        trs: &Trs,
+        motion: Option<u32>,
+        err: &dyn Fn(Location, String) -> SceneError,
+    ) -> Result<(), SceneError> {
         if motion.is_none() && !trs.is_identity() {
             let m = trs.matrix();
             let normal_matrix = m.matrix3.inverse().transpose();
@@ -123,10 +137,16 @@ impl Shapes {
                 *n = Vec3::from(normal_matrix * glam::Vec3A::from(*n)).normalize_or_zero();
             }
         }
+        // Validation bounds where a transform takes an object; this catches any geometry
+        // that still overflowed, which would otherwise never be hit and vanish silently.
+        if !mesh.p.iter().all(|p| p.is_finite()) {
+            return Err(err(o.at, NOT_FINITE.into()));
+        }
         let index = self.meshes.len() as u32;
         for tri in 0..mesh.tris.len() as u32 {
-            self.push(Shape::Triangle { mesh: index, tri }, material, None, motion);
+            self.push(Shape::Triangle { mesh: index, tri }, o.material, None, motion);
         }
         self.meshes.push(mesh);
+        Ok(())
     }
 }

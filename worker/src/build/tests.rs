@@ -104,6 +104,7 @@ fn damaged_pixels_behind_a_good_header_fail_the_build_at_the_texture() {
         name: "t.toml".into(),
         text: format!("{MINIMAL}\n[textures.wood]\ntype = \"image\"\nfile = \"w.png\"\n"),
         assets: vec![("w.png".into(), png)],
+        refused: vec![],
     };
     let desc = Description::parse(&bundle).expect("the header is good");
     let e = build(&desc, &bundle).unwrap_err();
@@ -120,4 +121,23 @@ fn the_summary_costs_cover_the_renderer_types() {
     assert!(size(std::mem::size_of::<[[u32; 3]; 3]>()) <= s::TRIANGLE_BYTES);
     assert!(size(std::mem::size_of::<crate::render::bvh::Aabb>()) <= 24);
     assert!(size(std::mem::size_of::<glam::Vec3>()) <= s::VEC3_BYTES);
+}
+
+#[test]
+fn geometry_a_transform_overflows_fails_the_build_at_the_object() {
+    struct One(&'static [u8]);
+    impl Assets for One {
+        fn get(&self, path: &str) -> Option<&[u8]> {
+            (path == "m.obj").then_some(self.0)
+        }
+    }
+    let far = One(b"v 1e17 0 0\nv 0 1e17 0\nv 0 0 1e17\nf 1 2 3\n");
+    let text = format!("{MINIMAL}\n[[mesh]]\nfile = \"m.obj\"\nmaterial = \"red\"\n");
+    // Validation refuses it; a description changed past validation is caught when built.
+    let mut desc = Description::parse_text("t.toml", &text, &far).unwrap();
+    for o in desc.objects.iter_mut().skip(1) {
+        o.transform.scale = glam::Vec3::splat(1e30);
+    }
+    let Err(e) = build(&desc, &far) else { panic!("overflowing geometry is refused") };
+    assert_eq!(e.to_string(), "t.toml:18:1: the transformed geometry overflows to non-finite coordinates");
 }
