@@ -32,9 +32,11 @@ pub const WATCH_CHUNK_PIXELS: usize = 1 << 16;
 pub const WATCH_DEFAULT_RATE: f64 = 10.0;
 /// The most bytes per second the coordinator sends all its viewers together. Viewers
 /// never slow rendering: past this, each viewer gets fewer (larger, coalesced) updates
-/// instead of the coordinator spending the workers' CPU on encoding and sending. 32 MB/s
-/// is a 1080p frame's worth of changed pixels about once a second, and a few percent of
-/// one core.
+/// instead of the coordinator spending the workers' CPU on encoding and sending. A pixel's
+/// state is about 17 bytes, so 32 MB/s is about one full 1080p frame a second for all
+/// viewers together; `tessera bench farm` measured sending to cost the farm about 0.15 %
+/// of its commits per MB/s on two cores, so this keeps viewers within a few per cent of
+/// the commits (at 128 MB/s they cost up to 80 %; docs/farm.md).
 pub const VIEWER_BYTES_PER_SECOND: f64 = 32e6;
 /// A publisher with nothing new still sends the status this often (samples/s, workers).
 const STATUS_REFRESH: Duration = Duration::from_secs(1);
