@@ -382,6 +382,7 @@ mod tests {
             name: "small.toml".into(),
             text: include_str!("../../../tests/scenes/small.toml").into(),
             assets: vec![],
+            refused: vec![],
         };
         let job = service.submit(bundle, JobSettings::sized(Some(2), Some((8, 8))), 0).await.unwrap();
         let interval = Duration::from_millis(10);
