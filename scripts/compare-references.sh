@@ -1,19 +1,19 @@
 #!/usr/bin/env bash
-# Renders the two benchmark scenes of ../shared/benchmarks (scenes/spheres.toml and
+# Renders the two benchmark scenes (scenes/spheres.toml and
 # scenes/cornell.toml) at SPP samples per pixel with two seeds, compares each with
 # Mitsuba 3's converged `cook` reference, and prints:
 #   rmse      error of our image against the reference (linear RGB, all pixels/channels)
 #   noise     our own noise: rmse between our two seeds / sqrt(2)
-#   ref noise the reference's own noise, from RESULTS.md
+#   ref noise the reference's own noise, as measured with the references
 #   bias      sqrt(max(0, rmse^2 - noise^2 - ref_noise^2)): what noise does not explain
 #   rmse[0,1] the rmse with both images clamped to [0, 1], as a display shows them (a few
 #             pixels seeing the light, at radiance 200, otherwise dominate the rmse)
-# Usage: scripts/compare-references.sh [SPP] (default 256). Needs ../shared beside the
-# repository (or REFS=path/to/refs).
+# Usage: scripts/compare-references.sh [SPP] (default 256). The references are in
+# docs/references (or REFS=path/to/refs).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 spp=${1:-256}
-refs=${REFS:-../shared/benchmarks/refs}
+refs=${REFS:-docs/references}
 cargo build --release --quiet
 bin=target/release/tessera
 tmp=$(mktemp -d)
