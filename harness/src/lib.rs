@@ -18,12 +18,14 @@ use std::time::{Duration, Instant};
 
 use tessera_coordinator::{CoordinatorService, Timing};
 use tessera_description::ids::{JobId, WorkerId};
-use tessera_description::job::JobState;
+use tessera_description::job::JobProgress;
+use tessera_proto::connect::{ConnectError, EndpointConfig, MAX_MESSAGE_BYTES};
+use tessera_proto::convert::status_from_wire;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_client::CoordinatorClient;
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
-use tonic::transport::{Channel, Endpoint};
+use tonic::transport::Channel;
 
 pub use viewer::FakeViewer;
 pub use worker::{pixel_value, valid_result, FakeWorker, ServeStats, REFERENCE_BATCH_SAMPLES};
@@ -41,9 +43,9 @@ pub type Client = CoordinatorClient<Channel>;
 /// What went wrong talking to the coordinator.
 #[derive(Debug, thiserror::Error)]
 pub enum HarnessError {
-    /// The connection could not be made or broke.
-    #[error("transport: {0}")]
-    Transport(#[from] tonic::transport::Error),
+    /// The coordinator could not be reached.
+    #[error(transparent)]
+    Connect(#[from] ConnectError),
     /// A call returned an error status.
     #[error("call failed: {0}")]
     Status(Box<tonic::Status>),
@@ -74,29 +76,6 @@ impl From<tonic::Status> for HarnessError {
 /// Results of this crate.
 pub type Result<T, E = HarnessError> = std::result::Result<T, E>;
 
-/// A job as `Status` reports it.
-#[derive(Debug, Clone, PartialEq)]
-pub struct JobView {
-    /// The job.
-    pub id: JobId,
-    /// Its state (with the error when it failed).
-    pub state: JobState,
-    /// Image width.
-    pub width: u32,
-    /// Image height.
-    pub height: u32,
-    /// Samples per pixel.
-    pub spp: u32,
-    /// The pass whose batches are being handed out.
-    pub pass: u32,
-    /// Samples merged.
-    pub samples_done: u64,
-    /// Samples in the job.
-    pub samples_total: u64,
-    /// Pass-one pixels merged.
-    pub pass_one_done: u64,
-}
-
 /// A worker as `Status` reports it.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct WorkerView {
@@ -114,7 +93,7 @@ pub struct WorkerView {
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct FarmStatus {
     /// Jobs.
-    pub jobs: Vec<JobView>,
+    pub jobs: Vec<JobProgress>,
     /// Connected workers.
     pub workers: Vec<WorkerView>,
 }
@@ -137,28 +116,17 @@ pub struct Image {
     pub bytes: Vec<u8>,
 }
 
-fn state_from_wire(state: i32, error: &str) -> JobState {
-    match pb::JobState::try_from(state).unwrap_or(pb::JobState::Unspecified) {
-        pb::JobState::Queued | pb::JobState::Unspecified => JobState::Queued,
-        pb::JobState::Running => JobState::Running,
-        pb::JobState::Done => JobState::Done,
-        pb::JobState::Cancelled => JobState::Cancelled,
-        pb::JobState::Failed => JobState::Failed(error.to_string()),
-        pb::JobState::Paused => JobState::Paused,
-    }
-}
-
-/// A channel to the coordinator at `url` (e.g. `http://127.0.0.1:7878`).
+/// A channel to the coordinator at `url` (e.g. `http://127.0.0.1:7878`), as every client
+/// of the project connects.
 pub async fn connect(url: &str) -> Result<Channel> {
-    let endpoint = Endpoint::from_shared(url.to_string())?.connect_timeout(Duration::from_secs(5));
-    Ok(endpoint.connect().await?)
+    Ok(tessera_proto::connect::connect(&EndpointConfig::new(url)?).await?)
 }
 
 /// A client on `channel`, with the coordinator's message limits.
 pub fn client(channel: &Channel) -> Client {
     CoordinatorClient::new(channel.clone())
-        .max_decoding_message_size(tessera_coordinator::service::MAX_MESSAGE_BYTES)
-        .max_encoding_message_size(tessera_coordinator::service::MAX_MESSAGE_BYTES)
+        .max_decoding_message_size(MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(MAX_MESSAGE_BYTES)
 }
 
 /// Submits the scene `text` (named `name`) with `settings`; returns the job.
@@ -183,18 +151,8 @@ pub async fn status(channel: &Channel) -> Result<FarmStatus> {
     let jobs = s
         .jobs
         .into_iter()
-        .map(|j| JobView {
-            id: JobId(j.job_id),
-            state: state_from_wire(j.state, &j.error),
-            width: j.width,
-            height: j.height,
-            spp: j.spp,
-            pass: j.pass,
-            samples_done: j.samples_done,
-            samples_total: j.samples_total,
-            pass_one_done: j.pass_one_done,
-        })
-        .collect();
+        .map(|j| status_from_wire(j).map_err(|e| HarnessError::Protocol(e.to_string())))
+        .collect::<Result<_>>()?;
     let workers = s
         .workers
         .into_iter()
@@ -209,7 +167,7 @@ pub async fn status(channel: &Channel) -> Result<FarmStatus> {
 }
 
 /// One job's status.
-pub async fn job(channel: &Channel, id: JobId) -> Result<JobView> {
+pub async fn job(channel: &Channel, id: JobId) -> Result<JobProgress> {
     status(channel)
         .await?
         .jobs
@@ -223,8 +181,8 @@ pub async fn wait_for(
     channel: &Channel,
     id: JobId,
     limit: Duration,
-    mut done: impl FnMut(&JobView) -> bool,
-) -> Result<JobView> {
+    mut done: impl FnMut(&JobProgress) -> bool,
+) -> Result<JobProgress> {
     let start = Instant::now();
     loop {
         let j = job(channel, id).await?;
@@ -329,12 +287,12 @@ impl Harness {
     }
 
     /// One job's status.
-    pub async fn job(&self, id: JobId) -> Result<JobView> {
+    pub async fn job(&self, id: JobId) -> Result<JobProgress> {
         job(&self.channel, id).await
     }
 
     /// Waits (at most `PATIENCE`) until the job is over: done, cancelled or failed.
-    pub async fn wait_over(&self, id: JobId) -> Result<JobView> {
+    pub async fn wait_over(&self, id: JobId) -> Result<JobProgress> {
         wait_for(&self.channel, id, PATIENCE, |j| j.state.is_over()).await
     }
 
