@@ -57,6 +57,7 @@ pub fn valid_result(batch: &pb::Batch) -> pb::BatchResult {
         nonfinite_samples: 0,
         render_micros: 0,
         even_sums,
+        lease: batch.lease.clone(),
     }
 }
 
@@ -159,6 +160,8 @@ impl FakeWorker {
             attempt: batch.attempt,
             error: error.into(),
             credit: 1,
+            lease: batch.lease.clone(),
+            scene_refused: false,
         }))
         .await
     }

@@ -89,6 +89,7 @@ impl Pool {
                             nonfinite_samples: sums.nonfinite,
                             render_micros: start.elapsed().as_micros() as u64,
                             even_sums: sums.even,
+                            lease: b.lease.clone(),
                         });
                     }
                 })
@@ -193,7 +194,15 @@ async fn session(
                         }
                         Err(error) => {
                             warn!(job = b.job_id, batch = b.batch_id, "cannot render batch: {error}");
-                            let failed = pb::BatchFailed { job_id: b.job_id, batch_id: b.batch_id, attempt: b.attempt, error, credit: 1 };
+                            let failed = pb::BatchFailed {
+                                job_id: b.job_id,
+                                batch_id: b.batch_id,
+                                attempt: b.attempt,
+                                error,
+                                credit: 1,
+                                lease: b.lease.clone(),
+                                scene_refused: false,
+                            };
                             send(&out, Out::Failed(failed)).await?;
                         }
                     },

@@ -102,6 +102,7 @@ impl CoordinatorService {
                     sample_end: a.batch.samples.end,
                     pixels,
                     even_sums: a.even_sums,
+                    lease: Default::default(),
                 };
                 if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Batch(batch)) })).await.is_err() {
                     break;
