@@ -227,8 +227,8 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         TcpListener::bind("127.0.0.1:0").await.context("binding a loopback port for the coordinator")?;
     let addr = listener.local_addr()?;
     let server = tokio::spawn(
-        tonic::transport::Server::builder()
-            .add_service(service.clone().into_server())
+        tessera_coordinator::service::server()
+            .add_routes(service.clone().into_server())
             .serve_with_incoming(tessera_coordinator::service::incoming(listener)),
     );
     let reaper = service.spawn_reaper();

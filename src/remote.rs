@@ -71,8 +71,8 @@ pub async fn serve_coordinator(
     tracing::info!("coordinator listening on {}", listener.local_addr()?);
     let _reaper = service.spawn_reaper();
     let _checkpointer = service.spawn_checkpointer();
-    tonic::transport::Server::builder()
-        .add_service(service.clone().into_server())
+    tessera_coordinator::service::server()
+        .add_routes(service.clone().into_server())
         .serve_with_incoming_shutdown(
             tessera_coordinator::service::incoming(listener),
             crate::shutdown_signal(),

@@ -9,6 +9,7 @@ use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_client::CoordinatorClient;
 use tessera_proto::v1::coordinator_message::Msg as In;
 use tessera_proto::v1::worker_message::Msg as Out;
+use tessera_proto::v1::workers_client::WorkersClient;
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 
@@ -29,7 +30,7 @@ async fn open(
     url: &str,
     first: pb::WorkerMessage,
 ) -> (mpsc::Sender<pb::WorkerMessage>, tonic::Streaming<pb::CoordinatorMessage>) {
-    let mut client = CoordinatorClient::connect(url.to_string()).await.unwrap();
+    let mut client = WorkersClient::connect(url.to_string()).await.unwrap();
     let (tx, rx) = mpsc::channel(8);
     tx.send(first).await.unwrap();
     let inbound = client.work(ReceiverStream::new(rx)).await.unwrap().into_inner();

@@ -19,3 +19,11 @@ pub const MAX_ASSET_BYTES: u64 = 1 << 30;
 /// The farthest from the origin a placed object may reach in world space: products of two
 /// coordinates (cross products, squared lengths) then stay finite in `f32`.
 pub const MAX_COORDINATE: f64 = 1e18;
+/// The longest name (a scene's file name, a worker's name, an asset's path, an object's or
+/// material's name), in bytes: names travel in every `Status` and viewer update.
+pub const MAX_NAME_BYTES: usize = 1024;
+/// The largest bundle (scene text and every asset), in bytes: the client, the coordinator
+/// and every worker hold it whole, and it travels in one message.
+pub const MAX_BUNDLE_BYTES: u64 = 256 << 20;
+/// What a message carrying a bundle may hold beyond it (settings, ids, names, framing).
+pub const BUNDLE_MESSAGE_SLACK: u64 = 1 << 20;

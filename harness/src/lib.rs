@@ -23,6 +23,7 @@ use tessera_proto::connect::{ConnectError, EndpointConfig, MAX_MESSAGE_BYTES};
 use tessera_proto::convert::status_from_wire;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_client::CoordinatorClient;
+use tessera_proto::v1::workers_client::WorkersClient;
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 use tonic::transport::Channel;
@@ -125,6 +126,14 @@ pub async fn connect(url: &str) -> Result<Channel> {
 /// A client on `channel`, with the coordinator's message limits.
 pub fn client(channel: &Channel) -> Client {
     CoordinatorClient::new(channel.clone())
+        .max_decoding_message_size(MAX_MESSAGE_BYTES)
+        .max_encoding_message_size(MAX_MESSAGE_BYTES)
+}
+
+/// A worker's client on `channel` (the `Workers` service), with the coordinator's message
+/// limits.
+pub fn worker_client(channel: &Channel) -> WorkersClient<Channel> {
+    WorkersClient::new(channel.clone())
         .max_decoding_message_size(MAX_MESSAGE_BYTES)
         .max_encoding_message_size(MAX_MESSAGE_BYTES)
 }
@@ -248,8 +257,8 @@ impl Harness {
         let addr = listener.local_addr()?;
         let (shutdown, stop) = oneshot::channel::<()>();
         let server = tokio::spawn(async move {
-            let _ = tonic::transport::Server::builder()
-                .add_service(service.into_server())
+            let _ = tessera_coordinator::service::server()
+                .add_routes(service.into_server())
                 .serve_with_incoming_shutdown(tessera_coordinator::service::incoming(listener), async {
                     let _ = stop.await;
                 })

@@ -17,7 +17,7 @@ use tokio_stream::wrappers::ReceiverStream;
 use tonic::transport::Channel;
 use tonic::Streaming;
 
-use crate::{client, HarnessError, Result, PATIENCE};
+use crate::{worker_client, HarnessError, Result, PATIENCE};
 
 /// Samples of the batch whose render time `serve` is given: a full pass-two batch as the
 /// coordinator cuts it (`scheduler::PASS_TWO_SAMPLES`); smaller batches take
@@ -88,7 +88,7 @@ impl FakeWorker {
         tx.send(pb::WorkerMessage { msg: Some(Out::Hello(hello)) })
             .await
             .map_err(|_| HarnessError::Closed)?;
-        let inbound = client(channel).work(ReceiverStream::new(rx)).await?.into_inner();
+        let inbound = worker_client(channel).work(ReceiverStream::new(rx)).await?.into_inner();
         let mut w = FakeWorker { id: WorkerId(0), scenes: Vec::new(), credit, tx, inbound };
         match w.next().await? {
             In::Welcome(welcome) => w.id = WorkerId(welcome.worker_id),

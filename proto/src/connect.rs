@@ -12,10 +12,12 @@ use tonic::codegen::http::Uri;
 use tonic::transport::{Channel, Endpoint};
 
 use crate::v1::coordinator_client::CoordinatorClient;
+use crate::v1::workers_client::WorkersClient;
 
 /// The largest message a client sends or accepts by default: scene bundles with their
-/// assets travel whole.
-pub const MAX_MESSAGE_BYTES: usize = 256 << 20;
+/// assets travel whole (`limits::MAX_BUNDLE_BYTES`, and a little for the rest).
+pub const MAX_MESSAGE_BYTES: usize = (tessera_description::limits::MAX_BUNDLE_BYTES
+    + tessera_description::limits::BUNDLE_MESSAGE_SLACK) as usize;
 
 /// Why a client could not reach the coordinator, or lost it.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
@@ -144,6 +146,15 @@ pub async fn connect(config: &EndpointConfig) -> Result<Channel, ConnectError> {
 /// A coordinator client over a new channel, with the configured message size limit both ways.
 pub async fn client(config: &EndpointConfig) -> Result<CoordinatorClient<Channel>, ConnectError> {
     Ok(CoordinatorClient::new(connect(config).await?)
+        .max_decoding_message_size(config.max_message_bytes)
+        .max_encoding_message_size(config.max_message_bytes))
+}
+
+/// A worker's client of the coordinator over a new channel: the `Workers` service, whose
+/// scenes arrive with the configured message size limit (the coordinator decodes worker
+/// messages only up to the largest legal one).
+pub async fn worker_client(config: &EndpointConfig) -> Result<WorkersClient<Channel>, ConnectError> {
+    Ok(WorkersClient::new(connect(config).await?)
         .max_decoding_message_size(config.max_message_bytes)
         .max_encoding_message_size(config.max_message_bytes))
 }

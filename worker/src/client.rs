@@ -145,7 +145,7 @@ async fn session(
     welcomed: &mut bool,
 ) -> Result<SessionEnd, ConnectError> {
     let url = &endpoint.url;
-    let mut client = tessera_proto::connect::client(endpoint).await?;
+    let mut client = tessera_proto::connect::worker_client(endpoint).await?;
     let (out, out_rx) = mpsc::channel::<pb::WorkerMessage>(64);
     let threads = config.threads.max(1) as u32;
     let hello = pb::Hello {

@@ -22,7 +22,10 @@ use std::time::{Duration, Instant};
 use tessera_description::ids::JobId;
 use tessera_description::job::{JobProgress, JobSettings, JobState};
 use tessera_proto::v1::coordinator_server::CoordinatorServer;
+use tessera_proto::v1::workers_server::WorkersServer;
 use tokio::sync::watch;
+use tonic::service::Routes;
+use tonic::transport::Server;
 use tracing::{info, warn};
 
 use crate::farm::Farm;
@@ -47,8 +50,12 @@ impl Default for Timing {
     }
 }
 
-/// The largest message the coordinator accepts (scene bundles with their assets).
+/// The largest message the coordinator accepts from clients or sends (scene bundles with
+/// their assets, to workers too).
 pub use tessera_proto::connect::MAX_MESSAGE_BYTES;
+
+mod limits;
+pub use limits::{MAX_LEASE_TOKEN_BYTES, MAX_WORKER_MESSAGE_BYTES};
 
 /// The coordinator: the farm behind a lock held only briefly, a change counter that wakes
 /// the tasks feeding workers and viewers, and a shutdown signal for its background tasks.
@@ -157,11 +164,18 @@ impl CoordinatorService {
         Some(Image { width: fb.width(), height: fb.height(), rgb: fb.resolve(), state })
     }
 
-    /// The tonic server for this service, with message limits set.
-    pub fn into_server(self) -> CoordinatorServer<Self> {
-        CoordinatorServer::new(self)
+    /// The tonic services of this coordinator, each with its message limits: `Coordinator`
+    /// (clients and viewers) decodes up to a scene bundle, `Workers` only up to the largest
+    /// legal worker message, so that a worker cannot make it buffer a bundle's worth.
+    /// Serve them with [`server`]'s settings: `server().add_routes(service.into_server())`.
+    pub fn into_server(self) -> Routes {
+        let workers = WorkersServer::new(self.clone())
+            .max_decoding_message_size(MAX_WORKER_MESSAGE_BYTES)
+            .max_encoding_message_size(MAX_MESSAGE_BYTES);
+        let clients = CoordinatorServer::new(self)
             .max_decoding_message_size(MAX_MESSAGE_BYTES)
-            .max_encoding_message_size(MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(MAX_MESSAGE_BYTES);
+        Routes::new(workers).add_service(clients)
     }
 
     /// Takes back the leases of silent workers and ends jobs whose time budget is spent,
@@ -193,6 +207,13 @@ impl CoordinatorService {
             }
         })
     }
+}
+
+/// A tonic server builder with the coordinator's connection limits (`limits.rs`): streams
+/// per connection, HTTP/2 keep-alive that drops a peer that stopped answering, a header
+/// list bound, and resets a client may cause.
+pub fn server() -> Server {
+    limits::configure(Server::builder())
 }
 
 /// The connections a listener accepts, with Nagle's algorithm off: the work stream sends

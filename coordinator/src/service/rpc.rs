@@ -5,6 +5,7 @@ use std::time::Duration;
 
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_server::Coordinator;
+use tessera_proto::v1::workers_server::Workers;
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::Stream;
@@ -19,7 +20,6 @@ pub(super) type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Se
 
 #[tonic::async_trait]
 impl Coordinator for CoordinatorService {
-    type WorkStream = BoxStream<pb::CoordinatorMessage>;
     type FetchImageStream = BoxStream<pb::ImageChunk>;
     type WatchStream = BoxStream<pb::FramebufferUpdate>;
 
@@ -43,18 +43,6 @@ impl Coordinator for CoordinatorService {
         // One update in flight: a viewer that does not read holds one chunk, no backlog.
         let (tx, rx) = mpsc::channel(1);
         tokio::spawn(self.clone().feed_viewer(job, interval, tx));
-        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
-    }
-
-    async fn work(
-        &self,
-        request: Request<Streaming<pb::WorkerMessage>>,
-    ) -> Result<Response<Self::WorkStream>, Status> {
-        let inbound = request.into_inner();
-        // Room for a full credit's worth of batches plus scenes, so that handing out work
-        // never waits on the worker reading.
-        let (tx, rx) = mpsc::channel(MAX_CREDIT as usize + 16);
-        tokio::spawn(self.clone().serve_worker(inbound, tx));
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }
 
@@ -88,5 +76,22 @@ impl Coordinator for CoordinatorService {
         request: Request<pb::CancelRequest>,
     ) -> Result<Response<pb::CancelResponse>, Status> {
         self.rpc_cancel(request).await
+    }
+}
+
+#[tonic::async_trait]
+impl Workers for CoordinatorService {
+    type WorkStream = BoxStream<pb::CoordinatorMessage>;
+
+    async fn work(
+        &self,
+        request: Request<Streaming<pb::WorkerMessage>>,
+    ) -> Result<Response<Self::WorkStream>, Status> {
+        let inbound = request.into_inner();
+        // Room for a full credit's worth of batches plus scenes, so that handing out work
+        // never waits on the worker reading.
+        let (tx, rx) = mpsc::channel(MAX_CREDIT as usize + 16);
+        tokio::spawn(self.clone().serve_worker(inbound, tx));
+        Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }
 }
