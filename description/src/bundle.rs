@@ -468,7 +468,7 @@ mod tests {
         assert!(e.ends_with("it is a directory, not a regular file"), "{e}");
         File::options().write(true).open(&scene).unwrap().set_len(limits::MAX_SCENE_BYTES + 1).unwrap();
         let e = Bundle::read(&scene).unwrap_err().to_string();
-        assert!(e.contains("larger than the limit of 67108864 bytes"), "{e}");
+        assert!(e.contains("larger than the limit of 16777216 bytes"), "{e}");
         assert!(matches!(
             Bundle::read(Path::new("/dev/null")),
             Err(BundleError::NotRegular { kind: "a device", .. })

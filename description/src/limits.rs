@@ -10,9 +10,17 @@ pub const MAX_SPP: u32 = 1 << 20;
 pub const MAX_DEPTH: u32 = 64;
 /// The most triangles in a scene.
 pub const MAX_TRIANGLES: usize = 1 << 26;
-/// The largest scene file, in bytes (64 MiB): scene text is small; meshes and images are
-/// assets.
-pub const MAX_SCENE_BYTES: u64 = 64 << 20;
+/// The largest scene file, in bytes (16 MiB): scene text is small; meshes and images are
+/// assets. Checked before parsing, since the TOML parser needs about 7 bytes of memory per
+/// byte of text (~115 MB at this limit).
+pub const MAX_SCENE_BYTES: u64 = 16 << 20;
+/// The longest line of a scene file, in bytes: no legal value needs more.
+pub const MAX_LINE_BYTES: usize = 64 << 10;
+/// The most corners of one OBJ face (each fan-triangulated into a triangle).
+pub const MAX_FACE_CORNERS: usize = 4096;
+/// The most pixels of one image texture (8192 × 8192): a worker holds ~28 bytes a texel
+/// at the peak of decoding, ~1.9 GB at this limit.
+pub const MAX_TEXTURE_PIXELS: u64 = 1 << 26;
 /// The largest asset (mesh or image) a scene may reference, in bytes (1 GiB): the whole
 /// bundle is held in memory by the client, the coordinator and every worker.
 pub const MAX_ASSET_BYTES: u64 = 1 << 30;

@@ -83,6 +83,17 @@ impl Validator<'_> {
                 let (width, height) = image_size(bytes).map_err(|e| {
                     ctx.err(span, format!("{}: {file:?} is not a readable image: {e}", what("file")))
                 })?;
+                // From the header, before any worker decodes it.
+                if u64::from(width) * u64::from(height) > crate::limits::MAX_TEXTURE_PIXELS {
+                    return Err(ctx.err(
+                        span,
+                        format!(
+                            "{}: {file:?} is {width}x{height}, more than the limit of {} pixels for a texture",
+                            what("file"),
+                            crate::limits::MAX_TEXTURE_PIXELS
+                        ),
+                    ));
+                }
                 TextureKind::Image { file: path, width, height }
             }
             other => {

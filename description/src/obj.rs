@@ -163,6 +163,14 @@ fn read(text: &str, sink: &mut impl Sink) -> Result<ObjCounts, ObjError> {
                 // Fan triangulation as the corners come: no list of corners is kept.
                 let (mut first, mut prev, mut corners) = ([0u32; 3], [0u32; 3], 0usize);
                 for w in words {
+                    // Bounded before anything is made of them: the builder holds a face's
+                    // triangles as it goes.
+                    if corners == crate::limits::MAX_FACE_CORNERS {
+                        return Err(err(format!(
+                            "a face has more than {} corners",
+                            crate::limits::MAX_FACE_CORNERS
+                        )));
+                    }
                     let c = corner(w, n.positions, n.uvs, n.normals).map_err(&err)?;
                     match corners {
                         0 => first = c,

@@ -190,10 +190,17 @@ color = [1, 0, 0]
     #[test]
     fn a_huge_image_is_counted_from_its_header() {
         let text = "\n[textures.big]\ntype = \"image\"\nfile = \"big.png\"\n";
-        let b = bundle(text, vec![("big.png".into(), png_header(12_000, 12_000))]);
+        let b = bundle(text, vec![("big.png".into(), png_header(8192, 8192))]);
         let s = Description::parse(&b).unwrap().summary(false);
-        assert_eq!(s.textures, vec![(12_000, 12_000)]);
-        assert!(s.worker_bytes >= 144_000_000 * TEXEL_BYTES, "{}", s.worker_bytes);
+        assert_eq!(s.textures, vec![(8192, 8192)]);
+        assert!(s.worker_bytes >= 8192 * 8192 * TEXEL_BYTES, "{}", s.worker_bytes);
+        // A 0.4 MB file may declare 12000x12000: refused from its header.
+        let b = bundle(text, vec![("big.png".into(), png_header(12_000, 12_000))]);
+        let e = Description::parse(&b).unwrap_err();
+        assert_eq!(
+            e.to_string(),
+            "t.toml:14:1: textures.big.file: \"big.png\" is 12000x12000, more than the limit of 67108864 pixels for a texture"
+        );
         let junk = bundle(text, vec![("big.png".into(), b"not an image".to_vec())]);
         let e = Description::parse(&junk).unwrap_err();
         assert!(e.message.contains("\"big.png\" is not a readable image"), "{e}");

@@ -150,11 +150,15 @@ fn the_triangle_budget_counts_every_use_before_building() {
             (path == "m.obj").then_some(self.0.as_slice())
         }
     }
-    // A fan of n triangles in one face: a short file with many triangles.
-    let n = crate::limits::MAX_TRIANGLES / 2 + 1;
-    let mut obj = String::from("v 0 0 0\nv 1 0 0\nv 0 1 0\nf");
-    obj.push_str(&" 1".repeat(n + 2));
-    obj.push('\n');
+    // Fans of the most corners a face may have: a short file with many triangles.
+    let corners = crate::limits::MAX_FACE_CORNERS;
+    let faces = (crate::limits::MAX_TRIANGLES / 2) / (corners - 2) + 1;
+    let n = faces * (corners - 2);
+    let mut obj = String::from("v 0 0 0\nv 1 0 0\nv 0 1 0\n");
+    let face = format!("f{}\n", " 1".repeat(corners));
+    for _ in 0..faces {
+        obj.push_str(&face);
+    }
     let mesh = "\n[[mesh]]\nfile = \"m.obj\"\nmaterial = \"red\"\n";
     let once = parse_scene_with_assets("t.toml", &format!("{MINIMAL}{mesh}"), &One(obj.clone().into_bytes()));
     assert_eq!(once.unwrap().objects[1].triangles(), n as u64);
@@ -169,6 +173,15 @@ impl Assets for OneMesh {
     fn get(&self, path: &str) -> Option<&[u8]> {
         (path == "m.obj").then_some(self.0)
     }
+}
+
+#[test]
+fn a_face_with_too_many_corners_is_refused_before_anything_is_made() {
+    let obj = format!("v 0 0 0\nv 1 0 0\nv 0 1 0\nf{}\n", " 1".repeat(crate::limits::MAX_FACE_CORNERS + 1));
+    let obj: &'static [u8] = Box::leak(obj.into_bytes().into_boxed_slice());
+    let text = format!("{MINIMAL}\n[[mesh]]\nfile = \"m.obj\"\nmaterial = \"red\"\n");
+    let e = parse_scene_with_assets("t.toml", &text, &OneMesh(obj)).unwrap_err();
+    assert_eq!(e.to_string(), "t.toml:18:1: mesh \"m.obj\": line 4: a face has more than 4096 corners");
 }
 
 #[test]

@@ -88,6 +88,7 @@ pub(crate) struct Validator<'a> {
 
 /// Parses and validates a scene whose meshes and images come from `assets`.
 pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Description> {
+    crate::bounds::check_text(file, text)?;
     let ctx = Ctx { file, text };
     let raw: SceneFile = toml::from_str(text).map_err(|e| {
         let span = e.span().unwrap_or(0..0);
@@ -286,7 +287,9 @@ fn camera(ctx: &Ctx, c: Spanned<CameraDef>) -> R<Camera> {
 impl Description {
     /// Parses and validates a bundle's scene, with its assets.
     pub fn parse(bundle: &crate::Bundle) -> Result<Description, SceneError> {
+        crate::bounds::check_bundle(bundle)?;
         let mut d = validate(&bundle.name, &bundle.text, bundle)?;
+        crate::bounds::check_referenced(bundle, &d)?;
         d.bundle_bytes = bundle.text.len() as u64
             + bundle.assets.iter().map(|(p, a)| (p.len() + a.len()) as u64).sum::<u64>();
         Ok(d)
