@@ -47,6 +47,14 @@ enum Command {
         /// pass one and when a job ends) [default: 30].
         #[arg(long, default_value_t = 30.0, requires = "data")]
         checkpoint_interval: f64,
+        /// Memory the jobs may hold (framebuffers and scenes), e.g. 8G or 512M; a job that
+        /// does not fit is refused (RESOURCE_EXHAUSTED) [default: half the machine's memory].
+        #[arg(long, env = "TESSERA_MEMORY_BUDGET", value_parser = parse_bytes)]
+        memory_budget: Option<u64>,
+        /// Finished jobs kept (images fetchable, memory held); the oldest beyond are
+        /// dropped from memory and the data directory.
+        #[arg(long, default_value_t = tessera_coordinator::service::KEEP_FINISHED, value_parser = clap::value_parser!(usize))]
+        keep_finished: usize,
     },
     /// Run a worker that renders batches for a coordinator.
     Worker(WorkerArgs),
@@ -141,6 +149,10 @@ pub struct WorkerArgs {
     /// Exit when the coordinator goes away instead of reconnecting.
     #[arg(long)]
     exit_on_disconnect: bool,
+    /// Memory one scene may take here, e.g. 16G; a larger scene is refused and its job goes
+    /// to other workers [default: the memory available at start].
+    #[arg(long, env = "TESSERA_WORKER_MEMORY", value_parser = parse_bytes)]
+    memory: Option<u64>,
 }
 
 /// Arguments of `tessera view`.
@@ -232,7 +244,14 @@ fn one_line(e: &anyhow::Error) -> String {
 async fn run(command: Command) -> Result<ExitCode> {
     match command {
         Command::Render(args) => local::render(args).await,
-        Command::Coordinator { listen, worker_timeout, data, checkpoint_interval } => {
+        Command::Coordinator {
+            listen,
+            worker_timeout,
+            data,
+            checkpoint_interval,
+            memory_budget,
+            keep_finished,
+        } => {
             let timing = tessera_coordinator::Timing {
                 silence_timeout: seconds("--worker-timeout", worker_timeout)?,
                 ..Default::default()
@@ -241,7 +260,11 @@ async fn run(command: Command) -> Result<ExitCode> {
                 Some(dir) => Some((dir, seconds("--checkpoint-interval", checkpoint_interval)?)),
                 None => None,
             };
-            remote::serve_coordinator(listen, timing, data).await?;
+            let budget = memory_budget.unwrap_or_else(tessera_coordinator::service::default_budget);
+            if keep_finished == 0 {
+                anyhow::bail!("--keep-finished must be at least 1");
+            }
+            remote::serve_coordinator(listen, timing, data, budget, keep_finished).await?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Worker(args) => {
@@ -254,6 +277,10 @@ async fn run(command: Command) -> Result<ExitCode> {
                 threads,
                 name: args.name.unwrap_or_else(|| format!("{}:{}", host_name(), std::process::id())),
                 exit_on_disconnect: args.exit_on_disconnect,
+                memory: args
+                    .memory
+                    .or_else(tessera_description::machine::available_memory)
+                    .unwrap_or(4 << 30),
             };
             tessera_worker::client::run(config).await?;
             Ok(ExitCode::SUCCESS)
@@ -430,6 +457,32 @@ pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     }
 }
 
+/// A size in bytes as given on the command line: a number with an optional unit (K, M, G,
+/// T: powers of 1024; KB, MB, GB, TB: powers of 1000; KiB… as K…).
+fn parse_bytes(s: &str) -> Result<u64, String> {
+    let t = s.trim();
+    let split = t.find(|c: char| !(c.is_ascii_digit() || c == '.')).unwrap_or(t.len());
+    let (number, unit) = t.split_at(split);
+    let scale: f64 = match unit.trim().to_ascii_uppercase().as_str() {
+        "" | "B" => 1.0,
+        "K" | "KIB" => 1024.0,
+        "M" | "MIB" => 1024f64.powi(2),
+        "G" | "GIB" => 1024f64.powi(3),
+        "T" | "TIB" => 1024f64.powi(4),
+        "KB" => 1e3,
+        "MB" => 1e6,
+        "GB" => 1e9,
+        "TB" => 1e12,
+        other => return Err(format!("unknown unit {other:?} in {s:?}; e.g. 512M or 8G")),
+    };
+    let n: f64 = number.parse().map_err(|_| format!("expected a size such as 512M or 8G, got {s:?}"))?;
+    let bytes = n * scale;
+    if !(bytes >= 1.0 && bytes < 2f64.powi(63)) {
+        return Err(format!("{s:?} is not a usable size"));
+    }
+    Ok(bytes as u64)
+}
+
 /// A path given on the command line.
 pub type PathArg = PathBuf;
 
@@ -448,6 +501,18 @@ mod tests {
         assert_eq!(secs("1.5h"), Ok(5400.0));
         for bad in ["", "0", "-5s", "2x", "m", "1e99"] {
             assert!(parse_duration(bad).is_err(), "{bad:?}");
+        }
+    }
+
+    #[test]
+    fn sizes_parse_with_units() {
+        assert_eq!(parse_bytes("1000"), Ok(1000));
+        assert_eq!(parse_bytes("512M"), Ok(512 << 20));
+        assert_eq!(parse_bytes("8G"), Ok(8 << 30));
+        assert_eq!(parse_bytes("1.5GiB"), Ok(3 << 29));
+        assert_eq!(parse_bytes("2 GB"), Ok(2_000_000_000));
+        for bad in ["", "0", "-5M", "2X", "M", "1e99"] {
+            assert!(parse_bytes(bad).is_err(), "{bad:?}");
         }
     }
 

@@ -56,16 +56,20 @@ pub async fn serve_coordinator(
     listen: SocketAddr,
     timing: Timing,
     data: Option<(PathBuf, Duration)>,
+    memory_budget: u64,
+    keep_finished: usize,
 ) -> Result<()> {
+    tracing::info!(bytes = memory_budget, "memory budget of the jobs");
     let service = match &data {
         Some((dir, interval)) => {
-            let (service, recovery) = CoordinatorService::open(timing, dir, *interval)
+            let (service, recovery) = CoordinatorService::open_within(timing, dir, *interval, memory_budget)
                 .with_context(|| format!("data directory {}", dir.display()))?;
             report_recovery(dir, &recovery);
             service
         }
-        None => CoordinatorService::new(timing),
+        None => CoordinatorService::with_memory_budget(timing, memory_budget),
     };
+    let service = service.keeping_finished(keep_finished);
     let listener =
         tokio::net::TcpListener::bind(listen).await.with_context(|| format!("cannot listen on {listen}"))?;
     tracing::info!("coordinator listening on {}", listener.local_addr()?);

@@ -117,6 +117,8 @@ pub trait JobStore: Send {
     fn save(&mut self, checkpoint: &Checkpoint, state: &JobState) -> Result<i64, StoreError>;
     /// The highest job id ever stored, so that ids are never reused.
     fn max_job_id(&self) -> u64;
+    /// Forgets a finished job: its row, scene and checkpoints (retention).
+    fn remove(&mut self, job: JobId) -> Result<(), StoreError>;
 }
 
 /// A store in memory: the jobs and newest checkpoints of one process's life, for tests of
@@ -174,5 +176,10 @@ impl JobStore for MemoryStore {
 
     fn max_job_id(&self) -> u64 {
         self.jobs.keys().next_back().map_or(0, |id| id.0)
+    }
+
+    fn remove(&mut self, job: JobId) -> Result<(), StoreError> {
+        self.jobs.remove(&job);
+        Ok(())
     }
 }

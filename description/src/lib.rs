@@ -17,6 +17,7 @@ pub mod error;
 pub mod ids;
 pub mod job;
 pub mod limits;
+pub mod machine;
 mod materials;
 pub mod model;
 pub mod obj;

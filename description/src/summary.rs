@@ -23,8 +23,9 @@ pub const UV_BYTES: u64 = 8;
 /// linear floats and the texels kept.
 pub const TEXEL_BYTES: u64 = 4 + 12 + 12;
 /// Bytes per pixel of the coordinator's framebuffer: sums of three channels in fixed
-/// point, a sample count and a flag.
-pub const FRAMEBUFFER_BYTES_PER_PIXEL: u64 = 28;
+/// point, a sample count and the version that last changed it (`Framebuffer::bytes_for`
+/// is the exact figure, tiles included; a coordinator test checks that they agree).
+pub const FRAMEBUFFER_BYTES_PER_PIXEL: u64 = 36;
 /// Extra bytes per pixel when the framebuffer also keeps the sums of even samples (for a
 /// noise target).
 pub const EVEN_SUMS_BYTES_PER_PIXEL: u64 = 8;
@@ -149,12 +150,12 @@ color = [1, 0, 0]
         let text = b.text.len() as u64;
         let s = d.summary(false);
         assert_eq!((s.width, s.height, s.spp, s.objects, s.triangles), (8, 6, 4, 1, 0));
-        assert_eq!(s.coordinator_bytes, 48 * 28 + text);
-        assert_eq!(d.summary(true).coordinator_bytes, 48 * 36 + text);
+        assert_eq!(s.coordinator_bytes, 48 * 36 + text);
+        assert_eq!(d.summary(true).coordinator_bytes, 48 * 44 + text);
         d.apply(Some(64), Some((100, 10)));
         let s = d.summary(false);
         assert_eq!((s.width, s.height, s.spp), (100, 10, 64));
-        assert_eq!(s.coordinator_bytes, 1000 * 28 + text);
+        assert_eq!(s.coordinator_bytes, 1000 * 36 + text);
     }
 
     /// A PNG's header: signature, IHDR and an empty IDAT for a `w × h` 8-bit RGB image. No pixel data

@@ -142,6 +142,19 @@ impl Framebuffer {
         self.has_even
     }
 
+    /// The bytes a `width × height` framebuffer holds (with `even` sums or not): its real
+    /// per-pixel accumulators and each tile's own overhead. What the coordinator admits a
+    /// job by, before allocating it.
+    pub fn bytes_for(width: u32, height: u32, even: bool) -> u64 {
+        use std::mem::size_of;
+        let per_pixel = size_of::<[u64; 3]>() + size_of::<u32>() + size_of::<u64>() // sums, count, version
+            + if even { size_of::<u64>() } else { 0 };
+        let tiles = u64::from(width.div_ceil(TILE)) * u64::from(height.div_ceil(TILE));
+        // The tile behind its Arc (four Vec headers, a version, two counts) and its pointer.
+        let per_tile = size_of::<Tile>() + 2 * size_of::<usize>() + size_of::<Arc<Tile>>();
+        u64::from(width) * u64::from(height) * per_pixel as u64 + tiles * per_tile as u64
+    }
+
     /// Tile index and index within the tile of pixel `(x, y)`.
     #[inline]
     fn locate(&self, x: u32, y: u32) -> (usize, usize) {
@@ -555,5 +568,21 @@ mod tests {
         assert!(matches!(fb.merge(&q, 1, &[0; 6], Some(&[u64::MAX, 0])), Err(MergeError::OutOfRange { .. })));
         fb.merge(&q, 1, &[0; 6], Some(&[0, 0])).unwrap();
         Framebuffer::new(2, 1).merge(&q, 1, &[0; 6], None).unwrap();
+    }
+
+    #[test]
+    fn bytes_for_counts_every_accumulator() {
+        // 36 bytes a pixel, 44 with even sums, plus the tiles' overhead.
+        let plain = Framebuffer::bytes_for(1920, 1080, false);
+        let even = Framebuffer::bytes_for(1920, 1080, true);
+        assert_eq!(even - plain, 1920 * 1080 * 8);
+        assert!((1920 * 1080 * 36..1920 * 1080 * 37).contains(&plain), "{plain}");
+        let fb = Framebuffer::with_even(40, 33);
+        let held: usize = fb
+            .tiles
+            .iter()
+            .map(|t| t.sums.len() * 24 + t.counts.len() * 4 + t.even.len() * 8 + t.versions.len() * 8)
+            .sum();
+        assert!(Framebuffer::bytes_for(40, 33, true) >= held as u64);
     }
 }

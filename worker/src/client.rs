@@ -18,6 +18,7 @@ use tokio_stream::wrappers::ReceiverStream;
 use tracing::{debug, info, warn};
 
 use crate::batch::{render_batch, Sums};
+use crate::build::LoadError;
 use crate::render::Scene;
 
 /// Built scenes a worker keeps at once, by content hash; the least recently used goes
@@ -40,6 +41,31 @@ pub struct WorkerConfig {
     pub name: String,
     /// Exit when the coordinator goes away instead of reconnecting (local render children).
     pub exit_on_disconnect: bool,
+    /// The memory this worker may give one scene, in bytes: a scene whose estimate exceeds
+    /// it is refused (`BatchFailed.scene_refused`) before anything is built, and the farm
+    /// sends its job to other workers.
+    pub memory: u64,
+}
+
+/// Why a batch cannot be rendered here: the message, and whether it is because the worker
+/// refuses the job's scene altogether (then every batch of that job is refused alike).
+#[derive(Debug, Clone, PartialEq)]
+struct Failure {
+    message: String,
+    scene_refused: bool,
+}
+
+impl Failure {
+    fn new(message: impl Into<String>) -> Failure {
+        Failure { message: message.into(), scene_refused: false }
+    }
+}
+
+impl From<LoadError> for Failure {
+    fn from(e: LoadError) -> Failure {
+        let scene_refused = matches!(e, LoadError::TooLarge { .. });
+        Failure { message: e.to_string(), scene_refused }
+    }
 }
 
 /// One batch for the render pool.
@@ -175,7 +201,7 @@ async fn session(
     *welcomed = true;
     let generation = pool.generation.load(Ordering::Relaxed);
     let (reply, mut done) = mpsc::unbounded_channel::<pb::BatchResult>();
-    let mut scenes: SceneCache = SceneCache::default();
+    let mut scenes = SceneCache::new(config.memory);
     let mut tick = tokio::time::interval(heartbeat);
     loop {
         tokio::select! {
@@ -192,16 +218,16 @@ async fn session(
                             let task = Task { generation, scene, batch: b, pixels, reply: reply.clone() };
                             pool.tasks.send(task).expect("render threads live as long as the process");
                         }
-                        Err(error) => {
-                            warn!(job = b.job_id, batch = b.batch_id, "cannot render batch: {error}");
+                        Err(Failure { message, scene_refused }) => {
+                            warn!(job = b.job_id, batch = b.batch_id, scene_refused, "cannot render batch: {message}");
                             let failed = pb::BatchFailed {
                                 job_id: b.job_id,
                                 batch_id: b.batch_id,
                                 attempt: b.attempt,
-                                error,
+                                error: message,
                                 credit: 1,
                                 lease: b.lease.clone(),
-                                scene_refused: false,
+                                scene_refused,
                             };
                             send(&out, Out::Failed(failed)).await?;
                         }
@@ -233,18 +259,23 @@ async fn send(out: &mpsc::Sender<pb::WorkerMessage>, msg: Out) -> Result<(), Con
 /// The scenes of recent jobs. The heavy part of a scene (meshes, BVH, textures) is built
 /// once per content hash and shared by every job that renders it; a job only adds its
 /// settings (spp, size), which cost nothing to apply.
-#[derive(Default)]
 struct SceneCache {
     /// Built scenes by content hash, at the file's own settings, least recently used
     /// first; or why the scene could not be built (the same content fails the same way).
-    built: VecDeque<(String, Result<Arc<Scene>, String>)>,
+    built: VecDeque<(String, Result<Arc<Scene>, Failure>)>,
     /// Each recent job's scene hash and its scene with the job's settings applied.
-    jobs: HashMap<u64, (String, Result<Arc<Scene>, String>)>,
+    jobs: HashMap<u64, (String, Result<Arc<Scene>, Failure>)>,
     /// Job ids, oldest first.
     order: VecDeque<u64>,
+    /// The memory one scene may take (`WorkerConfig::memory`).
+    memory: u64,
 }
 
 impl SceneCache {
+    fn new(memory: u64) -> SceneCache {
+        SceneCache { built: VecDeque::new(), jobs: HashMap::new(), order: VecDeque::new(), memory }
+    }
+
     async fn load(&mut self, js: pb::JobScene) {
         let job = js.job_id;
         let claimed = js.scene_hash.clone();
@@ -252,7 +283,7 @@ impl SceneCache {
         let spp = (settings.spp != 0).then_some(settings.spp);
         let size = (settings.width != 0 && settings.height != 0).then_some((settings.width, settings.height));
         let base = match js.bundle {
-            None => Err("the coordinator sent a job without its scene".to_string()),
+            None => Err(Failure::new("the coordinator sent a job without its scene")),
             Some(b) => {
                 let bundle = bundle_from_wire(b);
                 let name = claimed.clone();
@@ -269,15 +300,18 @@ impl SceneCache {
                 .await
                 .unwrap_or_else(|e| Err(format!("scene loading panicked: {e}")));
                 match checked {
-                    Err(e) => Err(e),
+                    Err(e) => Err(Failure::new(e)),
                     Ok(bundle) => {
+                        let memory = self.memory;
                         let built = match self.take_built(&claimed) {
                             Some(built) => built,
                             None => tokio::task::spawn_blocking(move || {
-                                crate::build::parse_bundle(&bundle).map(Arc::new).map_err(|e| e.to_string())
+                                crate::build::parse_bundle_within(&bundle, memory)
+                                    .map(Arc::new)
+                                    .map_err(Failure::from)
                             })
                             .await
-                            .unwrap_or_else(|e| Err(format!("scene building panicked: {e}"))),
+                            .unwrap_or_else(|e| Err(Failure::new(format!("scene building panicked: {e}")))),
                         };
                         self.put_built(claimed, built.clone());
                         built
@@ -291,7 +325,7 @@ impl SceneCache {
             Arc::new(scene)
         });
         if let Err(e) = &parsed {
-            warn!(job, "scene refused: {e}");
+            warn!(job, scene_refused = e.scene_refused, "scene refused: {}", e.message);
         }
         self.jobs.insert(job, (js.scene_hash, parsed));
         self.order.push_back(job);
@@ -303,13 +337,13 @@ impl SceneCache {
     }
 
     /// Takes the built scene of `hash` out of the cache, if there.
-    fn take_built(&mut self, hash: &str) -> Option<Result<Arc<Scene>, String>> {
+    fn take_built(&mut self, hash: &str) -> Option<Result<Arc<Scene>, Failure>> {
         let i = self.built.iter().position(|(h, _)| h == hash)?;
         self.built.remove(i).map(|(_, s)| s)
     }
 
     /// Puts a built scene back as the most recently used, dropping the least recent.
-    fn put_built(&mut self, hash: String, scene: Result<Arc<Scene>, String>) {
+    fn put_built(&mut self, hash: String, scene: Result<Arc<Scene>, Failure>) {
         self.built.push_back((hash, scene));
         while self.built.len() > SCENE_CACHE {
             self.built.pop_front();
@@ -317,13 +351,23 @@ impl SceneCache {
     }
 
     /// The scene and pixels of a batch, checked against each other.
-    fn prepare(&self, b: &pb::Batch) -> Result<(Arc<Scene>, Vec<UVec2>), String> {
-        let (hash, scene) =
-            self.jobs.get(&b.job_id).ok_or_else(|| format!("no scene received for job {}", b.job_id))?;
+    fn prepare(&self, b: &pb::Batch) -> Result<(Arc<Scene>, Vec<UVec2>), Failure> {
+        let (hash, scene) = self
+            .jobs
+            .get(&b.job_id)
+            .ok_or_else(|| Failure::new(format!("no scene received for job {}", b.job_id)))?;
         if *hash != b.scene_hash {
-            return Err(format!("batch names scene {}, but job {} has scene {hash}", b.scene_hash, b.job_id));
+            return Err(Failure::new(format!(
+                "batch names scene {}, but job {} has scene {hash}",
+                b.scene_hash, b.job_id
+            )));
         }
         let scene = scene.clone()?;
+        Self::pixels(scene, b).map_err(Failure::new)
+    }
+
+    /// The batch's pixels, checked against its scene.
+    fn pixels(scene: Arc<Scene>, b: &pb::Batch) -> Result<(Arc<Scene>, Vec<UVec2>), String> {
         if !b.pixels.len().is_multiple_of(2) {
             return Err("pixel list has an odd number of coordinates".into());
         }
@@ -366,7 +410,7 @@ mod tests {
 
     #[tokio::test]
     async fn jobs_of_one_scene_share_its_world_with_their_own_settings() {
-        let mut cache = SceneCache::default();
+        let mut cache = SceneCache::new(u64::MAX);
         cache.load(job(1, SCENE, 0, (0, 0))).await;
         cache.load(job(2, SCENE, 5, (40, 30))).await;
         let (a, b) = (scene_of(&cache, 1), scene_of(&cache, 2));
@@ -378,7 +422,7 @@ mod tests {
 
     #[tokio::test]
     async fn the_cache_keeps_a_few_scenes_and_refuses_a_misnamed_one() {
-        let mut cache = SceneCache::default();
+        let mut cache = SceneCache::new(u64::MAX);
         for i in 0..SCENE_CACHE as u64 + 2 {
             cache.load(job(i, &format!("{SCENE}# {i}\n"), 0, (0, 0))).await;
         }
@@ -390,6 +434,37 @@ mod tests {
         let mut wrong = job(101, SCENE, 0, (0, 0));
         wrong.scene_hash = "0".repeat(64);
         cache.load(wrong).await;
-        assert!(cache.jobs[&101].1.as_ref().unwrap_err().contains("refusing a scene that differs"));
+        assert!(cache.jobs[&101].1.as_ref().unwrap_err().message.contains("refusing a scene that differs"));
+    }
+
+    #[tokio::test]
+    async fn a_scene_over_the_worker_s_memory_is_refused_for_every_batch_of_its_job() {
+        let mut cache = SceneCache::new(100);
+        let js = job(7, SCENE, 0, (0, 0));
+        let hash = js.scene_hash.clone();
+        cache.load(js).await;
+        let batch = pb::Batch {
+            job_id: 7,
+            scene_hash: hash,
+            sample_start: 0,
+            sample_end: 1,
+            pixels: vec![0, 0],
+            ..Default::default()
+        };
+        let e = cache.prepare(&batch).unwrap_err();
+        assert!(e.scene_refused);
+        assert!(e.message.starts_with("t.toml: the scene needs about "), "{}", e.message);
+        assert!(
+            e.message.ends_with(
+                "bytes to build (0 triangles, 0 textures), more than this worker's 100 (--memory)"
+            ),
+            "{}",
+            e.message
+        );
+        // A bad batch of a good scene is an ordinary failure.
+        let mut roomy = SceneCache::new(u64::MAX);
+        roomy.load(job(8, SCENE, 0, (0, 0))).await;
+        let e = roomy.prepare(&pb::Batch { job_id: 8, scene_hash: "0".repeat(64), ..batch }).unwrap_err();
+        assert!(!e.scene_refused && e.message.starts_with("batch names scene"), "{e:?}");
     }
 }

@@ -148,6 +148,18 @@ impl Job {
         settings: JobSettings,
         priority: i32,
     ) -> Result<Job, SubmitError> {
+        Job::prepare_within(id, bundle, settings, priority, &mut |_| Ok(()))
+    }
+
+    /// As `prepare`, with `admit` asked about the job's memory after the scene validated
+    /// and before its framebuffer is allocated.
+    pub fn prepare_within(
+        id: JobId,
+        bundle: Arc<Bundle>,
+        settings: JobSettings,
+        priority: i32,
+        admit: super::budget::Admit<'_>,
+    ) -> Result<Job, SubmitError> {
         // Validation only: the coordinator never builds geometry or decodes images.
         let mut desc = tessera_description::Description::parse(&bundle)?;
         use tessera_description::limits;
@@ -175,6 +187,12 @@ impl Job {
             return Err(SubmitError::TimeLimit);
         }
         let spp = scene.spp;
+        admit(&super::budget::Footprint {
+            width: scene.width,
+            height: scene.height,
+            even_sums: settings.in_rounds() && settings.noise.is_some(),
+            bundle_bytes: desc.bundle_bytes,
+        })?;
         let (queue, framebuffer) = match (settings.in_rounds(), settings.noise.is_some()) {
             (false, _) => {
                 (PassQueue::new(scene.width, scene.height, spp), Framebuffer::new(scene.width, scene.height))

@@ -4,6 +4,7 @@
 
 mod adaptive;
 mod assign;
+pub mod budget;
 mod job;
 mod restore;
 #[cfg(test)]
@@ -103,6 +104,9 @@ pub enum SubmitError {
     /// A zero time budget.
     #[error("the time budget must be positive")]
     TimeLimit,
+    /// The job does not fit the coordinator's memory budget (`RESOURCE_EXHAUSTED`).
+    #[error("{0}")]
+    OverBudget(String),
     /// Size override out of range.
     #[error("image size must be 1..={max_side} on each side and at most {max_pixels} pixels, got {width}x{height}")]
     Size {

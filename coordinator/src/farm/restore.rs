@@ -32,9 +32,18 @@ impl Job {
     /// A stored job made ready to go on, from its checkpoint if it has one. Costly (the
     /// scene is read, the framebuffer rebuilt): done before the farm is touched.
     pub fn restore(stored: LoadedJob, now: Instant) -> Result<Job, RestoreJobError> {
+        Job::restore_within(stored, now, &mut |_| Ok(()))
+    }
+
+    /// As `restore`, with `admit` asked about the job's memory before it is allocated.
+    pub fn restore_within(
+        stored: LoadedJob,
+        now: Instant,
+        admit: super::budget::Admit<'_>,
+    ) -> Result<Job, RestoreJobError> {
         let LoadedJob { record, checkpoint } = stored;
         let id = record.id;
-        let mut job = Job::prepare(id, record.bundle, record.settings, record.priority)?;
+        let mut job = Job::prepare_within(id, record.bundle, record.settings, record.priority, admit)?;
         if let Some(c) = checkpoint {
             let (w, h) = (job.framebuffer.width(), job.framebuffer.height());
             if (c.width, c.height, c.spp) != (w, h, job.spp) {

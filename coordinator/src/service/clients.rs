@@ -9,6 +9,7 @@ use tracing::info;
 
 use super::durability::SubmitFailure;
 use super::rpc::BoxStream;
+use crate::farm::SubmitError;
 use tessera_proto::convert;
 
 use super::CoordinatorService;
@@ -34,6 +35,9 @@ impl CoordinatorService {
             .map_err(|e| Status::invalid_argument(e.to_string()))?;
         let id = self.submit(convert::bundle_from_wire(bundle), settings, req.priority).await.map_err(
             |e| match e {
+                SubmitFailure::Invalid(e @ SubmitError::OverBudget(_)) => {
+                    Status::resource_exhausted(e.to_string())
+                }
                 SubmitFailure::Invalid(e) => Status::invalid_argument(e.to_string()),
                 e @ SubmitFailure::Store(_) => Status::unavailable(e.to_string()),
             },

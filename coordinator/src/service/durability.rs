@@ -14,6 +14,7 @@ use tonic::Status;
 use tracing::{debug, info, warn};
 
 use super::{lock, CoordinatorService, Timing};
+use crate::farm::budget::Footprint;
 use crate::farm::{Job, RestoreJobError, SubmitError};
 use crate::persist::{JobStore, LoadedJob, StoreError};
 use crate::store::Store;
@@ -84,9 +85,21 @@ impl CoordinatorService {
     /// up again from its newest good checkpoint. Checkpoints are written every `interval`
     /// while samples come in, at the end of pass one, and when a job ends.
     pub fn open(timing: Timing, dir: &Path, interval: Duration) -> Result<(Self, Recovery), StoreError> {
+        Self::open_within(timing, dir, interval, super::default_budget())
+    }
+
+    /// As `open`, with a memory budget of `budget` bytes for the jobs (see
+    /// `with_memory_budget`): a stored job that does not fit it is marked failed, with a
+    /// message naming it, instead of being taken up.
+    pub fn open_within(
+        timing: Timing,
+        dir: &Path,
+        interval: Duration,
+        budget: u64,
+    ) -> Result<(Self, Recovery), StoreError> {
         let (store, loaded) = Store::open(dir)?;
         let recovery = Recovery { problems: loaded.problems, ..Recovery::default() };
-        Ok(Self::with_store(timing, Box::new(store), loaded.jobs, interval, recovery))
+        Ok(Self::with_store_within(timing, Box::new(store), loaded.jobs, interval, recovery, budget))
     }
 
     /// A coordinator writing through `store`, taking up `jobs` (what the store read back).
@@ -95,9 +108,21 @@ impl CoordinatorService {
         store: Box<dyn JobStore>,
         jobs: Vec<LoadedJob>,
         interval: Duration,
-        mut recovery: Recovery,
+        recovery: Recovery,
     ) -> (Self, Recovery) {
-        let mut this = CoordinatorService::new(timing);
+        Self::with_store_within(timing, store, jobs, interval, recovery, super::default_budget())
+    }
+
+    /// As `with_store`, with a memory budget of `budget` bytes for the jobs.
+    pub fn with_store_within(
+        timing: Timing,
+        mut store: Box<dyn JobStore>,
+        jobs: Vec<LoadedJob>,
+        interval: Duration,
+        mut recovery: Recovery,
+        budget: u64,
+    ) -> (Self, Recovery) {
+        let mut this = CoordinatorService::with_memory_budget(timing, budget);
         let mut saved = HashMap::new();
         let now = Instant::now();
         // Before the service is shared, so that no request waits for the scenes to parse.
@@ -105,25 +130,44 @@ impl CoordinatorService {
         for job in jobs {
             let id = job.record.id;
             let record = job.record.clone();
-            let restored = match Job::restore(job, now) {
+            let mut reservation = None;
+            let mut admit = |f: &Footprint| {
+                reservation = Some(this.budget.admit(&id.to_string(), f)?);
+                Ok(())
+            };
+            let restored = match Job::restore_within(job, now, &mut admit) {
                 // A checkpoint that does not fit its job is not resumed from: the job
                 // starts over, its last good state.
                 Err(e @ (RestoreJobError::Mismatch { .. } | RestoreJobError::Batches(_))) => {
                     recovery.problems.push(format!("{id}: {e}; it restarts from the beginning"));
-                    Job::restore(LoadedJob { record, checkpoint: None }, now)
+                    Job::restore_within(LoadedJob { record, checkpoint: None }, now, &mut admit)
                 }
                 other => other,
             };
             match restored {
-                Ok(j) => taken_up.push(j),
+                Ok(j) => taken_up.push((j, reservation)),
+                // Over the budget (perhaps a smaller one than it was admitted with): failed
+                // for good, so that it is not tried at every start, and the start goes on.
+                Err(RestoreJobError::Scene(SubmitError::OverBudget(why))) => {
+                    let state = JobState::Failed(format!("not taken up again at start: {why}"));
+                    match store.set_state(id, &state) {
+                        Ok(()) => recovery.problems.push(format!("{id} does not fit the memory budget, marked failed: {why}")),
+                        Err(e) => recovery.problems.push(format!(
+                            "{id} does not fit the memory budget ({why}), and marking it failed failed too: {e}"
+                        )),
+                    }
+                }
                 Err(e) => recovery.problems.push(format!("{id} cannot be taken up again: {e}")),
             }
         }
         {
             let mut farm = this.farm();
             farm.reserve_ids_through(store.max_job_id());
-            for j in taken_up {
+            for (j, reservation) in taken_up {
                 let id = farm.insert_restored(j);
+                if let Some(r) = reservation {
+                    r.assign(id);
+                }
                 let j = farm.job(id).expect("just restored");
                 let p = j.progress(now);
                 saved.insert(id, Saved::of(j, now));
@@ -157,7 +201,12 @@ impl CoordinatorService {
         info!(scene = %bundle.name, bytes, "validating a submitted scene");
         let this = self.clone();
         let id = tokio::task::spawn_blocking(move || {
-            let job = Job::prepare(JobId(0), Arc::new(bundle), settings, priority)?;
+            let name = tessera_description::bounds::quoted(&bundle.name);
+            let mut reservation = None;
+            let job = Job::prepare_within(JobId(0), Arc::new(bundle), settings, priority, &mut |f| {
+                reservation = Some(this.budget.admit(&name, f)?);
+                Ok(())
+            })?;
             // The store's lock is taken first and held until the job's row is written, so
             // the checkpointer never writes a checkpoint of a job that has no row yet.
             let mut store = this.durable.as_ref().map(|d| lock(&d.store));
@@ -171,6 +220,9 @@ impl CoordinatorService {
                     this.farm().remove_job(id);
                     return Err(SubmitFailure::Store(e));
                 }
+            }
+            if let Some(r) = reservation {
+                r.assign(id);
             }
             Ok(id)
         })
@@ -243,6 +295,49 @@ impl CoordinatorService {
             .map_err(|e| StoreError::Write { path: "checkpoint".into(), source: e.to_string().into() })??;
         }
         Ok(due.len())
+    }
+
+    /// Drops the oldest finished jobs beyond the `keep` newest from memory and the store,
+    /// giving their memory back to the budget; returns them. With a store, a job goes only
+    /// once its final state is on disk (its last checkpoint written), so that nothing writes
+    /// to it after it is removed. `keep` is at least 1, so the newest job id stays stored
+    /// and ids are never reused.
+    pub async fn retire_finished(&self, keep: usize) -> Vec<JobId> {
+        let durable = self.durable.clone();
+        let over: Vec<JobId> = {
+            let farm = self.farm();
+            let saved = durable.as_ref().map(|d| lock(&d.saved));
+            let finished: Vec<JobId> = farm.jobs().filter(|j| j.is_over()).map(|j| j.id).collect();
+            let excess = finished.len().saturating_sub(keep.max(1));
+            finished
+                .into_iter()
+                .take(excess)
+                .filter(|id| saved.as_ref().is_none_or(|s| s.get(id).is_some_and(|s| s.state.is_over())))
+                .collect()
+        };
+        if over.is_empty() {
+            return over;
+        }
+        let this = self.clone();
+        tokio::task::spawn_blocking(move || {
+            let mut gone = Vec::new();
+            for id in over {
+                // The store first: a job that could not be removed from it stays in memory.
+                if let Some(d) = &durable {
+                    if let Err(e) = lock(&d.store).remove(id) {
+                        warn!(%id, "a finished job could not be removed from the store: {e}");
+                        continue;
+                    }
+                    lock(&d.saved).remove(&id);
+                }
+                this.farm().remove_job(id);
+                this.budget.release(id);
+                gone.push(id);
+            }
+            gone
+        })
+        .await
+        .unwrap_or_default()
     }
 
     /// Checkpoints jobs as they fall due, until the service shuts down.
@@ -348,6 +443,9 @@ mod tests {
             fn max_job_id(&self) -> u64 {
                 lock(&self.0).max_job_id()
             }
+            fn remove(&mut self, job: JobId) -> Result<(), StoreError> {
+                lock(&self.0).remove(job)
+            }
         }
         let (service, _) = CoordinatorService::with_store(
             Timing::default(),
@@ -375,5 +473,112 @@ mod tests {
         );
         assert_eq!(recovery.resumed[0].samples_kept, a.batch.sample_count());
         assert_eq!(again.progress(id).unwrap().samples_done, a.batch.sample_count());
+    }
+
+    /// A store shared by the services of a test, as a database file would be.
+    struct SharedStore(Arc<Mutex<MemoryStore>>);
+    impl JobStore for SharedStore {
+        fn add_job(&mut self, job: &JobRecord) -> Result<(), StoreError> {
+            lock(&self.0).add_job(job)
+        }
+        fn set_state(&mut self, job: JobId, state: &JobState) -> Result<(), StoreError> {
+            lock(&self.0).set_state(job, state)
+        }
+        fn save(&mut self, c: &Checkpoint, state: &JobState) -> Result<i64, StoreError> {
+            lock(&self.0).save(c, state)
+        }
+        fn max_job_id(&self) -> u64 {
+            lock(&self.0).max_job_id()
+        }
+        fn remove(&mut self, job: JobId) -> Result<(), StoreError> {
+            lock(&self.0).remove(job)
+        }
+    }
+
+    fn shared(store: &Arc<Mutex<MemoryStore>>, budget: u64) -> CoordinatorService {
+        let jobs = lock(store).load().jobs;
+        let store = Box::new(SharedStore(store.clone()));
+        let recovery = Recovery::default();
+        let (service, recovery) = CoordinatorService::with_store_within(
+            Timing::default(),
+            store,
+            jobs,
+            Duration::from_secs(60),
+            recovery,
+            budget,
+        );
+        for p in &recovery.problems {
+            eprintln!("{p}");
+        }
+        service
+    }
+
+    /// A stored job that does not fit a (smaller) budget at start is marked failed, with a
+    /// message naming it, and the coordinator starts with the jobs that fit.
+    #[tokio::test]
+    async fn a_stored_job_over_the_budget_is_marked_failed_and_the_start_goes_on() {
+        let store = Arc::new(Mutex::new(MemoryStore::new()));
+        let service = shared(&store, 1 << 30);
+        let small = service.submit(bundle(), JobSettings::sized(Some(2), Some((8, 8))), 0).await.unwrap();
+        let big = service.submit(bundle(), JobSettings::sized(Some(2), Some((2000, 1000))), 0).await.unwrap();
+        drop(service);
+        let jobs = lock(&store).load().jobs;
+        let loaded = jobs.len();
+        let store_box = Box::new(SharedStore(store.clone()));
+        let (service, recovery) = CoordinatorService::with_store_within(
+            Timing::default(),
+            store_box,
+            jobs,
+            Duration::from_secs(60),
+            Recovery::default(),
+            10_000_000,
+        );
+        assert_eq!(loaded, 2);
+        assert_eq!(service.jobs().iter().map(|j| j.id).collect::<Vec<_>>(), vec![small]);
+        assert_eq!(recovery.problems.len(), 1, "{:?}", recovery.problems);
+        let p = &recovery.problems[0];
+        assert!(
+            p.starts_with(&format!("{big} does not fit the memory budget, marked failed: {big} needs 74 MB")),
+            "{p}"
+        );
+        let stored = lock(&store).load().jobs;
+        let state = &stored.iter().find(|j| j.record.id == big).unwrap().record.state;
+        assert!(
+            matches!(state, JobState::Failed(m) if m.starts_with("not taken up again at start: job 2 needs 74 MB")),
+            "{state:?}"
+        );
+        // And a submission over what is left is refused, with nothing allocated.
+        let e =
+            service.submit(bundle(), JobSettings::sized(Some(2), Some((2000, 1000))), 0).await.unwrap_err();
+        assert!(matches!(e, SubmitFailure::Invalid(SubmitError::OverBudget(_))), "{e}");
+        assert!(
+            e.to_string()
+                .starts_with("\"small.toml\" needs 74 MB of coordinator memory (2000x1000 framebuffer 74 MB"),
+            "{e}"
+        );
+        assert_eq!(service.jobs().len(), 1);
+    }
+
+    /// Finished jobs past the retention count leave memory and the store, oldest first,
+    /// and give their memory back.
+    #[tokio::test]
+    async fn finished_jobs_past_the_retention_count_are_dropped_oldest_first() {
+        let store = Arc::new(Mutex::new(MemoryStore::new()));
+        let service = shared(&store, 1 << 30);
+        let mut ids = Vec::new();
+        for _ in 0..4 {
+            let id = service.submit(bundle(), JobSettings::sized(Some(1), Some((8, 8))), 0).await.unwrap();
+            service.farm().cancel(id, Instant::now());
+            service.persist_state(id).await.unwrap();
+            ids.push(id);
+        }
+        // The final states are on disk through checkpoints.
+        service.checkpoint(true).await.unwrap();
+        let held = service.memory().1;
+        let gone = service.retire_finished(2).await;
+        assert_eq!(gone, ids[..2]);
+        assert_eq!(service.jobs().iter().map(|j| j.id).collect::<Vec<_>>(), ids[2..]);
+        assert_eq!(lock(&store).load().jobs.len(), 2);
+        assert_eq!(service.memory().1, held / 2);
     }
 }

@@ -10,8 +10,10 @@
 //! and `rpc.rs` (the trait impl that routes each RPC). Wire ↔ domain conversions live
 //! next to the contract, in `tessera_proto::convert`.
 
+mod budget;
 mod clients;
 mod durability;
+mod gate;
 mod rpc;
 mod viewers;
 mod workers;
@@ -30,9 +32,14 @@ use tracing::{info, warn};
 
 use crate::farm::Farm;
 
+pub use budget::{default_budget, SUBMITS_AT_ONCE};
 pub use durability::{Recovery, Resumed, SubmitFailure};
-pub use viewers::{ViewerUpdates, WATCH_CHUNK_PIXELS, WATCH_DEFAULT_RATE};
+pub use viewers::{ViewerUpdates, MAX_VIEWERS, MAX_VIEWERS_PER_JOB, WATCH_CHUNK_PIXELS, WATCH_DEFAULT_RATE};
 pub use workers::MAX_CREDIT;
+
+/// Finished jobs a coordinator keeps (their images fetchable, their memory held) unless
+/// told otherwise; the oldest beyond it are dropped from memory and the store.
+pub const KEEP_FINISHED: usize = 64;
 
 /// Timing of the worker protocol.
 #[derive(Debug, Clone, Copy)]
@@ -67,6 +74,11 @@ pub struct CoordinatorService {
     timing: Timing,
     durable: Option<Arc<durability::Durable>>,
     feeds: Arc<viewers::Feeds>,
+    budget: budget::MemoryBudget,
+    /// Finished jobs kept in memory (and the store); older ones are dropped.
+    keep_finished: usize,
+    /// Submissions being decoded and validated (`budget::SUBMITS_AT_ONCE`).
+    submits: Arc<tokio::sync::Semaphore>,
 }
 
 /// A job's identity and what it was submitted with, for clients that look for a job.
@@ -100,8 +112,15 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 }
 
 impl CoordinatorService {
-    /// A coordinator with no jobs, keeping nothing on disk.
+    /// A coordinator with no jobs, keeping nothing on disk, with the default memory budget
+    /// (`default_budget`).
     pub fn new(timing: Timing) -> Self {
+        Self::with_memory_budget(timing, default_budget())
+    }
+
+    /// A coordinator with no jobs, keeping nothing on disk, whose jobs may hold at most
+    /// `bytes` of memory (framebuffers and bundles): one that does not fit is refused.
+    pub fn with_memory_budget(timing: Timing, bytes: u64) -> Self {
         let (changed, _) = watch::channel(0);
         let (shutdown, _) = watch::channel(false);
         CoordinatorService {
@@ -111,6 +130,9 @@ impl CoordinatorService {
             timing,
             durable: None,
             feeds: Arc::default(),
+            budget: budget::MemoryBudget::new(bytes),
+            keep_finished: KEEP_FINISHED,
+            submits: Arc::new(tokio::sync::Semaphore::new(SUBMITS_AT_ONCE)),
         }
     }
 
@@ -139,6 +161,18 @@ impl CoordinatorService {
     /// A receiver that turns true when the service shuts down.
     fn shutting_down(&self) -> watch::Receiver<bool> {
         self.shutdown.subscribe()
+    }
+
+    /// With `n` (at least 1) finished jobs kept, instead of `KEEP_FINISHED`: older finished
+    /// jobs are dropped from memory and the store, once a second.
+    pub fn keeping_finished(mut self, n: usize) -> Self {
+        self.keep_finished = n.max(1);
+        self
+    }
+
+    /// The memory budget of its jobs and what of it is held now, in bytes.
+    pub fn memory(&self) -> (u64, u64) {
+        (self.budget.limit(), self.budget.held())
     }
 
     /// Every job, oldest first.
@@ -172,10 +206,11 @@ impl CoordinatorService {
         let workers = WorkersServer::new(self.clone())
             .max_decoding_message_size(MAX_WORKER_MESSAGE_BYTES)
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
+        let permits = self.submits.clone();
         let clients = CoordinatorServer::new(self)
             .max_decoding_message_size(MAX_MESSAGE_BYTES)
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
-        Routes::new(workers).add_service(clients)
+        Routes::new(workers).add_service(gate::SubmitGate::new(clients, permits))
     }
 
     /// Takes back the leases of silent workers and ends jobs whose time budget is spent,
@@ -201,7 +236,11 @@ impl CoordinatorService {
                 for (worker, n) in &expired {
                     warn!(%worker, batches = n, "worker silent; its batches go to others");
                 }
-                if !ended.is_empty() || !expired.is_empty() {
+                let retired = this.retire_finished(this.keep_finished).await;
+                if !retired.is_empty() {
+                    info!(jobs = ?retired, "finished jobs past the retention count dropped");
+                }
+                if !ended.is_empty() || !expired.is_empty() || !retired.is_empty() {
                     this.notify();
                 }
             }

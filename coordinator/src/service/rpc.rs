@@ -42,7 +42,13 @@ impl Coordinator for CoordinatorService {
         let interval = Duration::from_secs_f64(1.0 / rate.max(1.0 / 60.0));
         // One update in flight: a viewer that does not read holds one chunk, no backlog.
         let (tx, rx) = mpsc::channel(1);
-        tokio::spawn(self.clone().feed_viewer(job, interval, tx));
+        let slot = self.viewer_slot(job)?;
+        let feed = self.clone().feed_viewer(job, interval, tx);
+        tokio::spawn(async move {
+            // The viewer's place is held until its task ends (it left, or the job is over).
+            let _slot = slot;
+            feed.await
+        });
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }
 

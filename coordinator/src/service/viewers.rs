@@ -38,6 +38,11 @@ pub const WATCH_DEFAULT_RATE: f64 = 10.0;
 /// of its commits per MB/s on two cores, so this keeps viewers within a few per cent of
 /// the commits (at 128 MB/s they cost up to 80 %; docs/farm.md).
 pub const VIEWER_BYTES_PER_SECOND: f64 = 32e6;
+/// The most viewers of one job at once; a further `Watch` is `RESOURCE_EXHAUSTED`.
+pub const MAX_VIEWERS_PER_JOB: usize = 32;
+/// The most viewers at once in all. A viewer holds at most a chunk or two of its own
+/// (catching up) and the HTTP/2 buffers of its stream: a few MB at worst.
+pub const MAX_VIEWERS: usize = 128;
 /// A publisher with nothing new still sends the status this often (samples/s, workers).
 const STATUS_REFRESH: Duration = Duration::from_secs(1);
 
@@ -65,6 +70,26 @@ pub(super) struct Feeds {
     shared: AtomicU64,
     /// Updates a viewer's task made from a snapshot of its own (joining, or behind).
     own: AtomicU64,
+    /// Viewers now, by job.
+    viewers: Arc<Mutex<HashMap<JobId, usize>>>,
+}
+
+/// A viewer's place among `MAX_VIEWERS`, held by its task and given back when it ends.
+pub(super) struct ViewerSlot {
+    job: JobId,
+    viewers: Arc<Mutex<HashMap<JobId, usize>>>,
+}
+
+impl Drop for ViewerSlot {
+    fn drop(&mut self) {
+        let mut v = lock(&self.viewers);
+        if let Some(n) = v.get_mut(&self.job) {
+            *n -= 1;
+            if *n == 0 {
+                v.remove(&self.job);
+            }
+        }
+    }
 }
 
 /// A token bucket of bytes for all viewers together, refilled at
@@ -159,6 +184,30 @@ impl CoordinatorService {
             shared: self.feeds.shared.load(Ordering::Relaxed),
             own: self.feeds.own.load(Ordering::Relaxed),
         }
+    }
+
+    /// A place for one more viewer of `job`, or `RESOURCE_EXHAUSTED` past the limits.
+    pub(super) fn viewer_slot(&self, job: JobId) -> Result<ViewerSlot, Status> {
+        let mut v = lock(&self.feeds.viewers);
+        let all: usize = v.values().sum();
+        let of_job = v.get(&job).copied().unwrap_or(0);
+        if all >= MAX_VIEWERS {
+            return Err(Status::resource_exhausted(format!(
+                "the coordinator has {all} viewers, its limit ({MAX_VIEWERS}); try again when one leaves"
+            )));
+        }
+        if of_job >= MAX_VIEWERS_PER_JOB {
+            return Err(Status::resource_exhausted(format!(
+                "{job} has {of_job} viewers, the limit per job ({MAX_VIEWERS_PER_JOB}); try again when one leaves"
+            )));
+        }
+        *v.entry(job).or_insert(0) += 1;
+        Ok(ViewerSlot { job, viewers: self.feeds.viewers.clone() })
+    }
+
+    /// Viewers connected now.
+    pub fn viewers(&self) -> usize {
+        lock(&self.feeds.viewers).values().sum()
     }
 
     /// Waits until the viewers' byte budget allows sending `u`.
@@ -420,5 +469,29 @@ mod tests {
         assert_eq!(b.spend(VIEWER_BYTES_PER_SECOND as usize / 2 - 1000), Duration::ZERO);
         let wait = b.spend(VIEWER_BYTES_PER_SECOND as usize / 4);
         assert!(wait > Duration::from_millis(200) && wait <= Duration::from_millis(251), "{wait:?}");
+    }
+
+    #[tokio::test]
+    async fn viewers_past_the_limits_are_refused_and_leaving_frees_a_place() {
+        let service = CoordinatorService::new(Timing::default());
+        let slots: Vec<ViewerSlot> =
+            (0..MAX_VIEWERS_PER_JOB).map(|_| service.viewer_slot(JobId(1)).unwrap()).collect();
+        let e = service.viewer_slot(JobId(1)).err().unwrap();
+        assert_eq!(e.code(), tonic::Code::ResourceExhausted);
+        assert_eq!(e.message(), "job 1 has 32 viewers, the limit per job (32); try again when one leaves");
+        let mut others: Vec<ViewerSlot> = (0..MAX_VIEWERS - MAX_VIEWERS_PER_JOB)
+            .map(|i| service.viewer_slot(JobId(2 + i as u64 % 7)).unwrap())
+            .collect();
+        let e = service.viewer_slot(JobId(99)).err().unwrap();
+        assert!(
+            e.message().starts_with("the coordinator has 128 viewers, its limit (128)"),
+            "{}",
+            e.message()
+        );
+        others.pop();
+        assert!(service.viewer_slot(JobId(99)).is_ok());
+        drop(slots);
+        drop(others);
+        assert_eq!(service.viewers(), 0);
     }
 }

@@ -60,6 +60,17 @@ impl CoordinatorService {
             let _ = tx.send(Ok(refuse(reason))).await;
             return;
         }
+        // Names travel in every Status: bounded, and never echoed whole.
+        if hello.name.len() > tessera_description::limits::MAX_NAME_BYTES {
+            let reason = format!(
+                "the worker's name is {} bytes, more than the limit of {}",
+                hello.name.len(),
+                tessera_description::limits::MAX_NAME_BYTES
+            );
+            warn!("{reason}");
+            let _ = tx.send(Ok(refuse(reason))).await;
+            return;
+        }
         let threads = hello.threads.clamp(1, 4096);
         let id = self.farm().add_worker(hello.name.clone(), threads, Instant::now());
         info!(worker = %id, name = %hello.name, threads, "worker joined");

@@ -488,6 +488,21 @@ impl JobStore for Store {
         Ok(())
     }
 
+    fn remove(&mut self, job: JobId) -> Result<(), StoreError> {
+        let path = self.path.clone();
+        let err =
+            |source: rusqlite::Error| StoreError::Write { path: path.clone(), source: Box::new(source) };
+        let tx = self.conn.transaction().map_err(err)?;
+        for table in [
+            "DELETE FROM checkpoint_parts WHERE job = ?1",
+            "DELETE FROM scenes WHERE job = ?1",
+            "DELETE FROM jobs WHERE id = ?1",
+        ] {
+            tx.execute(table, params![job.0 as i64]).map_err(err)?;
+        }
+        tx.commit().map_err(err)
+    }
+
     /// Writes a checkpoint and the job's state in one transaction, keeping the previous
     /// checkpoint to fall back on; returns the new checkpoint's generation.
     fn save(&mut self, checkpoint: &Checkpoint, state: &JobState) -> Result<i64, StoreError> {

@@ -85,6 +85,47 @@ pub fn parse_bundle(bundle: &Bundle) -> Result<Scene, SceneError> {
     build(&Description::parse(bundle)?, bundle)
 }
 
+/// Why a worker does not build a bundle's scene.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum LoadError {
+    /// The scene does not validate or build.
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    /// The scene's own estimate of its memory (`Description::summary`) exceeds this worker's.
+    #[error(
+        "{file}: the scene needs about {needs} bytes to build ({triangles} triangles, {textures} textures), more than this worker's {memory} (--memory)"
+    )]
+    TooLarge {
+        /// The scene's name.
+        file: String,
+        /// Estimated bytes.
+        needs: u64,
+        /// The worker's memory budget.
+        memory: u64,
+        /// Triangles, every use counted.
+        triangles: u64,
+        /// Image textures.
+        textures: usize,
+    },
+}
+
+/// Validates a bundle's scene and builds it if its estimated memory fits in `memory`
+/// bytes; checked before any geometry is built or image decoded.
+pub fn parse_bundle_within(bundle: &Bundle, memory: u64) -> Result<Scene, LoadError> {
+    let desc = Description::parse(bundle)?;
+    let summary = desc.summary(false);
+    if summary.worker_bytes > memory {
+        return Err(LoadError::TooLarge {
+            file: desc.file.clone(),
+            needs: summary.worker_bytes,
+            memory,
+            triangles: summary.triangles,
+            textures: summary.textures.len(),
+        });
+    }
+    Ok(build(&desc, bundle)?)
+}
+
 /// Validates and builds a scene without assets. `file` names the scene in messages.
 pub fn parse_scene(file: &str, text: &str) -> Result<Scene, SceneError> {
     parse_scene_with_assets(file, text, &NoAssets)

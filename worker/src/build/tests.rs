@@ -141,3 +141,50 @@ fn geometry_a_transform_overflows_fails_the_build_at_the_object() {
     let Err(e) = build(&desc, &far) else { panic!("overflowing geometry is refused") };
     assert_eq!(e.to_string(), "t.toml:18:1: the transformed geometry overflows to non-finite coordinates");
 }
+
+/// A PNG of `width × height` 8-bit RGB whose image data is `idat` (usually not enough).
+fn png_declaring(width: u32, height: u32, idat: &[u8]) -> Vec<u8> {
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut crc = !0u32;
+        for &b in bytes {
+            crc ^= u32::from(b);
+            for _ in 0..8 {
+                crc = if crc & 1 != 0 { (crc >> 1) ^ 0xEDB8_8320 } else { crc >> 1 };
+            }
+        }
+        !crc
+    }
+    let chunk = |png: &mut Vec<u8>, kind: &[u8], data: &[u8]| {
+        png.extend((data.len() as u32).to_be_bytes());
+        let mut body = kind.to_vec();
+        body.extend(data);
+        png.extend(&body);
+        png.extend(crc32(&body).to_be_bytes());
+    };
+    let mut png = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = Vec::new();
+    ihdr.extend(width.to_be_bytes());
+    ihdr.extend(height.to_be_bytes());
+    ihdr.extend([8, 2, 0, 0, 0]);
+    chunk(&mut png, b"IHDR", &ihdr);
+    chunk(&mut png, b"IDAT", idat);
+    chunk(&mut png, b"IEND", &[]);
+    png
+}
+
+#[test]
+fn a_small_png_declaring_a_huge_image_is_refused_before_decoding() {
+    let png = png_declaring(12_000, 12_000, &[0; 400_000]);
+    let e = super::materials::decode_image(&png).unwrap_err();
+    assert!(matches!(e, image::ImageError::Limits(_)), "{e}");
+    // Within the pixel budget but with data missing: an error, not a panic.
+    let png = png_declaring(4096, 4096, &[0; 1000]);
+    assert!(super::materials::decode_image(&png).is_err());
+    // And a good one decodes.
+    let img = image::RgbImage::from_pixel(2, 2, image::Rgb([1, 2, 3]));
+    let mut good = Vec::new();
+    image::DynamicImage::ImageRgb8(img)
+        .write_to(&mut std::io::Cursor::new(&mut good), image::ImageFormat::Png)
+        .unwrap();
+    assert_eq!(super::materials::decode_image(&good).unwrap().width(), 2);
+}
