@@ -35,6 +35,7 @@ impl Job {
         let LoadedJob { record, checkpoint } = stored;
         let id = record.id;
         let mut job = Job::prepare(id, record.bundle, record.settings, record.priority)?;
+        job.owner = record.owner;
         if let Some(c) = checkpoint {
             let (w, h) = (job.framebuffer.width(), job.framebuffer.height());
             if (c.width, c.height, c.spp) != (w, h, job.spp) {

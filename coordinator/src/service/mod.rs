@@ -7,9 +7,11 @@
 //! snapshots. The files here are split by RPC family: `workers.rs` (the work stream),
 //! `clients.rs` (submit, status, images, control), `viewers.rs` (watch streams fed from
 //! one shared delta per job), `durability.rs` (the store, checkpoints, recovery),
-//! and `rpc.rs` (the trait impl that routes each RPC). Wire ↔ domain conversions live
+//! `auth.rs` (who is calling and what each role may do), and `rpc.rs` (the trait impl
+//! that routes each RPC, checking the caller's role first). Wire ↔ domain conversions live
 //! next to the contract, in `tessera_proto::convert`.
 
+mod auth;
 mod clients;
 mod durability;
 mod rpc;
@@ -27,6 +29,7 @@ use tracing::{info, warn};
 
 use crate::farm::Farm;
 
+pub use auth::{Auth, AuthError, Principal, Role, Tokens, DEFAULT_MAX_PRIORITY, MIN_TOKEN_CHARS};
 pub use durability::{Recovery, Resumed, SubmitFailure};
 pub use viewers::{ViewerUpdates, WATCH_CHUNK_PIXELS, WATCH_DEFAULT_RATE};
 pub use workers::MAX_CREDIT;
@@ -60,6 +63,7 @@ pub struct CoordinatorService {
     timing: Timing,
     durable: Option<Arc<durability::Durable>>,
     feeds: Arc<viewers::Feeds>,
+    auth: Arc<Auth>,
 }
 
 /// A job's identity and what it was submitted with, for clients that look for a job.
@@ -104,7 +108,14 @@ impl CoordinatorService {
             timing,
             durable: None,
             feeds: Arc::default(),
+            auth: Arc::new(Auth::open()),
         }
+    }
+
+    /// With callers authenticated by `auth` (the default is `Auth::open`: everyone is admin).
+    pub fn with_auth(mut self, auth: Auth) -> Self {
+        self.auth = Arc::new(auth);
+        self
     }
 
     /// The farm, locked: for short, bounded work only.
@@ -157,11 +168,16 @@ impl CoordinatorService {
         Some(Image { width: fb.width(), height: fb.height(), rgb: fb.resolve(), state })
     }
 
-    /// The tonic server for this service, with message limits set.
-    pub fn into_server(self) -> CoordinatorServer<Self> {
-        CoordinatorServer::new(self)
+    /// The tonic server for this service, with message limits set and every call
+    /// authenticated before its message is decoded.
+    pub fn into_server(
+        self,
+    ) -> tonic::service::interceptor::InterceptedService<CoordinatorServer<Self>, auth::Authenticate> {
+        let authenticate = auth::Authenticate(self.auth.clone());
+        let server = CoordinatorServer::new(self)
             .max_decoding_message_size(MAX_MESSAGE_BYTES)
-            .max_encoding_message_size(MAX_MESSAGE_BYTES)
+            .max_encoding_message_size(MAX_MESSAGE_BYTES);
+        tonic::service::interceptor::InterceptedService::new(server, authenticate)
     }
 
     /// Takes back the leases of silent workers and ends jobs whose time budget is spent,
