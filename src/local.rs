@@ -1,5 +1,10 @@
 //! `tessera render`: a coordinator in this process, local worker processes on loopback,
 //! a progress bar, and the image written at the end (or at Ctrl-C, unfinished).
+//!
+//! The loopback port is reachable by every user of the machine, so the coordinator takes
+//! only callers with a secret made fresh for this render: its workers get theirs in the
+//! environment (readable by this user alone, unlike the command line), the viewer window
+//! holds its own in memory.
 
 use std::path::{Path, PathBuf};
 use std::process::{ExitCode, Stdio};
@@ -7,7 +12,7 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, bail, Context, Result};
 use indicatif::{ProgressBar, ProgressStyle};
-use tessera_coordinator::{CoordinatorService, Timing};
+use tessera_coordinator::{Auth, CoordinatorService, Role, Timing, Tokens};
 use tessera_description::bundle::Bundle;
 use tessera_description::ids::JobId;
 use tessera_description::job::{JobProgress, JobSettings, JobState};
@@ -177,12 +182,43 @@ async fn start_job(
     }
 }
 
+/// The secrets of one render: its workers', and its viewer window's.
+struct Secrets {
+    worker: String,
+    viewer: String,
+}
+
+impl Secrets {
+    /// Fresh from the system's random source: 256 bits each, as hex.
+    fn new() -> Result<Secrets> {
+        let one = || -> Result<String> {
+            let mut bytes = [0u8; 32];
+            getrandom::fill(&mut bytes).map_err(|e| anyhow!("the system's random source failed: {e}"))?;
+            Ok(bytes.iter().map(|b| format!("{b:02x}")).collect())
+        };
+        Ok(Secrets { worker: one()?, viewer: one()? })
+    }
+
+    /// Who the coordinator lets in: the local workers and the window (an admin: it pauses
+    /// and resumes), nobody else.
+    fn auth(&self) -> Auth {
+        Auth::new(
+            Some(Tokens::new().with(Role::Worker, "local", &self.worker).with(
+                Role::Admin,
+                "window",
+                &self.viewer,
+            )),
+            false,
+        )
+    }
+}
+
 /// Kills the local workers when dropped, so that no process outlives the render, whatever
 /// path the render leaves by.
 struct Workers(Vec<Child>);
 
 impl Workers {
-    fn spawn(url: &str, n: usize, threads: usize) -> Result<Workers> {
+    fn spawn(url: &str, n: usize, threads: usize, secret: &str) -> Result<Workers> {
         let exe = std::env::current_exe().context("locating the tessera executable")?;
         let mut children = Vec::with_capacity(n);
         for i in 0..n {
@@ -191,6 +227,7 @@ impl Workers {
                 .args(["--threads", &threads.to_string(), "--name", &format!("local-{i}")])
                 .stdin(Stdio::null())
                 .stdout(Stdio::null())
+                .env(tessera_proto::credentials::TOKEN_ENV, secret)
                 .kill_on_drop(true);
             if std::env::var_os("RUST_LOG").is_none() {
                 cmd.env("RUST_LOG", "warn");
@@ -222,6 +259,8 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
     let settings =
         JobSettings { spp: opts.spp, size: opts.size, time_limit: opts.time_limit, noise: opts.noise };
     let (service, job) = start_job(bundle, settings, opts.checkpoints.as_ref()).await?;
+    let secrets = Secrets::new()?;
+    let service = service.with_auth(secrets.auth());
     let checkpointer = service.spawn_checkpointer();
     let listener =
         TcpListener::bind("127.0.0.1:0").await.context("binding a loopback port for the coordinator")?;
@@ -233,8 +272,9 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
     );
     let reaper = service.spawn_reaper();
     let url = format!("http://{addr}");
-    let mut workers = Workers::spawn(&url, opts.workers, opts.threads)?;
-    let endpoint = tessera_proto::connect::EndpointConfig::new(&url)?;
+    let mut workers = Workers::spawn(&url, opts.workers, opts.threads, &secrets.worker)?;
+    let viewer = tessera_proto::credentials::Token::new(&secrets.viewer, "the render's secret")?;
+    let endpoint = tessera_proto::connect::EndpointConfig::new(&url)?.token(Some(viewer));
     let window = opts.view.then(|| {
         std::thread::spawn(move || {
             if let Err(e) = tessera_viewer::window::run(&endpoint, Some(job), std::time::Duration::ZERO) {

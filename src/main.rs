@@ -2,6 +2,7 @@
 #![forbid(unsafe_code)]
 
 mod bench;
+mod certs;
 mod compare;
 mod local;
 mod remote;
@@ -14,7 +15,6 @@ use std::process::ExitCode;
 use anyhow::{Context, Result};
 use clap::{Parser, Subcommand};
 use tessera_description::ids::JobId;
-use tessera_proto::connect::EndpointConfig;
 use tracing_subscriber::EnvFilter;
 
 /// Tessera: a render farm for distributed ray tracing with progressive refinement.
@@ -55,6 +55,9 @@ enum Command {
         /// dropped from memory and the data directory.
         #[arg(long, default_value_t = tessera_coordinator::service::KEEP_FINISHED, value_parser = clap::value_parser!(usize))]
         keep_finished: usize,
+        /// TLS and authentication.
+        #[command(flatten)]
+        security: remote::SecurityArgs,
     },
     /// Run a worker that renders batches for a coordinator.
     Worker(WorkerArgs),
@@ -62,17 +65,17 @@ enum Command {
     Submit(remote::SubmitArgs),
     /// Show the jobs and workers of a coordinator.
     Status {
-        /// The coordinator's URL, e.g. http://render-host:7878.
-        #[arg(long, env = "TESSERA_COORDINATOR")]
-        coordinator: String,
+        /// Where the coordinator is and how to reach it.
+        #[command(flatten)]
+        conn: remote::ClientArgs,
     },
     /// Cancel a job; its current image stays fetchable.
     Cancel {
         /// The job id.
         job: u64,
-        /// The coordinator's URL.
-        #[arg(long, env = "TESSERA_COORDINATOR")]
-        coordinator: String,
+        /// Where the coordinator is and how to reach it.
+        #[command(flatten)]
+        conn: remote::ClientArgs,
     },
     /// Watch a job refine in a window (S save, P pause/resume, +/- exposure, Q quit), or
     /// headless with --save.
@@ -85,25 +88,25 @@ enum Command {
         /// The image to write (.png or .exr).
         #[arg(short, long)]
         output: PathBuf,
-        /// The coordinator's URL.
-        #[arg(long, env = "TESSERA_COORDINATOR")]
-        coordinator: String,
+        /// Where the coordinator is and how to reach it.
+        #[command(flatten)]
+        conn: remote::ClientArgs,
     },
     /// Pause a job: no new batches until it is resumed.
     Pause {
         /// The job id.
         job: u64,
-        /// The coordinator's URL.
-        #[arg(long, env = "TESSERA_COORDINATOR")]
-        coordinator: String,
+        /// Where the coordinator is and how to reach it.
+        #[command(flatten)]
+        conn: remote::ClientArgs,
     },
     /// Resume a paused job.
     Resume {
         /// The job id.
         job: u64,
-        /// The coordinator's URL.
-        #[arg(long, env = "TESSERA_COORDINATOR")]
-        coordinator: String,
+        /// Where the coordinator is and how to reach it.
+        #[command(flatten)]
+        conn: remote::ClientArgs,
     },
     /// Print the pass-one visit order of a WIDTH × HEIGHT image: one computed pixel per
     /// line as `x y w h` (origin at the lower-left corner, y upward; w × h is the block the
@@ -131,15 +134,18 @@ enum Command {
     /// Benchmarks that print figures.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
+    /// Make a private CA and certificates for a farm's TLS (see docs/security-tls.md).
+    #[command(subcommand)]
+    Certs(certs::CertsCommand),
 }
 
 /// Arguments of `tessera worker`.
 #[derive(Debug, clap::Args)]
 #[deny(missing_docs)]
 pub struct WorkerArgs {
-    /// The coordinator's URL, e.g. http://render-host:7878.
-    #[arg(long, env = "TESSERA_COORDINATOR")]
-    coordinator: String,
+    /// Where the coordinator is and how to reach it.
+    #[command(flatten)]
+    conn: remote::ClientArgs,
     /// Render threads [default: one per core].
     #[arg(long)]
     threads: Option<usize>,
@@ -159,9 +165,9 @@ pub struct WorkerArgs {
 #[derive(Debug, clap::Args)]
 #[deny(missing_docs)]
 pub struct ViewArgs {
-    /// The coordinator's URL, e.g. http://render-host:7878.
-    #[arg(long, env = "TESSERA_COORDINATOR")]
-    coordinator: String,
+    /// Where the coordinator is and how to reach it.
+    #[command(flatten)]
+    conn: remote::ClientArgs,
     /// The job [default: the running job, else the newest].
     #[arg(long)]
     job: Option<u64>,
@@ -207,7 +213,11 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let quiet = matches!(
         cli.command,
-        Command::Render(_) | Command::Submit(_) | Command::Order { .. } | Command::Bench(_)
+        Command::Render(_)
+            | Command::Submit(_)
+            | Command::Order { .. }
+            | Command::Bench(_)
+            | Command::Certs(_)
     );
     init_tracing(if quiet { "warn" } else { "info" });
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
@@ -251,6 +261,7 @@ async fn run(command: Command) -> Result<ExitCode> {
             checkpoint_interval,
             memory_budget,
             keep_finished,
+            security,
         } => {
             let timing = tessera_coordinator::Timing {
                 silence_timeout: seconds("--worker-timeout", worker_timeout)?,
@@ -264,7 +275,7 @@ async fn run(command: Command) -> Result<ExitCode> {
             if keep_finished == 0 {
                 anyhow::bail!("--keep-finished must be at least 1");
             }
-            remote::serve_coordinator(listen, timing, data, budget, keep_finished).await?;
+            remote::serve_coordinator(listen, timing, data, budget, keep_finished, &security).await?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Worker(args) => {
@@ -273,7 +284,7 @@ async fn run(command: Command) -> Result<ExitCode> {
                 anyhow::bail!("--threads must be at least 1");
             }
             let config = tessera_worker::client::WorkerConfig {
-                coordinator: EndpointConfig::new(&args.coordinator)?,
+                coordinator: args.conn.endpoint()?,
                 threads,
                 name: args.name.unwrap_or_else(|| format!("{}:{}", host_name(), std::process::id())),
                 exit_on_disconnect: args.exit_on_disconnect,
@@ -286,18 +297,18 @@ async fn run(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Submit(args) => remote::submit(args).await,
-        Command::Status { coordinator } => remote::status(&coordinator).await,
-        Command::Cancel { job, coordinator } => remote::cancel(&coordinator, JobId(job)).await,
-        Command::Fetch { job, output, coordinator } => {
+        Command::Status { conn } => remote::status(&conn).await,
+        Command::Cancel { job, conn } => remote::cancel(&conn, JobId(job)).await,
+        Command::Fetch { job, output, conn } => {
             check_output(&output)?;
-            let mut client = remote::connect(&coordinator).await?;
+            let mut client = remote::connect(&conn).await?;
             let (w, h, rgb) = remote::fetch_image(&mut client, JobId(job)).await?;
             tessera_film::output::write_image(&output, w, h, &rgb)?;
             eprintln!("wrote {} ({w}x{h}) of job {job}", output.display());
             Ok(ExitCode::SUCCESS)
         }
-        Command::Pause { job, coordinator } => remote::pause(&coordinator, JobId(job), true).await,
-        Command::Resume { job, coordinator } => remote::pause(&coordinator, JobId(job), false).await,
+        Command::Pause { job, conn } => remote::pause(&conn, JobId(job), true).await,
+        Command::Resume { job, conn } => remote::pause(&conn, JobId(job), false).await,
         Command::Order { width, height } => {
             use std::io::Write;
             let stdout = std::io::stdout();
@@ -317,6 +328,7 @@ async fn run(command: Command) -> Result<ExitCode> {
             }
         }
         Command::Bench(cmd) => bench::run(cmd).await,
+        Command::Certs(cmd) => certs::run(cmd),
         Command::View(args) => view(args).await,
         Command::Compare { image, reference, worst, clamp } => {
             if clamp.is_some_and(|c| !(c.is_finite() && c > 0.0)) {
@@ -342,7 +354,7 @@ async fn view(args: ViewArgs) -> Result<ExitCode> {
         0.0 => std::time::Duration::ZERO,
         s => seconds("--reconnect-for", s)?,
     };
-    let coordinator = EndpointConfig::new(&args.coordinator)?;
+    let coordinator = args.conn.endpoint()?;
     let job = args.job.map(JobId);
     if let Some(tev) = &args.tev {
         tessera_viewer::tev::run(&coordinator, job, tev, reconnect_for).await?;

@@ -2,22 +2,127 @@
 //! watch, fetch and cancel jobs over gRPC.
 
 use std::net::SocketAddr;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Duration;
 
 use anyhow::{anyhow, bail, Context, Result};
-use tessera_coordinator::{CoordinatorService, Timing};
+use tessera_coordinator::{Auth, CoordinatorService, Timing, Tokens};
 
 use crate::report::report_recovery;
 use tessera_description::bundle::Bundle;
 use tessera_description::ids::JobId;
 use tessera_description::job::{JobProgress, JobSettings, JobState};
-use tessera_proto::connect::{Backoff, EndpointConfig};
+use tessera_proto::connect::{Backoff, Client, EndpointConfig};
 use tessera_proto::convert::{bundle_to_wire, settings_to_wire, state_name, status_from_wire};
+use tessera_proto::credentials::{ClientTls, ServerTls, Token};
 use tessera_proto::v1 as pb;
-use tessera_proto::v1::coordinator_client::CoordinatorClient;
-use tonic::transport::Channel;
+
+/// How a client reaches the coordinator: its URL, what it trusts over `https://`, what it
+/// proves. The token comes from a file or the `TESSERA_TOKEN` environment variable, never
+/// from the command line (where `ps` shows it to every user).
+#[derive(Debug, Clone, clap::Args)]
+#[deny(missing_docs)]
+pub struct ClientArgs {
+    /// The coordinator's URL, e.g. https://render-host:7878 (TLS) or http://… (plain text).
+    #[arg(long, env = "TESSERA_COORDINATOR")]
+    pub coordinator: String,
+    /// With https://: trust only certificates signed by this CA (PEM) [default: the
+    /// system's roots].
+    #[arg(long, value_name = "FILE")]
+    pub ca: Option<PathBuf>,
+    /// With https:// and a coordinator that asks for one: this client's certificate (PEM).
+    #[arg(long, value_name = "FILE", requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// The key of --tls-cert (PEM, not readable by every user).
+    #[arg(long, value_name = "FILE", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+    /// Read the bearer token from this file (one line, not readable by every user)
+    /// [default: the TESSERA_TOKEN environment variable, if set].
+    #[arg(long, value_name = "FILE")]
+    pub token_file: Option<PathBuf>,
+}
+
+impl ClientArgs {
+    /// The endpoint these arguments describe, with its certificates and token read.
+    pub fn endpoint(&self) -> Result<EndpointConfig> {
+        let mut tls = ClientTls::new();
+        if let Some(ca) = &self.ca {
+            tls = tls.ca_file(ca)?;
+        }
+        if let (Some(cert), Some(key)) = (&self.tls_cert, &self.tls_key) {
+            tls = tls.identity_files(cert, key)?;
+        }
+        let token = Token::from_file_or_env(self.token_file.as_deref())?;
+        Ok(EndpointConfig::new(&self.coordinator)?.tls(tls)?.token(token))
+    }
+}
+
+/// How the coordinator secures its port: TLS, who may call, what submitters may ask.
+#[derive(Debug, Clone, clap::Args)]
+#[deny(missing_docs)]
+pub struct SecurityArgs {
+    /// Speak TLS with this certificate (chain, PEM); clients then use https://.
+    #[arg(long, value_name = "FILE", requires = "tls_key")]
+    pub tls_cert: Option<PathBuf>,
+    /// The key of --tls-cert (PEM, not readable by every user).
+    #[arg(long, value_name = "FILE", requires = "tls_cert")]
+    pub tls_key: Option<PathBuf>,
+    /// Mutual TLS: every client must show a certificate signed by this CA (PEM); one whose
+    /// OU names a role (see `tessera certs client`) needs no token.
+    #[arg(long, value_name = "FILE", requires = "tls_cert")]
+    pub tls_client_ca: Option<PathBuf>,
+    /// Callers authenticate with a bearer token from this file: one `ROLE NAME TOKEN` a
+    /// line (roles admin, submitter, worker, viewer; `#` comments), not readable by every
+    /// user.
+    #[arg(long, value_name = "FILE")]
+    pub tokens: Option<PathBuf>,
+    /// The highest priority a submitter may give a job; above it needs an admin.
+    #[arg(long, default_value_t = tessera_coordinator::DEFAULT_MAX_PRIORITY, allow_negative_numbers = true)]
+    pub max_priority: i32,
+    /// Listen beyond loopback with no authentication at all (no --tokens, no
+    /// --tls-client-ca): anyone who reaches the port may do anything.
+    #[arg(long)]
+    pub insecure: bool,
+}
+
+impl SecurityArgs {
+    /// The TLS and the authentication these arguments ask for, checked against `listen`:
+    /// a coordinator reachable beyond loopback refuses to start without authentication
+    /// unless told `--insecure`.
+    pub fn load(&self, listen: SocketAddr) -> Result<(Option<ServerTls>, Auth)> {
+        let tls = match (&self.tls_cert, &self.tls_key) {
+            (Some(cert), Some(key)) => Some(ServerTls::read(cert, key, self.tls_client_ca.as_deref())?),
+            _ => None,
+        };
+        let tokens = self.tokens.as_deref().map(Tokens::read).transpose()?;
+        if tokens.as_ref().is_some_and(Tokens::is_empty) {
+            bail!(
+                "the tokens file {} holds no tokens",
+                self.tokens.as_deref().map_or(Path::new(""), |p| p).display()
+            );
+        }
+        let auth =
+            Auth::new(tokens, tls.as_ref().is_some_and(ServerTls::mutual)).max_priority(self.max_priority);
+        let beyond_loopback = !listen.ip().is_loopback();
+        if beyond_loopback && !auth.required() && !self.insecure {
+            bail!(
+                "refusing to listen on {listen} with no authentication: anyone who reaches it could \
+                 submit, cancel and read every job. Give --tokens FILE (or --tls-client-ca for mutual \
+                 TLS), listen on 127.0.0.1, or say --insecure"
+            );
+        }
+        if beyond_loopback && !auth.required() {
+            tracing::warn!("--insecure: listening on {listen} with no authentication");
+        }
+        if beyond_loopback && auth.required() && tls.is_none() {
+            tracing::warn!(
+                "tokens travel in plain text on {listen}: anyone on the network can read them; give --tls-cert and --tls-key"
+            );
+        }
+        Ok((tls, auth))
+    }
+}
 
 /// Arguments of `tessera submit`.
 #[derive(Debug, clap::Args)]
@@ -25,9 +130,9 @@ use tonic::transport::Channel;
 pub struct SubmitArgs {
     /// The scene file (TOML).
     pub scene: PathBuf,
-    /// The coordinator's URL, e.g. http://render-host:7878.
-    #[arg(long, env = "TESSERA_COORDINATOR")]
-    pub coordinator: String,
+    /// Where the coordinator is and how to reach it.
+    #[command(flatten)]
+    pub conn: ClientArgs,
     /// Wait for the job and write its image here (.png or .exr); implies --wait.
     #[arg(short, long)]
     pub output: Option<PathBuf>,
@@ -46,7 +151,8 @@ pub struct SubmitArgs {
     /// Per-pixel noise target, e.g. 0.01 (adaptive sampling; see `tessera render`).
     #[arg(long, allow_negative_numbers = true)]
     pub noise: Option<f32>,
-    /// Priority: jobs with a higher one are served first, equal ones oldest first.
+    /// Priority: jobs with a higher one are served first, equal ones oldest first (a
+    /// submitter may ask at most the coordinator's --max-priority).
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub priority: i32,
 }
@@ -58,7 +164,10 @@ pub async fn serve_coordinator(
     data: Option<(PathBuf, Duration)>,
     memory_budget: u64,
     keep_finished: usize,
+    security: &SecurityArgs,
 ) -> Result<()> {
+    // Before the data directory is opened: a refused start touches nothing.
+    let (tls, auth) = security.load(listen)?;
     tracing::info!(bytes = memory_budget, "memory budget of the jobs");
     let service = match &data {
         Some((dir, interval)) => {
@@ -69,13 +178,21 @@ pub async fn serve_coordinator(
         }
         None => CoordinatorService::with_memory_budget(timing, memory_budget),
     };
-    let service = service.keeping_finished(keep_finished);
+    let service = service.keeping_finished(keep_finished).with_auth(auth);
     let listener =
         tokio::net::TcpListener::bind(listen).await.with_context(|| format!("cannot listen on {listen}"))?;
-    tracing::info!("coordinator listening on {}", listener.local_addr()?);
+    tracing::info!(
+        "coordinator listening on {}{}",
+        listener.local_addr()?,
+        if tls.is_some() { " (TLS)" } else { "" }
+    );
     let _reaper = service.spawn_reaper();
     let _checkpointer = service.spawn_checkpointer();
-    tessera_coordinator::service::server()
+    let mut server = tessera_coordinator::service::server();
+    if let Some(tls) = &tls {
+        server = server.tls_config(tls.config()).context("the TLS certificate or key cannot be used")?;
+    }
+    server
         .add_routes(service.clone().into_server())
         .serve_with_incoming_shutdown(
             tessera_coordinator::service::incoming(listener),
@@ -91,9 +208,9 @@ pub async fn serve_coordinator(
     Ok(())
 }
 
-/// A client of the coordinator at `url`.
-pub async fn connect(url: &str) -> Result<CoordinatorClient<Channel>> {
-    Ok(tessera_proto::connect::client(&EndpointConfig::new(url)?).await?)
+/// A client of the coordinator.
+pub async fn connect(conn: &ClientArgs) -> Result<Client> {
+    Ok(tessera_proto::connect::client(&conn.endpoint()?).await?)
 }
 
 fn status_error(s: tonic::Status) -> anyhow::Error {
@@ -109,7 +226,7 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
     // Refuse a bad scene here, with its location, before any network traffic; nothing is
     // built for that.
     tessera_description::Description::parse(&bundle)?;
-    let mut client = connect(&args.coordinator).await?;
+    let mut client = connect(&args.conn).await?;
     let response = client
         .submit(pb::SubmitRequest {
             protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
@@ -147,7 +264,7 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
 const RECONNECT_FOR: Duration = Duration::from_secs(60);
 
 /// Polls a job until it is over, with a progress bar; rides out a coordinator restart.
-async fn wait(client: &mut CoordinatorClient<Channel>, job: JobId) -> Result<JobProgress> {
+async fn wait(client: &mut Client, job: JobId) -> Result<JobProgress> {
     let bar = indicatif::ProgressBar::new(1000);
     bar.set_style(
         indicatif::ProgressStyle::with_template("pass {prefix} [{bar:32}] {percent:>3}% {msg} ETA {eta}")
@@ -211,10 +328,7 @@ async fn wait(client: &mut CoordinatorClient<Channel>, job: JobId) -> Result<Job
 }
 
 /// A job's current image: width, height, linear RGB top row first.
-pub async fn fetch_image(
-    client: &mut CoordinatorClient<Channel>,
-    job: JobId,
-) -> Result<(u32, u32, Vec<f32>)> {
+pub async fn fetch_image(client: &mut Client, job: JobId) -> Result<(u32, u32, Vec<f32>)> {
     let mut stream =
         client.fetch_image(pb::FetchImageRequest { job_id: job.0 }).await.map_err(status_error)?.into_inner();
     let mut size = None;
@@ -237,8 +351,8 @@ pub async fn fetch_image(
 }
 
 /// `tessera status`.
-pub async fn status(url: &str) -> Result<ExitCode> {
-    let mut client = connect(url).await?;
+pub async fn status(conn: &ClientArgs) -> Result<ExitCode> {
+    let mut client = connect(conn).await?;
     let s = client.status(pb::StatusRequest { job_id: 0 }).await.map_err(status_error)?.into_inner();
     let mut out = String::new();
     macro_rules! outln {
@@ -302,16 +416,16 @@ pub async fn status(url: &str) -> Result<ExitCode> {
 }
 
 /// `tessera pause` and `tessera resume`.
-pub async fn pause(url: &str, job: JobId, paused: bool) -> Result<ExitCode> {
-    let mut client = connect(url).await?;
+pub async fn pause(conn: &ClientArgs, job: JobId, paused: bool) -> Result<ExitCode> {
+    let mut client = connect(conn).await?;
     client.pause(pb::PauseRequest { job_id: job.0, paused }).await.map_err(status_error)?;
     eprintln!("{} {job}", if paused { "paused" } else { "resumed" });
     Ok(ExitCode::SUCCESS)
 }
 
 /// `tessera cancel`.
-pub async fn cancel(url: &str, job: JobId) -> Result<ExitCode> {
-    let mut client = connect(url).await?;
+pub async fn cancel(conn: &ClientArgs, job: JobId) -> Result<ExitCode> {
+    let mut client = connect(conn).await?;
     client.cancel(pb::CancelRequest { job_id: job.0 }).await.map_err(status_error)?;
     eprintln!("cancelled {job}");
     Ok(ExitCode::SUCCESS)

@@ -89,7 +89,7 @@ fn workers_on_other_hosts_survive_a_cut_link() {
 
     let coord = Proc::spawn_command(&mut in_ns(
         c,
-        &["coordinator", "--listen", "0.0.0.0:7878", "--worker-timeout", "2"],
+        &["coordinator", "--listen", "0.0.0.0:7878", "--worker-timeout", "2", "--insecure"],
     ));
     coord.wait_for("coordinator listening on", Duration::from_secs(30));
     let local = "http://127.0.0.1:7878";

@@ -10,4 +10,6 @@ pub mod scheduler;
 pub mod service;
 pub mod store;
 
-pub use service::{CoordinatorService, Recovery, SubmitFailure, Timing};
+pub use service::{
+    Auth, CoordinatorService, Principal, Recovery, Role, SubmitFailure, Timing, Tokens, DEFAULT_MAX_PRIORITY,
+};

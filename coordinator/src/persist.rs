@@ -84,6 +84,9 @@ pub struct JobRecord {
     pub priority: i32,
     /// The state last recorded.
     pub state: JobState,
+    /// Who submitted it ("" for an in-process submission, and for jobs stored before
+    /// owners were).
+    pub owner: String,
 }
 
 /// A job read back, with its newest good checkpoint (`None`: start from scratch).

@@ -16,17 +16,18 @@ mod worker;
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use tessera_coordinator::{CoordinatorService, Timing};
+use tessera_coordinator::{Auth, CoordinatorService, Timing};
 use tessera_description::ids::{JobId, WorkerId};
 use tessera_description::job::JobProgress;
+pub use tessera_proto::connect::Channel;
 use tessera_proto::connect::{ConnectError, EndpointConfig, MAX_MESSAGE_BYTES};
 use tessera_proto::convert::status_from_wire;
+use tessera_proto::credentials::{ClientTls, ServerTls, Token};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_client::CoordinatorClient;
 use tessera_proto::v1::workers_client::WorkersClient;
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
-use tonic::transport::Channel;
 
 pub use viewer::FakeViewer;
 pub use worker::{pixel_value, valid_result, FakeWorker, ServeStats, REFERENCE_BATCH_SAMPLES};
@@ -120,7 +121,12 @@ pub struct Image {
 /// A channel to the coordinator at `url` (e.g. `http://127.0.0.1:7878`), as every client
 /// of the project connects.
 pub async fn connect(url: &str) -> Result<Channel> {
-    Ok(tessera_proto::connect::connect(&EndpointConfig::new(url)?).await?)
+    connect_with(&EndpointConfig::new(url)?).await
+}
+
+/// A channel to the coordinator `config` describes (TLS, token).
+pub async fn connect_with(config: &EndpointConfig) -> Result<Channel> {
+    Ok(tessera_proto::connect::connect(config).await?)
 }
 
 /// A client on `channel`, with the coordinator's message limits.
@@ -226,6 +232,21 @@ pub async fn pause(channel: &Channel, id: JobId, paused: bool) -> Result<()> {
     Ok(())
 }
 
+/// How a harness's coordinator is secured, and how the harness's own channel reaches it.
+#[derive(Debug, Clone, Default)]
+pub struct Security {
+    /// Who the coordinator lets in.
+    pub auth: Auth,
+    /// Its TLS (then the URL is `https://HOST:PORT`).
+    pub tls: Option<ServerTls>,
+    /// What the harness's clients trust and show over TLS (the CA of `tls`).
+    pub client_tls: ClientTls,
+    /// The token of the harness's own channel.
+    pub token: Option<Token>,
+    /// The host in the URL, a name `tls`'s certificate holds [default: 127.0.0.1].
+    pub host: Option<String>,
+}
+
 /// A coordinator service served in this process on 127.0.0.1, with its reaper running;
 /// stopped when dropped.
 pub struct Harness {
@@ -233,6 +254,7 @@ pub struct Harness {
     pub url: String,
     /// Its address.
     pub addr: SocketAddr,
+    endpoint: EndpointConfig,
     channel: Channel,
     service: CoordinatorService,
     shutdown: Option<oneshot::Sender<()>>,
@@ -248,7 +270,12 @@ impl Harness {
 
     /// A coordinator with `timing` (short timeouts make lease expiry testable in seconds).
     pub async fn start_with(timing: Timing) -> Result<Harness> {
-        let service = CoordinatorService::new(timing);
+        Harness::start_secured(timing, Security::default()).await
+    }
+
+    /// A coordinator with `timing`, secured as `security` says.
+    pub async fn start_secured(timing: Timing, security: Security) -> Result<Harness> {
+        let service = CoordinatorService::new(timing).with_auth(security.auth);
         let reaper = service.spawn_reaper();
         let handle = service.clone();
         // Loopback TCP rather than an in-memory pipe: the same transport as production,
@@ -256,17 +283,45 @@ impl Harness {
         let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await?;
         let addr = listener.local_addr()?;
         let (shutdown, stop) = oneshot::channel::<()>();
+        let mut builder = tessera_coordinator::service::server();
+        if let Some(tls) = &security.tls {
+            builder = builder
+                .tls_config(tls.config())
+                .map_err(|e| HarnessError::Protocol(format!("the TLS configuration: {e}")))?;
+        }
         let server = tokio::spawn(async move {
-            let _ = tessera_coordinator::service::server()
+            let _ = builder
                 .add_routes(service.into_server())
                 .serve_with_incoming_shutdown(tessera_coordinator::service::incoming(listener), async {
                     let _ = stop.await;
                 })
                 .await;
         });
-        let url = format!("http://{addr}");
-        let channel = connect(&url).await?;
-        Ok(Harness { url, addr, channel, service: handle, shutdown: Some(shutdown), server, reaper })
+        let host = security.host.unwrap_or_else(|| addr.ip().to_string());
+        let scheme = if security.tls.is_some() { "https" } else { "http" };
+        let url = format!("{scheme}://{host}:{}", addr.port());
+        let endpoint = EndpointConfig::new(&url)?.tls(security.client_tls)?.token(security.token);
+        let channel = connect_with(&endpoint).await?;
+        Ok(Harness {
+            url,
+            addr,
+            endpoint,
+            channel,
+            service: handle,
+            shutdown: Some(shutdown),
+            server,
+            reaper,
+        })
+    }
+
+    /// How to reach it (its URL and TLS) with no token.
+    pub fn endpoint(&self) -> EndpointConfig {
+        self.endpoint.clone().token(None)
+    }
+
+    /// A fresh connection of its own that sends `token`.
+    pub async fn channel_with(&self, token: Option<Token>) -> Result<Channel> {
+        connect_with(&self.endpoint.clone().token(token)).await
     }
 
     /// The service itself, for what only the coordinator can see (how viewers were fed).
@@ -279,9 +334,10 @@ impl Harness {
         self.channel.clone()
     }
 
-    /// A fresh connection of its own, as a separate process would have.
+    /// A fresh connection of its own, as a separate process would have (with the harness's
+    /// token).
     pub async fn new_channel(&self) -> Result<Channel> {
-        connect(&self.url).await
+        connect_with(&self.endpoint).await
     }
 
     /// Submits the small test scene at `width`×`height` and `spp`.

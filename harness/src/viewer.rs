@@ -4,9 +4,9 @@
 use std::time::{Duration, Instant};
 
 use tessera_film::framebuffer::Framebuffer;
+use tessera_proto::connect::Channel;
 use tessera_proto::convert::pixels_from_wire;
 use tessera_proto::v1 as pb;
-use tonic::transport::Channel;
 use tonic::Streaming;
 
 use crate::{client, HarnessError, Result, PATIENCE};

@@ -9,12 +9,12 @@ use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use tessera_description::ids::WorkerId;
+use tessera_proto::connect::Channel;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_message::Msg as In;
 use tessera_proto::v1::worker_message::Msg as Out;
 use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
-use tonic::transport::Channel;
 use tonic::Streaming;
 
 use crate::{worker_client, HarnessError, Result, PATIENCE};

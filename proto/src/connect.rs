@@ -1,16 +1,21 @@
 //! The client side's connection to a coordinator, shared by the worker, the viewer and the
-//! CLI: where it is (`EndpointConfig`), opening a channel to it (`connect`, `client`), what
-//! can go wrong (`ConnectError`) and how long to wait before trying again (`Backoff`).
+//! CLI: where it is and how to reach it (`EndpointConfig`: the URL, TLS, the token),
+//! opening a channel to it (`connect`, `client`), what can go wrong (`ConnectError`) and
+//! how long to wait before trying again (`Backoff`).
 //!
-//! Only `http://` is spoken today. An `https://` URL is refused rather than silently sent
-//! in plain text; TLS settings will be further fields of `EndpointConfig` with builder
-//! methods, so callers that build one with `EndpointConfig::new` keep compiling.
+//! `http://` is plain text; `https://` is TLS (rustls), verified against a CA file or the
+//! system's roots, and never falls back to plain text. A token, if any, travels as
+//! `authorization: Bearer …` on every call of the channel (`Channel`), so that no caller
+//! can forget it.
 
+use std::task::{Context, Poll};
 use std::time::Duration;
 
-use tonic::codegen::http::Uri;
-use tonic::transport::{Channel, Endpoint};
+use tonic::codegen::http::{self, HeaderValue, Uri};
+use tonic::codegen::Service;
+use tonic::transport::Endpoint;
 
+use crate::credentials::{ClientTls, CredentialError, Token};
 use crate::v1::coordinator_client::CoordinatorClient;
 use crate::v1::workers_client::WorkersClient;
 
@@ -30,12 +35,12 @@ pub enum ConnectError {
         /// Why.
         reason: String,
     },
-    /// The URL asks for TLS, which this build cannot speak yet.
-    #[error(
-        "bad coordinator address {url:?}: TLS (https://) is not supported yet; use http:// on a \
-         trusted network or through a tunnel"
-    )]
-    TlsUnsupported {
+    /// A certificate, key or token cannot be used.
+    #[error(transparent)]
+    Credentials(#[from] CredentialError),
+    /// TLS settings given for an `http://` URL, which would not use them.
+    #[error("TLS settings (a CA or a client certificate) given for {url}: use https:// to connect with TLS")]
+    TlsForPlainText {
         /// The URL as given.
         url: String,
     },
@@ -65,7 +70,7 @@ pub struct KeepAlive {
 }
 
 /// Where a coordinator is and how to connect to it. Built with [`EndpointConfig::new`] and
-/// the builder methods; non-exhaustive so that TLS settings can join without changing callers.
+/// the builder methods; non-exhaustive so that settings can join without changing callers.
 #[derive(Debug, Clone, PartialEq)]
 #[non_exhaustive]
 pub struct EndpointConfig {
@@ -77,21 +82,30 @@ pub struct EndpointConfig {
     pub keep_alive: Option<KeepAlive>,
     /// The largest message sent or accepted.
     pub max_message_bytes: usize,
+    /// TLS, exactly when the URL is `https://`.
+    pub tls: Option<ClientTls>,
+    /// The bearer token sent with every call, if any.
+    pub token: Option<Token>,
 }
 
 impl EndpointConfig {
-    /// Checks `url` (`http://HOST:PORT`) and gives it the default timeout (5 s), no
-    /// keep-alive and [`MAX_MESSAGE_BYTES`].
+    /// Checks `url` (`http://HOST:PORT`, or `https://HOST:PORT` for TLS verified against
+    /// the system's roots until [`EndpointConfig::tls`] says otherwise) and gives it the
+    /// default timeout (5 s), no keep-alive, [`MAX_MESSAGE_BYTES`] and no token.
     pub fn new(url: &str) -> Result<EndpointConfig, ConnectError> {
         let bad =
             |reason: &str| ConnectError::BadAddress { url: url.to_string(), reason: reason.to_string() };
         let uri: Uri = url.parse().map_err(|e: tonic::codegen::http::uri::InvalidUri| bad(&e.to_string()))?;
-        match uri.scheme_str() {
-            Some("http") => {}
-            Some("https") => return Err(ConnectError::TlsUnsupported { url: url.to_string() }),
-            Some(other) => return Err(bad(&format!("unknown scheme {other:?}; expected http://HOST:PORT"))),
-            None => return Err(bad("no scheme; expected http://HOST:PORT")),
-        }
+        let tls = match uri.scheme_str() {
+            Some("http") => None,
+            Some("https") => Some(ClientTls::new()),
+            Some(other) => {
+                return Err(bad(&format!(
+                    "unknown scheme {other:?}; expected http://HOST:PORT or https://HOST:PORT"
+                )))
+            }
+            None => return Err(bad("no scheme; expected http://HOST:PORT or https://HOST:PORT")),
+        };
         if uri.host().is_none_or(str::is_empty) {
             return Err(bad("no host; expected http://HOST:PORT"));
         }
@@ -100,7 +114,26 @@ impl EndpointConfig {
             connect_timeout: Duration::from_secs(5),
             keep_alive: None,
             max_message_bytes: MAX_MESSAGE_BYTES,
+            tls,
+            token: None,
         })
+    }
+
+    /// With these TLS settings; refused for an `http://` URL unless they are the
+    /// defaults, so that a CA given to a plain-text URL is not silently ignored.
+    pub fn tls(mut self, tls: ClientTls) -> Result<Self, ConnectError> {
+        match &mut self.tls {
+            Some(t) => *t = tls,
+            None if tls.is_default() => {}
+            None => return Err(ConnectError::TlsForPlainText { url: self.url.clone() }),
+        }
+        Ok(self)
+    }
+
+    /// Sending `token` with every call.
+    pub fn token(mut self, token: Option<Token>) -> Self {
+        self.token = token;
+        self
     }
 
     /// With another connect timeout.
@@ -127,6 +160,14 @@ impl EndpointConfig {
             .map_err(|e| ConnectError::BadAddress { url: self.url.clone(), reason: error_chain(&e) })?
             .connect_timeout(self.connect_timeout)
             .tcp_nodelay(true);
+        let endpoint = match &self.tls {
+            // The handshake verifies the coordinator; a failure is an error, never a
+            // fallback to plain text.
+            Some(tls) => endpoint
+                .tls_config(tls.config())
+                .map_err(|e| ConnectError::BadAddress { url: self.url.clone(), reason: error_chain(&e) })?,
+            None => endpoint,
+        };
         Ok(match self.keep_alive {
             Some(k) => endpoint.http2_keep_alive_interval(k.interval).keep_alive_timeout(k.timeout),
             None => endpoint,
@@ -134,17 +175,59 @@ impl EndpointConfig {
     }
 }
 
+/// A channel to the coordinator that sends the configured token with every call.
+#[derive(Debug, Clone)]
+pub struct Channel {
+    inner: tonic::transport::Channel,
+    authorization: Option<HeaderValue>,
+}
+
+impl Service<http::Request<tonic::body::Body>> for Channel {
+    type Response = <tonic::transport::Channel as Service<http::Request<tonic::body::Body>>>::Response;
+    type Error = <tonic::transport::Channel as Service<http::Request<tonic::body::Body>>>::Error;
+    type Future = <tonic::transport::Channel as Service<http::Request<tonic::body::Body>>>::Future;
+
+    fn poll_ready(&mut self, cx: &mut Context<'_>) -> Poll<Result<(), Self::Error>> {
+        self.inner.poll_ready(cx)
+    }
+
+    fn call(&mut self, mut request: http::Request<tonic::body::Body>) -> Self::Future {
+        if let Some(value) = &self.authorization {
+            request.headers_mut().insert(http::header::AUTHORIZATION, value.clone());
+        }
+        self.inner.call(request)
+    }
+}
+
+/// The `authorization` header for `token`, marked sensitive so that HTTP/2 never puts it
+/// in its compression table.
+fn authorization(token: &Token) -> Result<HeaderValue, ConnectError> {
+    let mut value = HeaderValue::from_str(&format!("Bearer {}", token.secret())).map_err(|_| {
+        CredentialError::BadToken {
+            from: "the configuration".into(),
+            reason: "cannot travel in a header".into(),
+        }
+    })?;
+    value.set_sensitive(true);
+    Ok(value)
+}
+
 /// Opens a channel to the coordinator.
 pub async fn connect(config: &EndpointConfig) -> Result<Channel, ConnectError> {
-    config
+    let authorization = config.token.as_ref().map(authorization).transpose()?;
+    let inner = config
         .endpoint()?
         .connect()
         .await
-        .map_err(|e| ConnectError::Unreachable { url: config.url.clone(), reason: error_chain(&e) })
+        .map_err(|e| ConnectError::Unreachable { url: config.url.clone(), reason: error_chain(&e) })?;
+    Ok(Channel { inner, authorization })
 }
 
+/// A coordinator client.
+pub type Client = CoordinatorClient<Channel>;
+
 /// A coordinator client over a new channel, with the configured message size limit both ways.
-pub async fn client(config: &EndpointConfig) -> Result<CoordinatorClient<Channel>, ConnectError> {
+pub async fn client(config: &EndpointConfig) -> Result<Client, ConnectError> {
     Ok(CoordinatorClient::new(connect(config).await?)
         .max_decoding_message_size(config.max_message_bytes)
         .max_encoding_message_size(config.max_message_bytes))
@@ -231,10 +314,31 @@ mod tests {
     }
 
     #[test]
-    fn https_is_refused_not_sent_in_plain_text() {
-        let e = EndpointConfig::new("https://render-host:7878").unwrap_err();
-        assert_eq!(e, ConnectError::TlsUnsupported { url: "https://render-host:7878".into() });
-        assert!(e.to_string().contains("TLS (https://) is not supported yet"), "{e}");
+    fn https_is_tls_and_tls_settings_need_https() {
+        let c = EndpointConfig::new("https://render-host:7878").unwrap();
+        assert_eq!(c.tls, Some(ClientTls::new()));
+        assert_eq!(EndpointConfig::new("http://render-host:7878").unwrap().tls, None);
+        // A CA given with a plain-text URL is a mistake to say, not a setting to drop.
+        let dir = std::env::temp_dir().join(format!("tessera-connect-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let ca = dir.join("ca.pem");
+        std::fs::write(&ca, "-----BEGIN CERTIFICATE-----\nAA==\n-----END CERTIFICATE-----\n").unwrap();
+        let tls = ClientTls::new().ca_file(&ca).unwrap();
+        let e = EndpointConfig::new("http://render-host:7878").unwrap().tls(tls.clone()).unwrap_err();
+        assert!(matches!(e, ConnectError::TlsForPlainText { .. }), "{e:?}");
+        assert!(e.to_string().contains("use https://"), "{e}");
+        assert!(EndpointConfig::new("https://render-host:7878").unwrap().tls(tls).is_ok());
+        let _ = std::fs::remove_dir_all(dir);
+    }
+
+    #[test]
+    fn the_token_is_hidden_and_sensitive() {
+        let token = Token::new("abc123", "test").unwrap();
+        let c = EndpointConfig::new("http://10.0.0.1:7878").unwrap().token(Some(token.clone()));
+        assert!(!format!("{c:?}").contains("abc123"), "{c:?}");
+        let header = authorization(&token).unwrap();
+        assert!(header.is_sensitive());
+        assert_eq!(header.to_str().unwrap(), "Bearer abc123");
     }
 
     #[tokio::test]

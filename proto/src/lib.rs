@@ -1,7 +1,8 @@
 //! Tessera's wire contract: the gRPC service between coordinator, workers and clients,
 //! generated from `proto/tessera.proto` at build time with no system `protoc`; the one
 //! place where wire types meet domain types (`convert`); and the client side's connection
-//! (`connect`: endpoints, errors, backoff) shared by the worker, the viewer and the CLI.
+//! (`connect`: endpoints, errors, backoff) shared by the worker, the viewer and the CLI,
+//! with the certificates, keys and tokens it uses (`credentials`).
 //!
 //! Only this crate and each crate's `service.rs`/`client.rs` touch the generated types.
 #![forbid(unsafe_code)]
@@ -9,6 +10,7 @@
 
 pub mod connect;
 pub mod convert;
+pub mod credentials;
 
 /// Version 1 of the protocol.
 #[allow(missing_docs, clippy::large_enum_variant)]

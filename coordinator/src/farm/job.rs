@@ -35,6 +35,9 @@ pub struct Job {
     pub spp: u32,
     /// State.
     pub state: JobState,
+    /// The name of the principal that submitted it ("" for an in-process submission):
+    /// submitters see and control only their own jobs.
+    pub owner: String,
     pub(super) queue: PassQueue,
     pub(super) framebuffer: Framebuffer,
     pub(super) started: Option<Instant>,
@@ -134,6 +137,7 @@ impl Job {
             settings: self.settings.clone(),
             priority: self.priority,
             state: self.state.clone(),
+            owner: self.owner.clone(),
         }
     }
 }
@@ -214,6 +218,7 @@ impl Job {
             priority,
             spp,
             state: JobState::Queued,
+            owner: String::new(),
             queue,
             framebuffer,
             started: None,

@@ -44,6 +44,7 @@ impl Job {
         let LoadedJob { record, checkpoint } = stored;
         let id = record.id;
         let mut job = Job::prepare_within(id, record.bundle, record.settings, record.priority, admit)?;
+        job.owner = record.owner;
         if let Some(c) = checkpoint {
             let (w, h) = (job.framebuffer.width(), job.framebuffer.height());
             if (c.width, c.height, c.spp) != (w, h, job.spp) {

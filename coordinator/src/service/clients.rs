@@ -7,6 +7,7 @@ use tessera_proto::v1 as pb;
 use tonic::{Request, Response, Status};
 use tracing::info;
 
+use super::auth;
 use super::durability::SubmitFailure;
 use super::rpc::BoxStream;
 use crate::farm::SubmitError;
@@ -22,6 +23,8 @@ impl CoordinatorService {
         &self,
         request: Request<pb::SubmitRequest>,
     ) -> Result<Response<pb::SubmitResponse>, Status> {
+        let who = auth::caller(&request)?;
+        self.check_priority(&who, request.get_ref().priority)?;
         let req = request.into_inner();
         if req.protocol_version != pb::ProtocolVersion::Current as i32 {
             return Err(Status::failed_precondition(format!(
@@ -33,15 +36,16 @@ impl CoordinatorService {
         let bundle = req.bundle.ok_or_else(|| Status::invalid_argument("submit without a scene bundle"))?;
         let settings = convert::settings_from_wire(req.settings.unwrap_or_default())
             .map_err(|e| Status::invalid_argument(e.to_string()))?;
-        let id = self.submit(convert::bundle_from_wire(bundle), settings, req.priority).await.map_err(
-            |e| match e {
+        let id = self
+            .submit_by(convert::bundle_from_wire(bundle), settings, req.priority, who.name)
+            .await
+            .map_err(|e| match e {
                 SubmitFailure::Invalid(e @ SubmitError::OverBudget(_)) => {
                     Status::resource_exhausted(e.to_string())
                 }
                 SubmitFailure::Invalid(e) => Status::invalid_argument(e.to_string()),
                 e @ SubmitFailure::Store(_) => Status::unavailable(e.to_string()),
-            },
-        )?;
+            })?;
         let p = self.progress(id).ok_or_else(|| Status::not_found(format!("{id} ended before it began")))?;
         Ok(Response::new(pb::SubmitResponse { job_id: id.0, width: p.width, height: p.height, spp: p.spp }))
     }
@@ -50,6 +54,10 @@ impl CoordinatorService {
         &self,
         request: Request<pb::StatusRequest>,
     ) -> Result<Response<pb::StatusResponse>, Status> {
+        let who = auth::caller(&request)?;
+        if request.get_ref().job_id != 0 {
+            self.check_owner(&who, JobId(request.get_ref().job_id))?;
+        }
         let want = request.into_inner().job_id;
         let farm = self.farm();
         let now = Instant::now();
@@ -58,14 +66,15 @@ impl CoordinatorService {
         }
         let jobs = farm
             .jobs()
-            .filter(|j| want == 0 || j.id.0 == want)
+            .filter(|j| (want == 0 || j.id.0 == want) && Self::sees_jobs_of(&who, &j.owner))
             .map(|j| convert::status_to_wire(&j.progress(now)))
             .collect();
         let workers = farm
             .workers()
             .map(|(id, w)| pb::WorkerStatus {
                 worker_id: id.0,
-                name: w.name.clone(),
+                // A submitter learns that workers are there, not which machines they are.
+                name: if who.role == auth::Role::Submitter { String::new() } else { w.name.clone() },
                 threads: w.threads,
                 batches_in_flight: farm.in_flight(id) as u32,
                 batches_done: w.batches_done,
@@ -78,6 +87,7 @@ impl CoordinatorService {
         &self,
         request: Request<pb::FetchImageRequest>,
     ) -> Result<Response<BoxStream<pb::ImageChunk>>, Status> {
+        self.check_owner(&auth::caller(&request)?, JobId(request.get_ref().job_id))?;
         let id = JobId(request.into_inner().job_id);
         // A snapshot under the lock; the image is resolved outside it.
         let this = self.clone();
@@ -110,6 +120,7 @@ impl CoordinatorService {
         &self,
         request: Request<pb::PauseRequest>,
     ) -> Result<Response<pb::PauseResponse>, Status> {
+        self.check_owner(&auth::caller(&request)?, JobId(request.get_ref().job_id))?;
         let req = request.into_inner();
         let id = JobId(req.job_id);
         if !self.farm().set_paused(id, req.paused) {
@@ -125,6 +136,7 @@ impl CoordinatorService {
         &self,
         request: Request<pb::CancelRequest>,
     ) -> Result<Response<pb::CancelResponse>, Status> {
+        self.check_owner(&auth::caller(&request)?, JobId(request.get_ref().job_id))?;
         let id = JobId(request.into_inner().job_id);
         if !self.farm().cancel(id, Instant::now()) {
             return Err(Status::not_found(format!("no {id} on this coordinator")));

@@ -187,14 +187,26 @@ impl CoordinatorService {
         (this, recovery)
     }
 
-    /// Queues a job (also in-process, as `tessera render` does). With a data directory the
-    /// job is on disk before this returns. The scene is read and the job made before the
-    /// farm is touched.
+    /// Queues a job with no owner (in-process, as `tessera render` does); see
+    /// [`CoordinatorService::submit_by`].
     pub async fn submit(
         &self,
         bundle: Bundle,
         settings: JobSettings,
         priority: i32,
+    ) -> Result<JobId, SubmitFailure> {
+        self.submit_by(bundle, settings, priority, String::new()).await
+    }
+
+    /// Queues a job owned by `owner`. With a data directory the job is on disk, owner
+    /// included, before this returns. The scene is read and the job made before the farm
+    /// is touched.
+    pub async fn submit_by(
+        &self,
+        bundle: Bundle,
+        settings: JobSettings,
+        priority: i32,
+        owner: String,
     ) -> Result<JobId, SubmitFailure> {
         // A huge scene takes seconds to validate: say when it starts, not only when it is queued.
         let bytes = bundle.text.len() + bundle.assets.iter().map(|(_, a)| a.len()).sum::<usize>();
@@ -203,10 +215,11 @@ impl CoordinatorService {
         let id = tokio::task::spawn_blocking(move || {
             let name = tessera_description::bounds::quoted(&bundle.name);
             let mut reservation = None;
-            let job = Job::prepare_within(JobId(0), Arc::new(bundle), settings, priority, &mut |f| {
+            let mut job = Job::prepare_within(JobId(0), Arc::new(bundle), settings, priority, &mut |f| {
                 reservation = Some(this.budget.admit(&name, f)?);
                 Ok(())
             })?;
+            job.owner = owner;
             // The store's lock is taken first and held until the job's row is written, so
             // the checkpointer never writes a checkpoint of a job that has no row yet.
             let mut store = this.durable.as_ref().map(|d| lock(&d.store));
@@ -391,6 +404,7 @@ mod tests {
                 settings,
                 priority: 0,
                 state: JobState::Running,
+                owner: String::new(),
             };
             store.add_job(&record).unwrap();
             let wrong = Checkpoint {

@@ -7,9 +7,11 @@
 //! snapshots. The files here are split by RPC family: `workers.rs` (the work stream),
 //! `clients.rs` (submit, status, images, control), `viewers.rs` (watch streams fed from
 //! one shared delta per job), `durability.rs` (the store, checkpoints, recovery),
-//! and `rpc.rs` (the trait impl that routes each RPC). Wire ↔ domain conversions live
+//! `auth.rs` (who is calling and what each role may do), and `rpc.rs` (the trait impl
+//! that routes each RPC, checking the caller's role first). Wire ↔ domain conversions live
 //! next to the contract, in `tessera_proto::convert`.
 
+mod auth;
 mod budget;
 mod clients;
 mod durability;
@@ -32,6 +34,7 @@ use tracing::{info, warn};
 
 use crate::farm::Farm;
 
+pub use auth::{Auth, AuthError, Principal, Role, Tokens, DEFAULT_MAX_PRIORITY, MIN_TOKEN_CHARS};
 pub use budget::{default_budget, SUBMITS_AT_ONCE};
 pub use durability::{Recovery, Resumed, SubmitFailure};
 pub use viewers::{ViewerUpdates, MAX_VIEWERS, MAX_VIEWERS_PER_JOB, WATCH_CHUNK_PIXELS, WATCH_DEFAULT_RATE};
@@ -79,6 +82,7 @@ pub struct CoordinatorService {
     keep_finished: usize,
     /// Submissions being decoded and validated (`budget::SUBMITS_AT_ONCE`).
     submits: Arc<tokio::sync::Semaphore>,
+    auth: Arc<Auth>,
 }
 
 /// A job's identity and what it was submitted with, for clients that look for a job.
@@ -133,7 +137,14 @@ impl CoordinatorService {
             budget: budget::MemoryBudget::new(bytes),
             keep_finished: KEEP_FINISHED,
             submits: Arc::new(tokio::sync::Semaphore::new(SUBMITS_AT_ONCE)),
+            auth: Arc::new(Auth::open()),
         }
+    }
+
+    /// With callers authenticated by `auth` (the default is `Auth::open`: everyone is admin).
+    pub fn with_auth(mut self, auth: Auth) -> Self {
+        self.auth = Arc::new(auth);
+        self
     }
 
     /// The farm, locked: for short, bounded work only.
@@ -201,8 +212,12 @@ impl CoordinatorService {
     /// The tonic services of this coordinator, each with its message limits: `Coordinator`
     /// (clients and viewers) decodes up to a scene bundle, `Workers` only up to the largest
     /// legal worker message, so that a worker cannot make it buffer a bundle's worth.
-    /// Serve them with [`server`]'s settings: `server().add_routes(service.into_server())`.
+    /// Every call is authenticated before its message is decoded, and before a submission
+    /// waits at the gate. Serve them with [`server`]'s settings:
+    /// `server().add_routes(service.into_server())`.
     pub fn into_server(self) -> Routes {
+        use tonic::service::interceptor::InterceptedService;
+        let authenticate = auth::Authenticate(self.auth.clone());
         let workers = WorkersServer::new(self.clone())
             .max_decoding_message_size(MAX_WORKER_MESSAGE_BYTES)
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
@@ -210,7 +225,8 @@ impl CoordinatorService {
         let clients = CoordinatorServer::new(self)
             .max_decoding_message_size(MAX_MESSAGE_BYTES)
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
-        Routes::new(workers).add_service(gate::SubmitGate::new(clients, permits))
+        Routes::new(InterceptedService::new(workers, authenticate.clone()))
+            .add_service(InterceptedService::new(gate::SubmitGate::new(clients, permits), authenticate))
     }
 
     /// Takes back the leases of silent workers and ends jobs whose time budget is spent,

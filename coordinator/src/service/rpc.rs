@@ -1,4 +1,5 @@
-//! The tonic trait: routes each RPC to its family's handler, nothing more.
+//! The tonic trait: checks the caller's role (`auth::require`), then routes each RPC to its
+//! family's handler.
 
 use std::pin::Pin;
 use std::time::Duration;
@@ -11,6 +12,7 @@ use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::Stream;
 use tonic::{Request, Response, Status, Streaming};
 
+use super::auth::{self, Action};
 use super::viewers::WATCH_DEFAULT_RATE;
 use super::workers::MAX_CREDIT;
 use super::CoordinatorService;
@@ -24,6 +26,7 @@ impl Coordinator for CoordinatorService {
     type WatchStream = BoxStream<pb::FramebufferUpdate>;
 
     async fn watch(&self, request: Request<pb::WatchRequest>) -> Result<Response<Self::WatchStream>, Status> {
+        let who = auth::require(&request, Action::Watch)?;
         let req = request.into_inner();
         // A viewer of another version could not read the pixels (one of version 1 sends 0).
         if req.protocol_version != pb::ProtocolVersion::Current as i32 {
@@ -34,6 +37,7 @@ impl Coordinator for CoordinatorService {
             )));
         }
         let job = self.pick_job(req.job_id)?;
+        self.check_owner(&who, job)?;
         let rate =
             if req.max_rate > 0.0 { req.max_rate.min(WATCH_DEFAULT_RATE * 10.0) } else { WATCH_DEFAULT_RATE };
         if !rate.is_finite() {
@@ -56,6 +60,7 @@ impl Coordinator for CoordinatorService {
         &self,
         request: Request<pb::SubmitRequest>,
     ) -> Result<Response<pb::SubmitResponse>, Status> {
+        auth::require(&request, Action::Submit)?;
         self.rpc_submit(request).await
     }
 
@@ -63,6 +68,7 @@ impl Coordinator for CoordinatorService {
         &self,
         request: Request<pb::StatusRequest>,
     ) -> Result<Response<pb::StatusResponse>, Status> {
+        auth::require(&request, Action::Status)?;
         self.rpc_status(request).await
     }
 
@@ -70,10 +76,12 @@ impl Coordinator for CoordinatorService {
         &self,
         request: Request<pb::FetchImageRequest>,
     ) -> Result<Response<Self::FetchImageStream>, Status> {
+        auth::require(&request, Action::FetchImage)?;
         self.rpc_fetch_image(request).await
     }
 
     async fn pause(&self, request: Request<pb::PauseRequest>) -> Result<Response<pb::PauseResponse>, Status> {
+        auth::require(&request, Action::Pause)?;
         self.rpc_pause(request).await
     }
 
@@ -81,6 +89,7 @@ impl Coordinator for CoordinatorService {
         &self,
         request: Request<pb::CancelRequest>,
     ) -> Result<Response<pb::CancelResponse>, Status> {
+        auth::require(&request, Action::Cancel)?;
         self.rpc_cancel(request).await
     }
 }
@@ -93,6 +102,7 @@ impl Workers for CoordinatorService {
         &self,
         request: Request<Streaming<pb::WorkerMessage>>,
     ) -> Result<Response<Self::WorkStream>, Status> {
+        auth::require(&request, Action::Work)?;
         let inbound = request.into_inner();
         // Room for a full credit's worth of batches plus scenes, so that handing out work
         // never waits on the worker reading.

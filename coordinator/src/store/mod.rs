@@ -23,8 +23,9 @@ pub use crate::persist::{JobRecord, JobStore, Loaded, LoadedJob, StoreError};
 pub const DB_FILE: &str = "jobs.db";
 /// Checkpoints kept per job: the newest, and one to fall back on should it be damaged.
 const GENERATIONS_KEPT: i64 = 2;
-/// The layout version of the tables, in `PRAGMA user_version`.
-const SCHEMA_VERSION: i64 = 1;
+/// The layout version of the tables, in `PRAGMA user_version`. Layout 2 added the jobs'
+/// owners; a layout-1 file is migrated at open (its jobs get no owner).
+const SCHEMA_VERSION: i64 = 2;
 /// Test hook: a checkpoint write stops this many milliseconds before its commit, so a test
 /// can kill the coordinator in the middle of a write.
 pub const FAULT_STALL_ENV: &str = "TESSERA_FAULT_STALL_CHECKPOINT_MS";
@@ -255,7 +256,7 @@ impl Store {
                     id INTEGER PRIMARY KEY,
                     priority INTEGER NOT NULL,
                     spp INTEGER, width INTEGER, height INTEGER, time_limit REAL, noise REAL,
-                    state TEXT NOT NULL, error TEXT);
+                    state TEXT NOT NULL, error TEXT, owner TEXT NOT NULL DEFAULT '');
                  CREATE TABLE IF NOT EXISTS scenes (
                     job INTEGER PRIMARY KEY, bundle BLOB NOT NULL, bundle_sum BLOB NOT NULL);
                  CREATE TABLE IF NOT EXISTS checkpoint_parts (
@@ -263,6 +264,13 @@ impl Store {
                     data BLOB NOT NULL, sum BLOB NOT NULL,
                     PRIMARY KEY (job, generation, part));
                  PRAGMA user_version = {SCHEMA_VERSION};"
+            ))
+            .map_err(write_err)?;
+        } else if version == 1 {
+            // One transaction: a coordinator killed here leaves a layout-1 file to migrate again.
+            conn.execute_batch(&format!(
+                "BEGIN; ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT '';
+                 PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
             ))
             .map_err(write_err)?;
         } else if version != SCHEMA_VERSION {
@@ -353,6 +361,11 @@ impl Store {
 
     #[allow(clippy::type_complexity)]
     fn read_job(&mut self, id: i64, problems: &mut Vec<String>) -> rusqlite::Result<Option<LoadedJob>> {
+        // A layout-1 file being salvaged (read-only, not migrated) has no owners.
+        let owner: String = match self.conn.prepare("SELECT owner FROM jobs WHERE id = ?1") {
+            Ok(mut s) => s.query_row([id], |r| r.get(0))?,
+            Err(_) => String::new(),
+        };
         let row: (
             i32,
             Option<u32>,
@@ -387,6 +400,7 @@ impl Store {
             settings: JobSettings { spp, size, time_limit, noise },
             priority,
             state,
+            owner,
         };
         let generations: Vec<i64> = self
             .conn
@@ -457,8 +471,8 @@ impl JobStore for Store {
         )
         .map_err(err)?;
         tx.execute(
-            "INSERT INTO jobs (id, priority, spp, width, height, time_limit, noise, state, error)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9)",
+            "INSERT INTO jobs (id, priority, spp, width, height, time_limit, noise, state, error, owner)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
             params![
                 job.id.0 as i64,
                 job.priority,
@@ -468,7 +482,8 @@ impl JobStore for Store {
                 job.settings.time_limit.map(|t| t.as_secs_f64()),
                 job.settings.noise.map(f64::from),
                 state,
-                error
+                error,
+                job.owner
             ],
         )
         .map_err(err)?;

@@ -21,6 +21,7 @@ fn record(id: u64) -> JobRecord {
         },
         priority: -2,
         state: JobState::Running,
+        owner: "alice".into(),
     }
 }
 
@@ -88,6 +89,54 @@ fn jobs_and_the_newest_checkpoint_survive_a_reopen() {
         .query_row("SELECT COUNT(DISTINCT generation) FROM checkpoint_parts", [], |r| r.get(0))
         .unwrap();
     assert_eq!(generations, GENERATIONS_KEPT);
+}
+
+/// A database of layout 1 (before owners) is migrated at open: its jobs read back with no
+/// owner, and new jobs keep theirs across a reopen.
+#[test]
+fn a_layout_1_database_is_migrated_and_keeps_its_jobs() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let conn = Connection::open(dir.path().join(DB_FILE)).unwrap();
+        conn.execute_batch(
+            "CREATE TABLE jobs (
+                id INTEGER PRIMARY KEY,
+                priority INTEGER NOT NULL,
+                spp INTEGER, width INTEGER, height INTEGER, time_limit REAL, noise REAL,
+                state TEXT NOT NULL, error TEXT);
+             CREATE TABLE scenes (job INTEGER PRIMARY KEY, bundle BLOB NOT NULL, bundle_sum BLOB NOT NULL);
+             CREATE TABLE checkpoint_parts (
+                job INTEGER NOT NULL, generation INTEGER NOT NULL, part INTEGER NOT NULL,
+                data BLOB NOT NULL, sum BLOB NOT NULL, PRIMARY KEY (job, generation, part));
+             PRAGMA user_version = 1;",
+        )
+        .unwrap();
+        let r = record(1);
+        let bundle = encode_bundle(&r.bundle);
+        conn.execute(
+            "INSERT INTO scenes (job, bundle, bundle_sum) VALUES (1, ?1, ?2)",
+            params![bundle, blake3_of(&bundle)],
+        )
+        .unwrap();
+        conn.execute(
+            "INSERT INTO jobs (id, priority, spp, width, height, time_limit, noise, state)
+             VALUES (1, -2, 4, 40, 30, 1.5, ?1, 'running')",
+            [f64::from(0.02f32)],
+        )
+        .unwrap();
+    }
+    {
+        let (mut store, loaded) = Store::open(dir.path()).unwrap();
+        assert!(loaded.problems.is_empty(), "{:?}", loaded.problems);
+        assert_eq!(loaded.jobs.len(), 1);
+        assert_eq!(loaded.jobs[0].record, JobRecord { owner: String::new(), ..record(1) });
+        let version: i64 = store.conn.query_row("PRAGMA user_version", [], |r| r.get(0)).unwrap();
+        assert_eq!(version, SCHEMA_VERSION);
+        store.add_job(&record(2)).unwrap();
+    }
+    let (_, loaded) = Store::open(dir.path()).unwrap();
+    let owners: Vec<&str> = loaded.jobs.iter().map(|j| j.record.owner.as_str()).collect();
+    assert_eq!(owners, ["", "alice"]);
 }
 
 /// Bits changed on disk in the newest checkpoint: the one before it is used; both
