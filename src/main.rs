@@ -47,6 +47,11 @@ enum Command {
         /// pass one and when a job ends) [default: 30].
         #[arg(long, default_value_t = 30.0, requires = "data")]
         checkpoint_interval: f64,
+        /// Share of each worker's batches rendered again on a worker of another identity
+        /// and compared bit for bit (a worker's first 20 batches at 25 %); 0 turns audits
+        /// off [default: 0.03].
+        #[arg(long, default_value_t = tessera_coordinator::farm::DEFAULT_AUDIT_FRACTION)]
+        audit_fraction: f64,
     },
     /// Run a worker that renders batches for a coordinator.
     Worker(WorkerArgs),
@@ -232,7 +237,9 @@ fn one_line(e: &anyhow::Error) -> String {
 async fn run(command: Command) -> Result<ExitCode> {
     match command {
         Command::Render(args) => local::render(args).await,
-        Command::Coordinator { listen, worker_timeout, data, checkpoint_interval } => {
+        Command::Coordinator { listen, worker_timeout, data, checkpoint_interval, audit_fraction } => {
+            let audit = tessera_coordinator::farm::AuditPolicy::with_fraction(audit_fraction)
+                .map_err(|e| anyhow::anyhow!("--audit-fraction: {e}"))?;
             let timing = tessera_coordinator::Timing {
                 silence_timeout: seconds("--worker-timeout", worker_timeout)?,
                 ..Default::default()
@@ -241,7 +248,7 @@ async fn run(command: Command) -> Result<ExitCode> {
                 Some(dir) => Some((dir, seconds("--checkpoint-interval", checkpoint_interval)?)),
                 None => None,
             };
-            remote::serve_coordinator(listen, timing, data).await?;
+            remote::serve_coordinator(listen, timing, data, audit).await?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Worker(args) => {

@@ -56,6 +56,7 @@ pub async fn serve_coordinator(
     listen: SocketAddr,
     timing: Timing,
     data: Option<(PathBuf, Duration)>,
+    audit: tessera_coordinator::farm::AuditPolicy,
 ) -> Result<()> {
     let service = match &data {
         Some((dir, interval)) => {
@@ -66,6 +67,7 @@ pub async fn serve_coordinator(
         }
         None => CoordinatorService::new(timing),
     };
+    service.set_audit_policy(audit);
     let listener =
         tokio::net::TcpListener::bind(listen).await.with_context(|| format!("cannot listen on {listen}"))?;
     tracing::info!("coordinator listening on {}", listener.local_addr()?);

@@ -17,6 +17,19 @@ use super::CoordinatorService;
 /// A server stream of one message type.
 pub(super) type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send + 'static>>;
 
+/// Who a worker is, for strikes and quarantine (which outlive its connection): given the
+/// name its `Hello` carries, the identity it is held to. Here the remote IP address and
+/// that name, so a quarantined worker that reconnects from the same host under the same
+/// name is refused; with authentication, the principal of its token or client
+/// certificate takes this place (the one function to change).
+pub(super) fn worker_identity<T>(request: &Request<T>) -> impl FnOnce(&str) -> String + Send + 'static {
+    let ip = request.remote_addr().map(|a| a.ip());
+    move |name: &str| match ip {
+        Some(ip) => format!("{ip}/{name}"),
+        None => format!("local/{name}"),
+    }
+}
+
 #[tonic::async_trait]
 impl Coordinator for CoordinatorService {
     type WorkStream = BoxStream<pb::CoordinatorMessage>;
@@ -50,11 +63,12 @@ impl Coordinator for CoordinatorService {
         &self,
         request: Request<Streaming<pb::WorkerMessage>>,
     ) -> Result<Response<Self::WorkStream>, Status> {
+        let identity = worker_identity(&request);
         let inbound = request.into_inner();
         // Room for a full credit's worth of batches plus scenes, so that handing out work
         // never waits on the worker reading.
         let (tx, rx) = mpsc::channel(MAX_CREDIT as usize + 16);
-        tokio::spawn(self.clone().serve_worker(inbound, tx));
+        tokio::spawn(self.clone().serve_worker(inbound, tx, identity));
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }
 
