@@ -240,6 +240,8 @@ async fn refused_scenes_go_to_other_workers_and_fail_only_when_all_refuse() {
     let h = harness(AuditPolicy::off()).await;
     let job = h.submit_small(W, H, SPP).await.unwrap();
     let mut small = FakeWorker::connect(&h.channel(), "small", 1).await.unwrap();
+    // Another worker connected (idle): not every connected worker refused the job.
+    let _idle = FakeWorker::connect(&h.channel(), "idle", 0).await.unwrap();
     let b = small.next_batch().await.unwrap();
     small.fail_with(&b, "the scene needs 9 GB; this worker has 4", |f| f.scene_refused = true).await.unwrap();
     assert!(small.next_within(Duration::from_millis(200)).await.unwrap().is_none(), "sent the job again");

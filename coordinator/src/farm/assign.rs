@@ -450,8 +450,12 @@ impl Farm {
             if distinct >= MAX_BATCH_FAILURES || everywhere {
                 let who = counts.iter().map(|(i, n)| format!("{i} ×{n}")).collect::<Vec<_>>().join(", ");
                 let job = self.jobs.get_mut(&job_id).expect("still there");
+                let times: u32 = counts.values().sum();
                 job.fail(
-                    format!("{batch} failed on {distinct} workers ({who}); last error: {}", f.error),
+                    format!(
+                        "{batch} failed {times} times on {distinct} workers ({who}); last error: {}",
+                        f.error
+                    ),
                     now,
                 );
             }

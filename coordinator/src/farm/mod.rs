@@ -60,6 +60,9 @@ pub struct WorkerInfo {
     pub batches_done: u64,
     /// Last message received.
     last_seen: Instant,
+    /// Its leases were taken back for silence (until it is heard again): it is not
+    /// counted on to render audits.
+    silent: bool,
 }
 
 /// What a worker is handed: the job's scene first if it lacks it, then a batch.
@@ -323,8 +326,15 @@ impl Farm {
     fn register(&mut self, identity: String, name: String, threads: u32, now: Instant) -> WorkerId {
         self.next_worker += 1;
         let id = WorkerId(self.next_worker);
-        let info =
-            WorkerInfo { name, identity, threads, scenes: HashSet::new(), batches_done: 0, last_seen: now };
+        let info = WorkerInfo {
+            name,
+            identity,
+            threads,
+            scenes: HashSet::new(),
+            batches_done: 0,
+            last_seen: now,
+            silent: false,
+        };
         self.workers.insert(id, info);
         id
     }
@@ -343,6 +353,7 @@ impl Farm {
     pub fn touch(&mut self, worker: WorkerId, now: Instant) {
         if let Some(w) = self.workers.get_mut(&worker) {
             w.last_seen = now;
+            w.silent = false;
         }
     }
 
@@ -365,13 +376,19 @@ impl Farm {
             .filter(|(_, w)| now.saturating_duration_since(w.last_seen) > timeout)
             .map(|(id, _)| *id)
             .collect();
-        silent
+        let expired = silent
             .into_iter()
             .filter_map(|id| {
+                if let Some(w) = self.workers.get_mut(&id) {
+                    w.silent = true;
+                }
                 let n = self.take_back_all(id, true);
                 (n > 0).then_some((id, n))
             })
-            .collect()
+            .collect();
+        // Jobs waiting only for audits that no worker still heard from can render end.
+        self.settle(now);
+        expired
     }
 
     /// Pauses or resumes a job; `false` if there is no such job. A job that is over stays

@@ -140,14 +140,14 @@ impl Farm {
         n
     }
 
-    /// The identities connected now that may render `job` (not quarantined, not refusing
-    /// its scene).
+    /// The identities connected now that may render `job` (heard from, not quarantined,
+    /// not refusing its scene).
     pub(super) fn able_identities(&self, job: JobId) -> Vec<String> {
         let refused = self.jobs.get(&job).map(|j| &j.fence.refused_by);
         let mut v: Vec<String> = self
             .workers
             .values()
-            .filter(|w| self.standing.get(&w.identity).is_none_or(|s| s.quarantined.is_none()))
+            .filter(|w| !w.silent && self.standing.get(&w.identity).is_none_or(|s| s.quarantined.is_none()))
             .filter(|w| refused.is_none_or(|r| !r.contains(&w.identity)))
             .map(|w| w.identity.clone())
             .collect();
