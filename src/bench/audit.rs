@@ -225,11 +225,10 @@ pub fn run(trials: usize, fraction: f64) -> Result<()> {
     let (clean, cj) = run_job(0, AuditPolicy::off(), None)?;
     let clean_bytes: Vec<u8> =
         clean.job(cj).expect("ran").framebuffer().resolve().iter().flat_map(|v| v.to_le_bytes()).collect();
-    let mut identical = 0;
-    let mut caught = 0;
     let runs = trials.min(20);
-    for trial in 0..runs as u64 {
-        for lie in [Lie::Doubles, Lie::ZeroesOneInFifty] {
+    for lie in [Lie::Doubles, Lie::ZeroesOneInFifty] {
+        let (mut identical, mut caught) = (0, 0);
+        for trial in 0..runs as u64 {
             let (f, job) = run_job(trial, policy, Some(lie))?;
             let bytes: Vec<u8> = f
                 .job(job)
@@ -240,12 +239,15 @@ pub fn run(trials: usize, fraction: f64) -> Result<()> {
                 .flat_map(|v| v.to_le_bytes())
                 .collect();
             identical += usize::from(bytes == clean_bytes);
-            caught += usize::from(f.quarantined(WorkerId(1)).is_some() || f.fence_counters().liars > 0);
+            caught += usize::from(f.fence_counters().liars > 0);
         }
+        println!(
+            "one job with a liar that {}: caught within the job in {caught} of {runs}, final image byte-identical to a clean render in {identical} of {runs}",
+            match lie {
+                Lie::Doubles => "doubles every batch",
+                Lie::ZeroesOneInFifty => "zeroes 1 batch in 50",
+            }
+        );
     }
-    println!(
-        "final images with a liar: {identical} of {} byte-identical to a clean render; the liar caught within the job in {caught}",
-        runs * 2
-    );
     Ok(())
 }
