@@ -55,6 +55,11 @@ enum Command {
         /// dropped from memory and the data directory.
         #[arg(long, default_value_t = tessera_coordinator::service::KEEP_FINISHED, value_parser = clap::value_parser!(usize))]
         keep_finished: usize,
+        /// Share of each worker's batches rendered again on a worker of another identity
+        /// and compared bit for bit (a worker's first 20 batches at 25 %); 0 turns audits
+        /// off [default: 0.03].
+        #[arg(long, default_value_t = tessera_coordinator::farm::DEFAULT_AUDIT_FRACTION)]
+        audit_fraction: f64,
         /// TLS and authentication.
         #[command(flatten)]
         security: remote::SecurityArgs,
@@ -261,8 +266,11 @@ async fn run(command: Command) -> Result<ExitCode> {
             checkpoint_interval,
             memory_budget,
             keep_finished,
+            audit_fraction,
             security,
         } => {
+            let audit = tessera_coordinator::farm::AuditPolicy::with_fraction(audit_fraction)
+                .map_err(|e| anyhow::anyhow!("--audit-fraction: {e}"))?;
             let timing = tessera_coordinator::Timing {
                 silence_timeout: seconds("--worker-timeout", worker_timeout)?,
                 ..Default::default()
@@ -275,7 +283,7 @@ async fn run(command: Command) -> Result<ExitCode> {
             if keep_finished == 0 {
                 anyhow::bail!("--keep-finished must be at least 1");
             }
-            remote::serve_coordinator(listen, timing, data, budget, keep_finished, &security).await?;
+            remote::serve_coordinator(listen, timing, data, budget, keep_finished, &security, audit).await?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Worker(args) => {

@@ -165,6 +165,7 @@ pub async fn serve_coordinator(
     memory_budget: u64,
     keep_finished: usize,
     security: &SecurityArgs,
+    audit: tessera_coordinator::farm::AuditPolicy,
 ) -> Result<()> {
     // Before the data directory is opened: a refused start touches nothing.
     let (tls, auth) = security.load(listen)?;
@@ -179,6 +180,7 @@ pub async fn serve_coordinator(
         None => CoordinatorService::with_memory_budget(timing, memory_budget),
     };
     let service = service.keeping_finished(keep_finished).with_auth(auth);
+    service.set_audit_policy(audit);
     let listener =
         tokio::net::TcpListener::bind(listen).await.with_context(|| format!("cannot listen on {listen}"))?;
     tracing::info!(

@@ -100,6 +100,8 @@ async fn malformed_results_are_refused_and_the_job_survives() {
         job_id: batch.job_id,
         batch_id: batch.batch_id,
         attempt: batch.attempt,
+        // The lease's token: only its holder's results are checked (and then refused).
+        lease: batch.lease.clone(),
         sums: vec![1, 2],
         ..Default::default()
     };
@@ -137,6 +139,8 @@ async fn impossible_sums_are_refused() {
         job_id: batch.job_id,
         batch_id: batch.batch_id,
         attempt: batch.attempt,
+        // The lease's token: only its holder's results are checked (and then refused).
+        lease: batch.lease.clone(),
         sums: vec![u64::MAX; n],
         ..Default::default()
     };

@@ -361,6 +361,27 @@ impl Framebuffer {
         true
     }
 
+    /// Empties pixel `(x, y)`: sums, count and even sums back to zero, as a change that
+    /// viewers see. The coordinator does this to a pixel a lying worker touched, before
+    /// its samples are rendered again (sums are additive, so the pixel then ends with the
+    /// same bits as if the liar had never delivered).
+    pub fn reset(&mut self, x: u32, y: u32) {
+        if x >= self.width || y >= self.height {
+            return;
+        }
+        self.version += 1;
+        let version = self.version;
+        let (t, i) = self.locate(x, y);
+        let tile = Arc::make_mut(&mut self.tiles[t]);
+        tile.sums[i] = [0; 3];
+        tile.counts[i] = 0;
+        if let Some(e) = tile.even.get_mut(i) {
+            *e = 0;
+        }
+        tile.versions[i] = version;
+        tile.version = version;
+    }
+
     /// The mean radiance of pixel `(x, y)`, or `None` before its first sample.
     pub fn mean(&self, x: u32, y: u32) -> Option<[f32; 3]> {
         let (t, i) = self.locate(x, y);
@@ -560,6 +581,25 @@ mod tests {
     }
 
     /// Even sums are required exactly when the framebuffer keeps them.
+    /// Invariant: a reset pixel, merged again, holds the bits it would have had without
+    /// the merge that was undone (how a liar's pixels are repaired), and viewers see it.
+    #[test]
+    fn a_reset_pixel_merged_again_has_the_bits_of_a_clean_one() {
+        let q = [px(1, 2), px(3, 0)];
+        let mut clean = Framebuffer::with_even(4, 4);
+        clean.merge(&q, 2, &[5, 6, 7, 8, 9, 10], Some(&[3, 4])).unwrap();
+        let mut fb = Framebuffer::with_even(4, 4);
+        fb.merge(&q, 2, &[50, 60, 70, 8, 9, 10], Some(&[30, 4])).unwrap();
+        let before = fb.version();
+        fb.reset(1, 2);
+        assert_eq!(fb.count(1, 2), 0);
+        assert_eq!(fb.changes(before, 100).flatten().map(|p| p.index).collect::<Vec<_>>(), vec![2 * 4 + 1]);
+        fb.merge(&q[..1], 2, &[5, 6, 7], Some(&[3])).unwrap();
+        assert_eq!(fb, clean);
+        fb.reset(9, 9); // outside: nothing, no panic
+        assert_eq!(fb, clean);
+    }
+
     #[test]
     fn even_sums_are_checked_when_kept() {
         let mut fb = Framebuffer::with_even(2, 1);

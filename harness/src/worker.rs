@@ -152,9 +152,40 @@ impl FakeWorker {
         self.send_results(vec![valid_result(batch)], 1).await
     }
 
+    /// Answers `batch` with valid sums changed by `edit` (doubled, zeroed, another
+    /// attempt number or lease token...), and one more credit: a hostile worker.
+    pub async fn answer_with(
+        &mut self,
+        batch: &pb::Batch,
+        edit: impl FnOnce(&mut pb::BatchResult),
+    ) -> Result<()> {
+        let mut r = valid_result(batch);
+        edit(&mut r);
+        self.send_results(vec![r], 1).await
+    }
+
+    /// Sends a result for a batch this worker was never given: `job`, `batch` and `lease`
+    /// as named (another worker's, or made up), sums valid for `pixels` × `samples`.
+    pub async fn forge(&mut self, template: &pb::Batch, lease: Vec<u8>) -> Result<()> {
+        let mut r = valid_result(template);
+        r.lease = lease;
+        self.send_results(vec![r], 0).await
+    }
+
     /// Reports `batch` as failed with `error`, and one more credit.
     pub async fn fail(&mut self, batch: &pb::Batch, error: &str) -> Result<()> {
-        self.send(Out::Failed(pb::BatchFailed {
+        self.fail_with(batch, error, |_| {}).await
+    }
+
+    /// Reports `batch` as failed, the report changed by `edit` (a scene refusal, another
+    /// lease token, no credit...).
+    pub async fn fail_with(
+        &mut self,
+        batch: &pb::Batch,
+        error: &str,
+        edit: impl FnOnce(&mut pb::BatchFailed),
+    ) -> Result<()> {
+        let mut f = pb::BatchFailed {
             job_id: batch.job_id,
             batch_id: batch.batch_id,
             attempt: batch.attempt,
@@ -162,8 +193,9 @@ impl FakeWorker {
             credit: 1,
             lease: batch.lease.clone(),
             scene_refused: false,
-        }))
-        .await
+        };
+        edit(&mut f);
+        self.send(Out::Failed(f)).await
     }
 
     /// Sends a heartbeat.
@@ -181,6 +213,17 @@ impl FakeWorker {
     /// `REFERENCE_BATCH_SAMPLES` (zero: at once), with one more credit. Counts into
     /// `stats`. Returns when the coordinator closes the stream or refuses it.
     pub async fn serve(self, batch_time: Duration, stats: Arc<ServeStats>) -> Result<()> {
+        self.serve_with(batch_time, stats, |_, _| {}).await
+    }
+
+    /// `serve`, with every result passed through `edit` before it is sent, with the batch
+    /// it answers (a worker that lies: doubles its sums, zeroes one batch in fifty...).
+    pub async fn serve_with(
+        self,
+        batch_time: Duration,
+        stats: Arc<ServeStats>,
+        mut edit: impl FnMut(&pb::Batch, &mut pb::BatchResult) + Send,
+    ) -> Result<()> {
         let FakeWorker { mut inbound, tx, credit, .. } = self;
         // When each credit was granted, oldest first: the coordinator leases in grant
         // order, so the next batch to arrive is the one the oldest grant bought. The
@@ -219,7 +262,8 @@ impl FakeWorker {
             } else {
                 tokio::time::sleep(render).await;
             }
-            let result = valid_result(&batch);
+            let mut result = valid_result(&batch);
+            edit(&batch, &mut result);
             let measuring = stats.measuring();
             let now = Instant::now();
             if measuring && stats.track_pixels && batch.pass == 2 {

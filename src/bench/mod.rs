@@ -13,6 +13,7 @@ use tessera_worker::build::parse_bundle;
 
 use crate::local::{render_local, LocalOptions};
 
+mod audit;
 mod checkpoint;
 mod convergence;
 mod farm;
@@ -164,6 +165,17 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 24)]
         meshes: usize,
     },
+    /// Auditing workers bit for bit, on the pure farm: batches a lying worker (doubling
+    /// its sums, or zeroing one batch in fifty) delivers before quarantine, the extra
+    /// batches audits render, and the repaired image against a clean one.
+    Audit {
+        /// Seeded trials per liar [default: 200].
+        #[arg(long, default_value_t = 200)]
+        trials: usize,
+        /// Share of batches audited [default: 0.03].
+        #[arg(long, default_value_t = tessera_coordinator::farm::DEFAULT_AUDIT_FRACTION)]
+        audit_fraction: f64,
+    },
     /// The BVH at scale: build time and traversal speed for meshes of 10k to 1M triangles.
     Bvh {
         /// The largest triangle count [default: 1000000].
@@ -198,6 +210,10 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
     match cmd {
         BenchCommand::Whitted { scene, runs } => whitted(&scene, runs.max(1)),
         BenchCommand::Bvh { triangles } => bvh(triangles),
+        BenchCommand::Audit { trials, audit_fraction } => {
+            audit::run(trials, audit_fraction)?;
+            Ok(ExitCode::SUCCESS)
+        }
         BenchCommand::Farm { sizes, workers, viewers, seconds, batch_ms, spp, credit, viewer_rate } => {
             if spp < 2 || credit == 0 || workers.contains(&0) {
                 anyhow::bail!("--spp must be at least 2, --credit and every --workers at least 1");

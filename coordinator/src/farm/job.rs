@@ -1,11 +1,11 @@
 //! One job: its scene, its batches, its framebuffer, and the figures of its progress.
 
-use std::collections::{HashMap, VecDeque};
+use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use tessera_description::bundle::Bundle;
-use tessera_description::ids::{BatchId, JobId, WorkerId};
+use tessera_description::ids::{JobId, WorkerId};
 use tessera_description::job::{JobProgress, JobSettings, JobState};
 use tessera_film::Framebuffer;
 
@@ -13,6 +13,7 @@ use crate::checkpoint::Checkpoint;
 use crate::persist::JobRecord;
 use crate::scheduler::{Completed, PassQueue};
 
+use super::fence::JobFence;
 use super::SubmitError;
 
 /// The window over which samples per second are measured.
@@ -44,7 +45,8 @@ pub struct Job {
     pub(super) finished: Option<Instant>,
     /// (time, samples done) points for the recent rate.
     pub(super) rate: VecDeque<(Instant, u64)>,
-    pub(super) failures: HashMap<BatchId, u32>,
+    /// Tokens released, failures by identity, deliveries, audits and repairs.
+    pub(super) fence: JobFence,
     pub(super) nonfinite_samples: u64,
     /// Rendering time before a restart, counted against a time budget.
     pub(super) spent_before: Duration,
@@ -100,7 +102,7 @@ impl Job {
         if self.is_over() || self.state == JobState::Paused || self.spent(now) < limit {
             return false;
         }
-        self.queue.abandon();
+        self.abandon_all();
         self.state = JobState::Done;
         self.finished = Some(now);
         self.halted = Some("time budget");
@@ -224,7 +226,7 @@ impl Job {
             started: None,
             finished: None,
             rate: VecDeque::new(),
-            failures: HashMap::new(),
+            fence: JobFence::default(),
             nonfinite_samples: 0,
             spent_before: Duration::ZERO,
             halted: None,
@@ -232,7 +234,31 @@ impl Job {
     }
 
     pub(super) fn queue_leases_of(&self, worker: WorkerId) -> usize {
-        self.queue.leased_by(worker)
+        let audits =
+            self.fence.audits.iter().filter(|a| a.lease.as_ref().is_some_and(|l| l.worker == worker));
+        let repairs = self.fence.repairs.leased.iter().filter(|l| l.worker == worker);
+        self.queue.leased_by(worker) + audits.count() + repairs.count()
+    }
+
+    /// Drops every lease, audit and repair (the job is over); the tokens stay released, so
+    /// that answers still on their way are harmless duplicates.
+    pub(super) fn abandon_all(&mut self) {
+        let dropped = self.queue.abandon();
+        self.fence.release_all(dropped);
+        self.fence.abandon();
+    }
+
+    /// Ends the job if every batch is merged and its audits and repairs are resolved.
+    pub(super) fn finish_if_done(&mut self, now: Instant) {
+        if self.is_over() || !self.queue.is_finished() || !self.fence.is_idle() {
+            return;
+        }
+        self.state = JobState::Done;
+        self.finished = Some(now);
+        if self.settings.noise.is_some() && self.queue.samples_done() < self.queue.samples_total() {
+            self.halted = Some("noise target");
+        }
+        self.fence.abandon();
     }
 
     pub(super) fn after_merge(&mut self, nonfinite: u64, now: Instant) {
@@ -241,13 +267,7 @@ impl Job {
         while self.rate.len() > 2 && now.saturating_duration_since(self.rate[1].0) > RATE_WINDOW {
             self.rate.pop_front();
         }
-        if self.queue.is_finished() {
-            self.state = JobState::Done;
-            self.finished = Some(now);
-            if self.settings.noise.is_some() && self.queue.samples_done() < self.queue.samples_total() {
-                self.halted = Some("noise target");
-            }
-        }
+        // The job ends in `Farm::settle`, once its audits and repairs are resolved too.
     }
 }
 

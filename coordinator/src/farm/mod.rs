@@ -4,9 +4,16 @@
 
 mod adaptive;
 mod assign;
+pub mod audit;
 pub mod budget;
+mod entropy;
+mod fence;
+#[cfg(test)]
+mod hostile_tests;
 mod job;
+mod repair;
 mod restore;
+mod strikes;
 #[cfg(test)]
 mod tests;
 
@@ -20,11 +27,17 @@ pub use tessera_description::job::{JobProgress, JobSettings, JobState};
 use tessera_film::MergeError;
 
 pub use adaptive::{NOISE_FLOOR, NOISE_MIN_SAMPLES};
+pub use assign::BatchFailure;
+pub use audit::{AuditPolicy, DEFAULT_AUDIT_FRACTION};
+pub use entropy::Entropy;
 pub use job::{Job, Snapshot};
+pub use repair::REPAIR_IDS;
+pub use strikes::{FenceCounters, Standing, STRIKES_TO_QUARANTINE};
 
-use crate::scheduler::{BatchSpec, CompleteError, RestoreError};
+use crate::scheduler::{BatchSpec, CompleteError, LeaseToken, RestoreError};
 
-/// A batch failing this many times fails its job: the problem is not the worker.
+/// A batch failing on this many distinct identities fails its job: the problem is not the
+/// worker. (Failures from one identity count once, so a saboteur cannot fail others' jobs.)
 pub const MAX_BATCH_FAILURES: u32 = 3;
 /// A lease becomes a straggler, worth a speculative duplicate, after this many mean batch
 /// times...
@@ -37,6 +50,9 @@ const SPECULATE_MIN_AGE: Duration = Duration::from_secs(1);
 pub struct WorkerInfo {
     /// Name it gave.
     pub name: String,
+    /// Who it is, as the service established it (strikes and quarantine hold against
+    /// this, across reconnections).
+    pub identity: String,
     /// Render threads.
     pub threads: u32,
     /// Jobs whose scene it has received.
@@ -45,6 +61,9 @@ pub struct WorkerInfo {
     pub batches_done: u64,
     /// Last message received.
     last_seen: Instant,
+    /// Its leases were taken back for silence (until it is heard again): it is not
+    /// counted on to render audits.
+    silent: bool,
 }
 
 /// What a worker is handed: the job's scene first if it lacks it, then a batch.
@@ -64,6 +83,8 @@ pub struct Assignment {
     pub speculative: bool,
     /// The job wants even-sample sums back (it has a noise target).
     pub even_sums: bool,
+    /// The lease's token, which the worker must send back.
+    pub token: LeaseToken,
 }
 
 /// A worker's result for one batch, as the farm merges it.
@@ -79,6 +100,10 @@ pub struct BatchResult<'a> {
     pub even: Option<&'a [u64]>,
     /// Samples that came back NaN or infinite (counted as black).
     pub nonfinite: u64,
+    /// The attempt number the worker names; must be its lease's.
+    pub attempt: u32,
+    /// The lease token the worker sent back.
+    pub lease: &'a [u8],
 }
 
 /// Why a submission was refused.
@@ -143,9 +168,33 @@ pub enum RestoreJobError {
 /// Why a worker's result was refused.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum ResultError {
-    /// No such job.
+    /// No such job (any more: harmless).
     #[error("unknown {0}")]
     UnknownJob(JobId),
+    /// The sender is not a connected worker.
+    #[error("the sender is not a connected worker")]
+    NotConnected,
+    /// The sender holds no lease for it: refused, and a strike.
+    #[error("{job} {batch}: refused: {why}")]
+    Forged {
+        /// The job named.
+        job: JobId,
+        /// The batch named.
+        batch: BatchId,
+        /// What was wrong.
+        why: String,
+    },
+    /// From the lease's holder, but impossible (attempt number, non-finite count): the
+    /// batch goes back to the queue, and a strike.
+    #[error("{job} {batch}: {why}")]
+    Invalid {
+        /// The job.
+        job: JobId,
+        /// The batch.
+        batch: BatchId,
+        /// What is wrong.
+        why: String,
+    },
     /// Already merged or never cut (harmless: a duplicate).
     #[error(transparent)]
     Duplicate(#[from] CompleteError),
@@ -168,12 +217,33 @@ pub struct Farm {
     workers: BTreeMap<WorkerId, WorkerInfo>,
     next_job: u64,
     next_worker: u64,
+    /// Strikes and quarantine by identity.
+    standing: BTreeMap<String, Standing>,
+    counters: FenceCounters,
+    /// Lease tokens and audit choices (see `entropy.rs`).
+    entropy: Entropy,
+    audit: AuditPolicy,
 }
 
 impl Farm {
-    /// An empty farm.
+    /// An empty farm, its entropy keyed by the OS.
     pub fn new() -> Self {
         Farm::default()
+    }
+
+    /// An empty farm with reproducible tokens and audits (tests and benchmarks).
+    pub fn with_seed(seed: [u8; 32]) -> Self {
+        Farm { entropy: Entropy::from_seed(seed), ..Farm::default() }
+    }
+
+    /// Sets how often delivered batches are audited.
+    pub fn set_audit_policy(&mut self, policy: AuditPolicy) {
+        self.audit = policy;
+    }
+
+    /// How often delivered batches are audited.
+    pub fn audit_policy(&self) -> AuditPolicy {
+        self.audit
     }
 
     /// Validates and queues a job, in one step (tests and in-process tools; the service
@@ -237,11 +307,38 @@ impl Farm {
         ids.into_iter().map(|(_, id)| id).collect()
     }
 
-    /// Registers a worker.
+    /// Registers a worker whose identity is its name (in-process tools and tests).
     pub fn add_worker(&mut self, name: String, threads: u32, now: Instant) -> WorkerId {
+        self.register(name.clone(), name, threads, now)
+    }
+
+    /// Registers a worker of `identity`; refused, with the reason, if that identity is
+    /// quarantined.
+    pub fn add_worker_as(
+        &mut self,
+        identity: String,
+        name: String,
+        threads: u32,
+        now: Instant,
+    ) -> Result<WorkerId, String> {
+        if let Some(why) = self.standing.get(&identity).and_then(|s| s.quarantined.as_ref()) {
+            return Err(format!("worker {identity} is quarantined: {why}"));
+        }
+        Ok(self.register(identity, name, threads, now))
+    }
+
+    fn register(&mut self, identity: String, name: String, threads: u32, now: Instant) -> WorkerId {
         self.next_worker += 1;
         let id = WorkerId(self.next_worker);
-        let info = WorkerInfo { name, threads, scenes: HashSet::new(), batches_done: 0, last_seen: now };
+        let info = WorkerInfo {
+            name,
+            identity,
+            threads,
+            scenes: HashSet::new(),
+            batches_done: 0,
+            last_seen: now,
+            silent: false,
+        };
         self.workers.insert(id, info);
         id
     }
@@ -260,13 +357,17 @@ impl Farm {
     pub fn touch(&mut self, worker: WorkerId, now: Instant) {
         if let Some(w) = self.workers.get_mut(&worker) {
             w.last_seen = now;
+            w.silent = false;
         }
     }
 
-    /// A worker left: its leases go back to the queue at once.
-    pub fn remove_worker(&mut self, worker: WorkerId) -> usize {
+    /// A worker left: its leases go back to the queue at once. Jobs waiting only for
+    /// audits no connected worker can render any more end (see `settle`).
+    pub fn remove_worker(&mut self, worker: WorkerId, now: Instant) -> usize {
+        let n = self.take_back_all(worker, false);
         self.workers.remove(&worker);
-        self.jobs.values_mut().map(|j| j.queue.take_back_worker(worker).len()).sum()
+        self.settle(now);
+        n
     }
 
     /// Takes back the leases of workers silent for longer than `timeout` (frozen, or cut
@@ -279,13 +380,19 @@ impl Farm {
             .filter(|(_, w)| now.saturating_duration_since(w.last_seen) > timeout)
             .map(|(id, _)| *id)
             .collect();
-        silent
+        let expired = silent
             .into_iter()
             .filter_map(|id| {
-                let n: usize = self.jobs.values_mut().map(|j| j.queue.take_back_worker(id).len()).sum();
+                if let Some(w) = self.workers.get_mut(&id) {
+                    w.silent = true;
+                }
+                let n = self.take_back_all(id, true);
                 (n > 0).then_some((id, n))
             })
-            .collect()
+            .collect();
+        // Jobs waiting only for audits that no worker still heard from can render end.
+        self.settle(now);
+        expired
     }
 
     /// Pauses or resumes a job; `false` if there is no such job. A job that is over stays
@@ -306,7 +413,7 @@ impl Farm {
     pub fn cancel(&mut self, job_id: JobId, now: Instant) -> bool {
         let Some(job) = self.jobs.get_mut(&job_id) else { return false };
         if !job.is_over() {
-            job.queue.abandon();
+            job.abandon_all();
             job.state = JobState::Cancelled;
             job.finished = Some(now);
         }

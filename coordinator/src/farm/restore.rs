@@ -81,7 +81,7 @@ impl Job {
         }
         job.state = match record.state {
             JobState::Cancelled | JobState::Failed(_) => {
-                job.queue.abandon();
+                job.abandon_all();
                 job.finished = Some(now);
                 record.state
             }

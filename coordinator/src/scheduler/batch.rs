@@ -46,6 +46,28 @@ impl BatchSpec {
     }
 }
 
+/// The unguessable token of one lease: 16 bytes from the farm's CSPRNG (`farm::Entropy`).
+/// A result or failure counts only when it carries its lease's token, so a worker cannot
+/// answer, fail or steal a lease it was not given, even one for the same batch.
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+pub struct LeaseToken(pub [u8; 16]);
+
+impl LeaseToken {
+    /// Whether `wire` is this token, compared in constant time (its length is public).
+    pub fn matches(&self, wire: &[u8]) -> bool {
+        use subtle::ConstantTimeEq;
+        // Slices of other lengths compare unequal.
+        bool::from(self.0[..].ct_eq(wire))
+    }
+}
+
+impl std::fmt::Debug for LeaseToken {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        // Tokens are capabilities: never in logs.
+        f.write_str("LeaseToken(..)")
+    }
+}
+
 /// A batch leased to a worker.
 #[derive(Debug, Clone)]
 pub struct Lease {
@@ -57,6 +79,8 @@ pub struct Lease {
     pub attempt: u32,
     /// When it was leased.
     pub since: Instant,
+    /// What the holder must send back with its result or failure.
+    pub token: LeaseToken,
 }
 
 /// Why a result was not accepted.

@@ -12,7 +12,7 @@ use std::time::{Duration, Instant};
 use tessera_description::ids::{BatchId, WorkerId};
 use tessera_film::quadtree::Quad;
 
-pub use batch::{BatchSpec, CompleteError, Completed, Lease, Pass, RestoreError};
+pub use batch::{BatchSpec, CompleteError, Completed, Lease, LeaseToken, Pass, RestoreError};
 use cut::{Cut, FixedSpp, InRounds};
 
 /// Pixels in the first pass-one batch: small, so that the first mosaic shows at once.
@@ -41,6 +41,13 @@ pub struct PassQueue {
     /// Speculative second leases of batches in `leased` (stragglers near the end): the
     /// first result of either wins.
     spares: HashMap<BatchId, Lease>,
+    /// Leases taken back from silent workers: should such a worker wake up, its result
+    /// still counts (it holds the token), until the batch is merged.
+    late: HashMap<BatchId, Vec<Lease>>,
+    /// Pixels (y · width + x) whose pass-two batch is merged, in the paper's two passes:
+    /// with the count it says which samples a pixel holds (`merged_samples`), which a
+    /// repair must render again. Empty for jobs in rounds (their samples are a prefix).
+    pass_two_merged: Vec<u64>,
     /// Merged batches: all ids below `done_below`, and these above it.
     done_below: u64,
     done_above: BTreeSet<u64>,
@@ -73,6 +80,8 @@ impl PassQueue {
             retry: BTreeMap::new(),
             leased: HashMap::new(),
             spares: HashMap::new(),
+            late: HashMap::new(),
+            pass_two_merged: Vec::new(),
             done_below: 0,
             done_above: BTreeSet::new(),
             mean_batch_time: None,
@@ -197,6 +206,29 @@ impl PassQueue {
         self.samples_done += spec.sample_count();
         if spec.pass == Pass::One {
             self.pass_one_pixels_done += spec.quads.len() as u64;
+        } else if self.cut.rounds().is_none() {
+            let words = (u64::from(self.width) * u64::from(self.height)).div_ceil(64) as usize;
+            self.pass_two_merged.resize(words, 0);
+            for q in &spec.quads {
+                let i = u64::from(q.y) * u64::from(self.width) + u64::from(q.x);
+                self.pass_two_merged[(i / 64) as usize] |= 1 << (i % 64);
+            }
+        }
+    }
+
+    /// The sample indices pixel `(x, y)` holds when its framebuffer count is `count`: what
+    /// a repair renders again after resetting the pixel. Jobs in rounds hold a prefix
+    /// (pass one is merged before round 1, each round after the one before); in the two
+    /// passes, pass two may be merged before pass one, which `pass_two_merged` tells.
+    pub fn merged_samples(&self, x: u32, y: u32, count: u32) -> std::ops::Range<u32> {
+        if self.cut.rounds().is_some() || count == 0 {
+            return 0..count;
+        }
+        let i = u64::from(y) * u64::from(self.width) + u64::from(x);
+        let two = self.pass_two_merged.get((i / 64) as usize).is_some_and(|w| w & (1 << (i % 64)) != 0);
+        match (two, count == self.spp) {
+            (true, false) => 1..self.spp,
+            _ => 0..count,
         }
     }
 
@@ -235,7 +267,7 @@ impl PassQueue {
 
     /// Leases the next batch to `worker`: a batch taken back from another worker first
     /// (oldest first), else a new one off the walk.
-    pub fn lease_next(&mut self, worker: WorkerId, now: Instant) -> Option<&Lease> {
+    pub fn lease_next(&mut self, worker: WorkerId, token: LeaseToken, now: Instant) -> Option<&Lease> {
         let (spec, attempt) = match self.retry.pop_first() {
             Some((_, (spec, attempts))) => (spec, attempts + 1),
             None => match self.cut.cut(&mut self.next_id) {
@@ -244,7 +276,7 @@ impl PassQueue {
             },
         };
         let id = spec.id;
-        self.leased.insert(id, Lease { spec, worker, attempt, since: now });
+        self.leased.insert(id, Lease { spec, worker, attempt, since: now, token });
         self.leased.get(&id)
     }
 
@@ -262,6 +294,7 @@ impl PassQueue {
     pub fn lease_speculative(
         &mut self,
         worker: WorkerId,
+        token: LeaseToken,
         now: Instant,
         patience: u32,
         min_age: Duration,
@@ -276,7 +309,8 @@ impl PassQueue {
             .filter(|l| l.worker != worker && !self.spares.contains_key(&l.spec.id))
             .filter(|l| now.saturating_duration_since(l.since) >= wait)
             .min_by_key(|l| (l.since, l.spec.id))?;
-        let spare = Lease { spec: oldest.spec.clone(), worker, attempt: oldest.attempt + 1, since: now };
+        let spare =
+            Lease { spec: oldest.spec.clone(), worker, attempt: oldest.attempt + 1, since: now, token };
         let id = spare.spec.id;
         self.spares.insert(id, spare);
         self.spares.get(&id)
@@ -298,11 +332,43 @@ impl PassQueue {
         self.leased.get(&batch)
     }
 
+    /// The lease of `batch` that `worker` holds with `token` (the lease, its speculative
+    /// duplicate, or one taken back while the worker was silent), compared in constant
+    /// time; `None` if it holds none.
+    pub fn held(&self, batch: BatchId, worker: WorkerId, token: &[u8]) -> Option<&Lease> {
+        let late = self.late.get(&batch).into_iter().flatten();
+        self.leased.get(&batch).into_iter().chain(self.spares.get(&batch)).chain(late).find(|l| {
+            // Every candidate compared, so the time does not say which one matched.
+            let ok = l.token.matches(token);
+            ok && l.worker == worker
+        })
+    }
+
+    /// Every lease `worker` holds (leases, duplicates, late ones).
+    pub fn leases_of_worker(&self, worker: WorkerId) -> Vec<Lease> {
+        let late = self.late.values().flatten();
+        self.leased
+            .values()
+            .chain(self.spares.values())
+            .chain(late)
+            .filter(|l| l.worker == worker)
+            .cloned()
+            .collect()
+    }
+
+    /// Every lease of `batch` (the lease, its duplicate, late ones), e.g. those about to be
+    /// released by a merge.
+    pub fn leases_of(&self, batch: BatchId) -> Vec<Lease> {
+        let late = self.late.get(&batch).into_iter().flatten();
+        self.leased.get(&batch).into_iter().chain(self.spares.get(&batch)).chain(late).cloned().collect()
+    }
+
     /// Accepts the result of `batch` (from any attempt: all compute the same samples) and
     /// returns its spec for merging. A second result for the same batch is refused, which
     /// is what makes merging exactly-once.
     pub fn complete(&mut self, batch: BatchId, now: Instant) -> Result<BatchSpec, CompleteError> {
         let spare = self.spares.remove(&batch);
+        self.late.remove(&batch);
         let spec = match self.leased.remove(&batch) {
             Some(lease) => {
                 // The time of whichever lease delivered first: the spare's, if it won.
@@ -344,24 +410,65 @@ impl PassQueue {
         true
     }
 
+    /// Takes back the one lease `worker` holds on `batch` with `token` (it failed it): a
+    /// speculative duplicate is just dropped, the lease goes back to the queue (or its
+    /// duplicate takes over). `false` if it holds no such lease.
+    pub fn take_back_held(&mut self, batch: BatchId, worker: WorkerId, token: &[u8]) -> bool {
+        if self.spares.get(&batch).is_some_and(|l| l.worker == worker && l.token.matches(token)) {
+            self.spares.remove(&batch);
+            return true;
+        }
+        if self.leased.get(&batch).is_some_and(|l| l.worker == worker && l.token.matches(token)) {
+            return self.take_back(batch);
+        }
+        if let Some(late) = self.late.get_mut(&batch) {
+            let before = late.len();
+            late.retain(|l| !(l.worker == worker && l.token.matches(token)));
+            return late.len() < before;
+        }
+        false
+    }
+
     /// Takes back every lease held by `worker` (it left, or fell silent); returns them.
-    pub fn take_back_worker(&mut self, worker: WorkerId) -> Vec<BatchId> {
-        self.spares.retain(|_, l| l.worker != worker);
+    /// With `keep_late` (silence), its tokens stay valid until the batches merge.
+    pub fn take_back_worker(&mut self, worker: WorkerId, keep_late: bool) -> Vec<BatchId> {
+        let mut late: Vec<Lease> = Vec::new();
+        self.spares.retain(|_, l| {
+            let mine = l.worker == worker;
+            if mine {
+                late.push(l.clone());
+            }
+            !mine
+        });
         let mut ids: Vec<BatchId> =
             self.leased.values().filter(|l| l.worker == worker).map(|l| l.spec.id).collect();
         ids.sort();
         for id in &ids {
+            late.extend(self.leased.get(id).cloned());
             self.take_back(*id);
+        }
+        if keep_late {
+            for l in late {
+                self.late.entry(l.spec.id).or_default().push(l);
+            }
+        } else {
+            for v in self.late.values_mut() {
+                v.retain(|l| l.worker != worker);
+            }
+            self.late.retain(|_, v| !v.is_empty());
         }
         ids
     }
 
-    /// Drops every outstanding lease and everything not yet cut (the job was cancelled).
-    pub fn abandon(&mut self) {
-        self.leased.clear();
-        self.spares.clear();
+    /// Drops every outstanding lease and everything not yet cut (the job was cancelled);
+    /// returns the leases dropped, whose holders may still answer harmlessly.
+    pub fn abandon(&mut self) -> Vec<Lease> {
+        let mut dropped: Vec<Lease> = self.leased.drain().map(|(_, l)| l).collect();
+        dropped.extend(self.spares.drain().map(|(_, l)| l));
+        dropped.extend(self.late.drain().flat_map(|(_, v)| v));
         self.retry.clear();
         self.cut.abandon();
+        dropped
     }
 }
 

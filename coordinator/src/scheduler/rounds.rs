@@ -199,8 +199,11 @@ mod tests {
 mod queue_tests {
     use std::time::Instant;
 
-    use crate::scheduler::{BatchSpec, PassQueue};
+    use crate::scheduler::{BatchSpec, LeaseToken, PassQueue};
     use tessera_description::ids::WorkerId;
+
+    /// Any token: these tests are about rounds, not fencing.
+    const TOKEN: LeaseToken = LeaseToken([7; 16]);
 
     /// Leases and completes up to `limit` batches of a queue in rounds on one worker,
     /// scheduling every tile's next round for all its pixels; adds each batch's samples to
@@ -209,7 +212,7 @@ mod queue_tests {
         let now = Instant::now();
         let mut out = Vec::new();
         while out.len() < limit {
-            let Some(l) = q.lease_next(WorkerId(1), now) else { break };
+            let Some(l) = q.lease_next(WorkerId(1), TOKEN, now) else { break };
             let b = l.spec.clone();
             for p in &b.quads {
                 counts[(p.y * width + p.x) as usize] += b.samples.end - b.samples.start;

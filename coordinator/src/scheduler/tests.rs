@@ -3,9 +3,12 @@
 
 use super::*;
 
+/// Any token: these tests are about the queue, not fencing.
+const TOKEN: LeaseToken = LeaseToken([7; 16]);
+
 fn drain(q: &mut PassQueue, now: Instant) -> Vec<BatchSpec> {
     let mut out = Vec::new();
-    while let Some(l) = q.lease_next(WorkerId(1), now) {
+    while let Some(l) = q.lease_next(WorkerId(1), TOKEN, now) {
         out.push(l.spec.clone());
     }
     out
@@ -43,7 +46,8 @@ fn last_result_finishes_without_another_lease() {
         let mut counting = PassQueue::new(w, h, spp);
         let n = drain(&mut counting, now).len();
         let mut q = PassQueue::new(w, h, spp);
-        let ids: Vec<BatchId> = (0..n).map(|_| q.lease_next(WorkerId(1), now).unwrap().spec.id).collect();
+        let ids: Vec<BatchId> =
+            (0..n).map(|_| q.lease_next(WorkerId(1), TOKEN, now).unwrap().spec.id).collect();
         for id in ids {
             assert!(!q.is_finished());
             q.complete(id, now).unwrap();
@@ -68,9 +72,9 @@ fn pass_one_batches_grow_from_small_to_max() {
 fn duplicate_results_are_refused() {
     let now = Instant::now();
     let mut q = PassQueue::new(16, 16, 1);
-    let first = q.lease_next(WorkerId(1), now).unwrap().spec.id;
-    assert_eq!(q.take_back_worker(WorkerId(1)), vec![first]);
-    let again = q.lease_next(WorkerId(2), now).unwrap();
+    let first = q.lease_next(WorkerId(1), TOKEN, now).unwrap().spec.id;
+    assert_eq!(q.take_back_worker(WorkerId(1), false), vec![first]);
+    let again = q.lease_next(WorkerId(2), TOKEN, now).unwrap();
     assert_eq!((again.spec.id, again.attempt), (first, 2));
     // The silent worker's late result arrives first and wins...
     assert!(q.complete(first, now).is_ok());
@@ -82,18 +86,18 @@ fn duplicate_results_are_refused() {
 fn taken_back_batches_are_leased_again_oldest_first() {
     let now = Instant::now();
     let mut q = PassQueue::new(64, 64, 1);
-    let a = q.lease_next(WorkerId(1), now).unwrap().spec.id;
-    let b = q.lease_next(WorkerId(2), now).unwrap().spec.id;
-    let c = q.lease_next(WorkerId(1), now).unwrap().spec.id;
-    q.take_back_worker(WorkerId(1));
-    assert_eq!(q.lease_next(WorkerId(3), now).unwrap().spec.id, a);
-    assert_eq!(q.lease_next(WorkerId(3), now).unwrap().spec.id, c);
+    let a = q.lease_next(WorkerId(1), TOKEN, now).unwrap().spec.id;
+    let b = q.lease_next(WorkerId(2), TOKEN, now).unwrap().spec.id;
+    let c = q.lease_next(WorkerId(1), TOKEN, now).unwrap().spec.id;
+    q.take_back_worker(WorkerId(1), false);
+    assert_eq!(q.lease_next(WorkerId(3), TOKEN, now).unwrap().spec.id, a);
+    assert_eq!(q.lease_next(WorkerId(3), TOKEN, now).unwrap().spec.id, c);
     assert!(q.lease(b).is_some());
     // A result for a batch waiting in the retry queue is still accepted once.
-    let d = q.lease_next(WorkerId(4), now).unwrap().spec.id;
+    let d = q.lease_next(WorkerId(4), TOKEN, now).unwrap().spec.id;
     q.take_back(d);
     assert!(q.complete(d, now).is_ok());
-    assert_ne!(q.lease_next(WorkerId(4), now).unwrap().spec.id, d);
+    assert_ne!(q.lease_next(WorkerId(4), TOKEN, now).unwrap().spec.id, d);
 }
 
 /// Stragglers: at the end of the last pass an idle worker gets a duplicate of the
@@ -103,11 +107,11 @@ fn stragglers_get_speculative_duplicates_at_the_end() {
     let t0 = Instant::now();
     let ms = Duration::from_millis;
     let mut q = PassQueue::new(8, 8, 1);
-    let first = q.lease_next(WorkerId(1), t0).unwrap().spec.id;
+    let first = q.lease_next(WorkerId(1), TOKEN, t0).unwrap().spec.id;
     // Not at the end of the pass: no duplicates while there is new work.
-    assert!(q.lease_speculative(WorkerId(2), t0 + ms(5000), 2, ms(100)).is_none());
+    assert!(q.lease_speculative(WorkerId(2), TOKEN, t0 + ms(5000), 2, ms(100)).is_none());
     let mut rest = Vec::new();
-    while let Some(l) = q.lease_next(WorkerId(2), t0) {
+    while let Some(l) = q.lease_next(WorkerId(2), TOKEN, t0) {
         rest.push(l.spec.id);
     }
     for id in &rest {
@@ -116,12 +120,12 @@ fn stragglers_get_speculative_duplicates_at_the_end() {
     assert!(q.all_leased());
     // Mean batch time 10 ms, patience 2: the straggler qualifies after 20 ms, but
     // never before `min_age`; and never as a duplicate for its own holder.
-    assert!(q.lease_speculative(WorkerId(2), t0 + ms(50), 2, ms(100)).is_none());
-    assert!(q.lease_speculative(WorkerId(1), t0 + ms(500), 2, ms(100)).is_none());
-    let spare = q.lease_speculative(WorkerId(2), t0 + ms(500), 2, ms(100)).unwrap();
+    assert!(q.lease_speculative(WorkerId(2), TOKEN, t0 + ms(50), 2, ms(100)).is_none());
+    assert!(q.lease_speculative(WorkerId(1), TOKEN, t0 + ms(500), 2, ms(100)).is_none());
+    let spare = q.lease_speculative(WorkerId(2), TOKEN, t0 + ms(500), 2, ms(100)).unwrap();
     assert_eq!((spare.spec.id, spare.attempt), (first, 2));
     // One duplicate per batch.
-    assert!(q.lease_speculative(WorkerId(3), t0 + ms(600), 2, ms(100)).is_none());
+    assert!(q.lease_speculative(WorkerId(3), TOKEN, t0 + ms(600), 2, ms(100)).is_none());
     assert_eq!(q.leased_by(WorkerId(2)), 1);
     assert!(q.complete(first, t0 + ms(510)).is_ok());
     assert_eq!(q.complete(first, t0 + ms(900)), Err(CompleteError::NotOutstanding { batch: first }));
@@ -135,15 +139,15 @@ fn stragglers_get_speculative_duplicates_at_the_end() {
 fn a_duplicate_takes_over_when_its_original_is_taken_back() {
     let t0 = Instant::now();
     let mut q = PassQueue::new(4, 4, 1);
-    let id = q.lease_next(WorkerId(1), t0).unwrap().spec.id;
-    assert!(q.lease_next(WorkerId(1), t0).is_none());
-    q.lease_speculative(WorkerId(2), t0 + Duration::from_secs(1), 2, Duration::ZERO).unwrap();
-    q.take_back_worker(WorkerId(3));
-    assert_eq!(q.take_back_worker(WorkerId(1)), vec![id]);
+    let id = q.lease_next(WorkerId(1), TOKEN, t0).unwrap().spec.id;
+    assert!(q.lease_next(WorkerId(1), TOKEN, t0).is_none());
+    q.lease_speculative(WorkerId(2), TOKEN, t0 + Duration::from_secs(1), 2, Duration::ZERO).unwrap();
+    q.take_back_worker(WorkerId(3), false);
+    assert_eq!(q.take_back_worker(WorkerId(1), false), vec![id]);
     assert_eq!(q.lease(id).unwrap().worker, WorkerId(2));
-    assert!(q.lease_next(WorkerId(4), t0).is_none(), "nothing went back to the retry queue");
-    q.lease_speculative(WorkerId(4), t0 + Duration::from_secs(2), 2, Duration::ZERO).unwrap();
-    assert!(q.take_back_worker(WorkerId(4)).is_empty());
+    assert!(q.lease_next(WorkerId(4), TOKEN, t0).is_none(), "nothing went back to the retry queue");
+    q.lease_speculative(WorkerId(4), TOKEN, t0 + Duration::from_secs(2), 2, Duration::ZERO).unwrap();
+    assert!(q.take_back_worker(WorkerId(4), false).is_empty());
     assert_eq!(q.lease(id).unwrap().worker, WorkerId(2));
     q.complete(id, t0).unwrap();
     assert!(q.is_finished());
@@ -158,8 +162,9 @@ fn restore_resumes_exactly_the_unmerged_batches() {
         let mut full = PassQueue::new(w, h, spp);
         let all = drain(&mut full, now);
         let mut q = PassQueue::new(w, h, spp);
-        let leased: Vec<BatchSpec> =
-            (0..keep.min(all.len())).map(|_| q.lease_next(WorkerId(1), now).unwrap().spec.clone()).collect();
+        let leased: Vec<BatchSpec> = (0..keep.min(all.len()))
+            .map(|_| q.lease_next(WorkerId(1), TOKEN, now).unwrap().spec.clone())
+            .collect();
         // Merge out of order: every other batch, so there are gaps.
         for b in leased.iter().step_by(2) {
             q.complete(b.id, now).unwrap();

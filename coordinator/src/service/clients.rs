@@ -78,7 +78,10 @@ impl CoordinatorService {
                 threads: w.threads,
                 batches_in_flight: farm.in_flight(id) as u32,
                 batches_done: w.batches_done,
+                strikes: farm.strikes(id),
+                ..Default::default()
             })
+            .chain(super::workers::quarantined_to_wire(&farm))
             .collect();
         Ok(Response::new(pb::StatusResponse { jobs, workers }))
     }

@@ -472,8 +472,15 @@ mod tests {
         let w = service.farm().add_worker("w".into(), 1, Instant::now());
         let a = service.farm().assign(w, Instant::now()).unwrap();
         let sums = vec![0; a.batch.quads.len() * 3];
-        let r =
-            crate::farm::BatchResult { job: id, batch: a.batch.id, sums: &sums, even: None, nonfinite: 0 };
+        let r = crate::farm::BatchResult {
+            job: id,
+            batch: a.batch.id,
+            sums: &sums,
+            even: None,
+            nonfinite: 0,
+            attempt: a.attempt,
+            lease: &a.token.0,
+        };
         service.farm().complete(w, &r, Instant::now()).unwrap();
         assert_eq!(service.checkpoint(true).await.unwrap(), 1);
         let loaded = lock(&store).load();

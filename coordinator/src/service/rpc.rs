@@ -20,6 +20,25 @@ use super::CoordinatorService;
 /// A server stream of one message type.
 pub(super) type BoxStream<T> = Pin<Box<dyn Stream<Item = Result<T, Status>> + Send + 'static>>;
 
+/// Who a worker is, for strikes and quarantine (which outlive its connection): given the
+/// name its `Hello` carries, the identity it is held to. With authentication, the
+/// principal of its token or client certificate (so give each worker host its own token
+/// or certificate: workers that share one are quarantined together); without, the remote
+/// IP address and that name, so a quarantined worker that reconnects from the same host
+/// under the same name is refused.
+pub(super) fn worker_identity<T>(
+    request: &Request<T>,
+    authenticated: bool,
+) -> impl FnOnce(&str) -> String + Send + 'static {
+    let principal = if authenticated { auth::principal_name(request) } else { None };
+    let ip = request.remote_addr().map(|a| a.ip());
+    move |name: &str| match (principal, ip) {
+        (Some(p), _) => format!("principal {p}"),
+        (None, Some(ip)) => format!("{ip}/{name}"),
+        (None, None) => format!("local/{name}"),
+    }
+}
+
 #[tonic::async_trait]
 impl Coordinator for CoordinatorService {
     type FetchImageStream = BoxStream<pb::ImageChunk>;
@@ -103,11 +122,12 @@ impl Workers for CoordinatorService {
         request: Request<Streaming<pb::WorkerMessage>>,
     ) -> Result<Response<Self::WorkStream>, Status> {
         auth::require(&request, Action::Work)?;
+        let identity = worker_identity(&request, self.auth.required());
         let inbound = request.into_inner();
         // Room for a full credit's worth of batches plus scenes, so that handing out work
         // never waits on the worker reading.
         let (tx, rx) = mpsc::channel(MAX_CREDIT as usize + 16);
-        tokio::spawn(self.clone().serve_worker(inbound, tx));
+        tokio::spawn(self.clone().serve_worker(inbound, tx, identity));
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }
 }

@@ -449,8 +449,15 @@ mod tests {
         let w = service.farm().add_worker("w".into(), 1, Instant::now());
         let lease = service.farm().assign(w, Instant::now()).unwrap();
         let sums = vec![1 << 24; lease.batch.quads.len() * 3];
-        let r =
-            crate::farm::BatchResult { job, batch: lease.batch.id, sums: &sums, even: None, nonfinite: 0 };
+        let r = crate::farm::BatchResult {
+            job,
+            batch: lease.batch.id,
+            sums: &sums,
+            even: None,
+            nonfinite: 0,
+            attempt: lease.attempt,
+            lease: &lease.token.0,
+        };
         service.farm().complete(w, &r, Instant::now()).unwrap();
         service.notify();
         let (pa, pb) = tokio::join!(next_pixels(&mut a), next_pixels(&mut b));

@@ -1,5 +1,7 @@
 //! The work stream: one task per worker, handing out scenes and batches while the worker
-//! has credit, and taking its results, failures and heartbeats.
+//! has credit, and taking its results, failures and heartbeats. Every batch carries its
+//! lease's token; an answer counts only from its holder with that token (the farm checks),
+//! anything else is a strike, and a quarantined identity is disconnected and refused.
 
 use std::time::Instant;
 
@@ -14,7 +16,7 @@ use tracing::{debug, info, warn};
 use tessera_proto::convert;
 
 use super::CoordinatorService;
-use crate::farm::{BatchResult, ResultError};
+use crate::farm::{AuditPolicy, BatchFailure, BatchResult, Farm, FenceCounters, ResultError, Standing};
 
 /// The most batches a worker may ask to hold at once; bounds the coordinator's lease table.
 pub const MAX_CREDIT: u32 = 256;
@@ -25,6 +27,7 @@ impl CoordinatorService {
         self,
         mut inbound: Streaming<pb::WorkerMessage>,
         tx: mpsc::Sender<Result<pb::CoordinatorMessage, Status>>,
+        identity: impl FnOnce(&str) -> String,
     ) {
         let refuse =
             |reason: String| pb::CoordinatorMessage { msg: Some(Out::Refused(pb::Refused { reason })) };
@@ -72,18 +75,34 @@ impl CoordinatorService {
             return;
         }
         let threads = hello.threads.clamp(1, 4096);
-        let id = self.farm().add_worker(hello.name.clone(), threads, Instant::now());
-        info!(worker = %id, name = %hello.name, threads, "worker joined");
+        let identity = identity(&hello.name);
+        let joined = self.farm().add_worker_as(identity.clone(), hello.name.clone(), threads, Instant::now());
+        let id = match joined {
+            Ok(id) => id,
+            Err(reason) => {
+                warn!(%identity, "{reason}; refused");
+                let _ = tx.send(Ok(refuse(reason))).await;
+                return;
+            }
+        };
+        info!(worker = %id, name = %hello.name, %identity, threads, "worker joined");
         let welcome =
             pb::Welcome { worker_id: id.0, heartbeat_interval_ms: self.timing.heartbeat.as_millis() as u32 };
         if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Welcome(welcome)) })).await.is_err() {
-            self.farm().remove_worker(id);
+            self.farm().remove_worker(id, Instant::now());
             return;
         }
         let mut credit = hello.credit.min(MAX_CREDIT);
         let mut changed = self.subscribe();
         let mut stop = self.shutting_down();
         let end = loop {
+            // Quarantined by its own answer or by another connection's (an audit, strikes).
+            let quarantined = self.farm().quarantined(id).map(str::to_owned);
+            if let Some(why) = quarantined {
+                warn!(worker = %id, %identity, "quarantined: {why}; disconnecting it");
+                let _ = tx.send(Ok(refuse(format!("worker {identity} is quarantined: {why}")))).await;
+                break "quarantined";
+            }
             // Hand out work while the worker wants it and there is some.
             while credit > 0 {
                 let Some(a) = self.farm().assign(id, Instant::now()) else { break };
@@ -113,7 +132,7 @@ impl CoordinatorService {
                     sample_end: a.batch.samples.end,
                     pixels,
                     even_sums: a.even_sums,
-                    lease: Default::default(),
+                    lease: a.token.0.to_vec(),
                 };
                 if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Batch(batch)) })).await.is_err() {
                     break;
@@ -140,17 +159,41 @@ impl CoordinatorService {
                 _ = tx.closed() => break "lost",
             }
         };
-        let n = self.farm().remove_worker(id);
+        let n = self.farm().remove_worker(id, Instant::now());
         info!(worker = %id, batches_taken_back = n, "worker left ({end})");
         self.notify();
     }
 
     /// Applies one worker message; `Err` is a reason to disconnect the worker.
     fn handle(&self, id: WorkerId, m: pb::WorkerMessage, credit: &mut u32) -> Result<(), String> {
+        let heartbeat = matches!(m.msg, Some(In::Heartbeat(_)));
+        let before = self.farm().fence_counters();
+        let outcome = self.apply(id, m, credit);
+        let after = self.farm().fence_counters();
+        if after.liars > before.liars || after.quarantines > before.quarantines {
+            for (identity, s) in self.farm().standings().iter().filter(|(_, s)| s.quarantined.is_some()) {
+                debug!(%identity, strikes = s.strikes, "quarantined identity");
+            }
+            warn!(
+                liars = after.liars,
+                quarantines = after.quarantines,
+                repaired_pixels = after.repaired_pixels,
+                "a worker identity was quarantined; what it delivered is being rendered again"
+            );
+        }
+        if after.audits_mismatched > before.audits_mismatched {
+            warn!(worker = %id, "an audit found sums that differ between two workers; a third decides");
+        }
+        if !heartbeat {
+            self.notify();
+        }
+        outcome
+    }
+
+    fn apply(&self, id: WorkerId, m: pb::WorkerMessage, credit: &mut u32) -> Result<(), String> {
         match m.msg {
             Some(In::Results(r)) => {
                 let now = Instant::now();
-                let mut merged = false;
                 for res in r.results {
                     let (job, batch) = (JobId(res.job_id), BatchId(res.batch_id));
                     // Even sums count only for jobs that keep them; the farm knows which.
@@ -160,36 +203,75 @@ impl CoordinatorService {
                         sums: &res.sums,
                         even: Some(&res.even_sums),
                         nonfinite: res.nonfinite_samples,
+                        attempt: res.attempt,
+                        lease: &res.lease,
                     };
                     let done = self.farm().complete(id, &result, now);
                     match done {
-                        Ok(()) => merged = true,
+                        Ok(()) => {}
                         Err(ResultError::Duplicate(e)) => {
                             debug!(worker = %id, %job, "dropped duplicate: {e}")
                         }
                         Err(ResultError::UnknownJob(j)) => debug!(worker = %id, "result for unknown {j}"),
-                        Err(e @ ResultError::Malformed { .. }) => {
-                            self.notify();
+                        Err(e @ ResultError::Forged { .. }) => warn!(worker = %id, "strike: {e}"),
+                        Err(ResultError::NotConnected) => return Err("not a connected worker".into()),
+                        Err(e @ (ResultError::Malformed { .. } | ResultError::Invalid { .. })) => {
                             return Err(format!("malformed result: {e}"));
                         }
                     }
                 }
                 *credit = credit.saturating_add(r.credit).min(MAX_CREDIT);
-                if merged {
-                    self.notify();
-                }
                 Ok(())
             }
+            // Heartbeats name no leases: they only keep the worker's leases from expiring.
             Some(In::Heartbeat(_)) => Ok(()),
             Some(In::Failed(f)) => {
-                warn!(worker = %id, job = f.job_id, batch = f.batch_id, "batch failed: {}", f.error);
-                self.farm().fail_batch(JobId(f.job_id), BatchId(f.batch_id), &f.error, Instant::now());
+                warn!(worker = %id, job = f.job_id, batch = f.batch_id, scene_refused = f.scene_refused, "batch failed: {}", f.error);
+                let failure = BatchFailure {
+                    job: JobId(f.job_id),
+                    batch: BatchId(f.batch_id),
+                    attempt: f.attempt,
+                    lease: &f.lease,
+                    scene_refused: f.scene_refused,
+                    error: &f.error,
+                };
+                if let Err(e) = self.farm().fail_batch(id, &failure, Instant::now()) {
+                    warn!(worker = %id, "strike: {e}");
+                }
                 *credit = credit.saturating_add(f.credit).min(MAX_CREDIT);
-                self.notify();
                 Ok(())
             }
             Some(In::Hello(_)) => Err("Hello sent twice".into()),
             None => Err("empty message".into()),
         }
     }
+
+    /// Sets how often delivered batches are audited (`coordinator --audit-fraction`).
+    pub fn set_audit_policy(&self, policy: AuditPolicy) {
+        self.farm().set_audit_policy(policy);
+    }
+
+    /// The figures of fencing and auditing so far (strikes, quarantines, audits, repairs).
+    pub fn fence_counters(&self) -> FenceCounters {
+        self.farm().fence_counters()
+    }
+
+    /// The standing of a worker identity, if it has strikes or a quarantine.
+    pub fn standing(&self, identity: &str) -> Option<Standing> {
+        self.farm().standing(identity).cloned()
+    }
+}
+
+/// The quarantined identities, as Status lists them (after their workers' entries).
+pub(super) fn quarantined_to_wire(farm: &Farm) -> impl Iterator<Item = pb::WorkerStatus> + '_ {
+    farm.standings().iter().filter_map(|(identity, s)| {
+        s.quarantined.as_ref().map(|why| pb::WorkerStatus {
+            worker_id: 0,
+            name: identity.clone(),
+            strikes: s.strikes,
+            quarantined: true,
+            quarantine_reason: why.clone(),
+            ..Default::default()
+        })
+    })
 }
