@@ -536,3 +536,24 @@ fn a_local_render_takes_only_its_own_secret() {
     render.signal(2);
     render.wait(Duration::from_secs(30));
 }
+
+/// A worker with a wrong token or role is told so once and exits, rather than retrying
+/// forever.
+#[test]
+fn a_worker_with_a_refused_token_says_so_and_exits() {
+    let s = Secrets::new();
+    let data = s.path("data");
+    let (_coord, url) = tls_coordinator(&s, &data, &[]);
+    let ca = s.ca();
+    for (token, says) in
+        [("not-a-token-of-this-farm-at-all", "unknown token"), (VIEWER, "viewer `wall` may not work")]
+    {
+        let mut w = Proc::spawn_with_env(
+            &["worker", "--coordinator", &url, "--ca", &ca, "--threads", "1"],
+            &[("TESSERA_TOKEN", token)],
+        );
+        assert!(!w.wait(Duration::from_secs(30)).success());
+        let err = w.stderr.lock().unwrap().clone();
+        assert!(err.contains("the coordinator refused") && err.contains(says), "{err}");
+    }
+}

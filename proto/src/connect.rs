@@ -58,6 +58,20 @@ pub enum ConnectError {
     Lost(String),
 }
 
+impl ConnectError {
+    /// A call that failed at `url`: refused credentials (`UNAUTHENTICATED`,
+    /// `PERMISSION_DENIED`) are `Refused`, which retrying does not change; anything else is
+    /// `Unreachable`.
+    pub fn from_call(url: &str, status: &tonic::Status) -> ConnectError {
+        match status.code() {
+            tonic::Code::Unauthenticated | tonic::Code::PermissionDenied => {
+                ConnectError::Refused(status.message().to_string())
+            }
+            _ => ConnectError::Unreachable { url: url.to_string(), reason: status.message().to_string() },
+        }
+    }
+}
+
 /// HTTP/2 keep-alive pings, so that a silent peer is noticed on an idle connection.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct KeepAlive {
