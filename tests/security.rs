@@ -557,3 +557,49 @@ fn a_worker_with_a_refused_token_says_so_and_exits() {
         assert!(err.contains("the coordinator refused") && err.contains(says), "{err}");
     }
 }
+
+/// The in-process harness serves TLS with mutual certificates too: a fake worker with a
+/// worker certificate renders a job submitted with an admin certificate.
+#[test]
+fn the_harness_serves_mutual_tls() {
+    use tessera_harness::{FakeWorker, Harness, Security, ServeStats};
+    use tessera_proto::credentials::ServerTls;
+    let s = Secrets::new();
+    let server =
+        ServerTls::read(&s.path("pki/server.pem"), &s.path("pki/server.key"), Some(&s.path("pki/ca.pem")))
+            .unwrap();
+    let ca = s.path("pki/ca.pem");
+    let identity = |name: &str| {
+        ClientTls::new()
+            .ca_file(&ca)
+            .unwrap()
+            .identity_files(&s.path(&format!("pki/{name}.pem")), &s.path(&format!("pki/{name}.key")))
+            .unwrap()
+    };
+    runtime().block_on(async {
+        let security = Security {
+            auth: tessera_coordinator::Auth::new(None, true),
+            tls: Some(server),
+            client_tls: identity("root"),
+            host: Some("localhost".into()),
+            ..Security::default()
+        };
+        let h = Harness::start_secured(tessera_coordinator::Timing::default(), security).await.unwrap();
+        assert!(h.url.starts_with("https://localhost:"), "{}", h.url);
+        let worker = EndpointConfig::new(&h.url).unwrap().tls(identity("node-1")).unwrap();
+        let ch = tessera_harness::connect_with(&worker).await.unwrap();
+        let w = FakeWorker::connect(&ch, "node-1", 2).await.unwrap();
+        let task = tokio::spawn(async move {
+            let _ = w.serve(Duration::ZERO, std::sync::Arc::new(ServeStats::new(false))).await;
+        });
+        let job = h.submit_small(16, 16, 2).await.unwrap();
+        assert!(h.wait_over(job).await.unwrap().state == tessera_description::job::JobState::Done);
+        // The worker's certificate may not submit.
+        let settings = pb::RenderSettings { spp: 1, width: 8, height: 8, ..Default::default() };
+        let e = tessera_harness::submit(&ch, "small.toml", tessera_harness::SMALL_SCENE, settings)
+            .await
+            .unwrap_err();
+        assert!(e.to_string().contains("worker `node-1` may not submit"), "{e}");
+        task.abort();
+    });
+}

@@ -175,9 +175,13 @@ impl EndpointConfig {
         let endpoint = match &self.tls {
             // The handshake verifies the coordinator; a failure is an error, never a
             // fallback to plain text.
-            Some(tls) => endpoint
-                .tls_config(tls.config())
-                .map_err(|e| ConnectError::BadAddress { url: self.url.clone(), reason: error_chain(&e) })?,
+            Some(tls) => endpoint.tls_config(tls.config()).map_err(|e| ConnectError::BadAddress {
+                url: self.url.clone(),
+                reason: format!(
+                    "its TLS settings (the CA or the client certificate) cannot be used: {}",
+                    error_chain(&e)
+                ),
+            })?,
             None => endpoint,
         };
         Ok(match self.keep_alive {
