@@ -272,6 +272,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
     );
     let reaper = service.spawn_reaper();
     let url = format!("http://{addr}");
+    tracing::info!("local coordinator on {addr}, for this render's secret holders only");
     let mut workers = Workers::spawn(&url, opts.workers, opts.threads, &secrets.worker)?;
     let viewer = tessera_proto::credentials::Token::new(&secrets.viewer, "the render's secret")?;
     let endpoint = tessera_proto::connect::EndpointConfig::new(&url)?.token(Some(viewer));

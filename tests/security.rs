@@ -451,3 +451,155 @@ fn certs_keys_are_private_and_never_overwritten() {
         "{o:?}"
     );
 }
+
+/// The children of process `pid`.
+fn children(pid: u32) -> Vec<u32> {
+    let mut found = Vec::new();
+    for entry in std::fs::read_dir("/proc").unwrap().flatten() {
+        let Ok(child) = entry.file_name().to_string_lossy().parse::<u32>() else { continue };
+        let Ok(stat) = std::fs::read_to_string(entry.path().join("stat")) else { continue };
+        // After the command name in parentheses: state, then the parent's pid.
+        let ppid = stat.rsplit(')').next().and_then(|rest| rest.split_whitespace().nth(1));
+        if ppid == Some(pid.to_string().as_str()) {
+            found.push(child);
+        }
+    }
+    found
+}
+
+/// `tessera render`'s loopback coordinator takes only its own secret: a client without it
+/// (another user of the machine) can neither read nor join; the workers get the secret in
+/// their environment, not on their command line, and it lets them work and nothing else.
+#[test]
+fn a_local_render_takes_only_its_own_secret() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("slow.png");
+    let scene = small_scene();
+    let mut render = Proc::spawn(&[
+        "render",
+        scene.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--workers",
+        "1",
+        "--threads",
+        "1",
+        "--spp",
+        "100000",
+    ]);
+    let line = render.wait_for("local coordinator on ", Duration::from_secs(30));
+    let addr = line.rsplit("coordinator on ").next().unwrap().split(',').next().unwrap().to_string();
+    let url = format!("http://{addr}");
+    let rt = runtime();
+    rt.block_on(async {
+        for token in [None, Some("a-guess-at-the-secret-0123456789")] {
+            let mut c = client(&url, None, token).await.unwrap();
+            let (code, _) = status_code(c.status(pb::StatusRequest { job_id: 0 }).await);
+            assert_eq!(code, Code::Unauthenticated);
+            let hello = pb::WorkerMessage {
+                msg: Some(pb::worker_message::Msg::Hello(pb::Hello {
+                    protocol_version: pb::ProtocolVersion::Current as i32,
+                    renderer_version: tessera_description::RENDERER_VERSION.into(),
+                    name: "intruder".into(),
+                    threads: 1,
+                    credit: 2,
+                })),
+            };
+            let (code, _) = status_code(c.work(tokio_stream::iter([hello])).await);
+            assert_eq!(code, Code::Unauthenticated);
+        }
+    });
+    // The worker's secret: in its environment, not its command line; good for work only.
+    let start = std::time::Instant::now();
+    let worker = loop {
+        if let Some(&w) = children(render.pid()).first() {
+            break w;
+        }
+        assert!(start.elapsed() < Duration::from_secs(10), "no worker process");
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let environ = std::fs::read(format!("/proc/{worker}/environ")).unwrap();
+    let secret = environ
+        .split(|b| *b == 0)
+        .find_map(|kv| kv.strip_prefix(b"TESSERA_TOKEN="))
+        .map(|v| String::from_utf8(v.to_vec()).unwrap())
+        .expect("the worker has its secret in its environment");
+    assert_eq!(secret.len(), 64, "256 bits as hex");
+    let cmdline = std::fs::read(format!("/proc/{worker}/cmdline")).unwrap();
+    assert!(!String::from_utf8_lossy(&cmdline).contains(&secret), "the secret is on a command line");
+    rt.block_on(async {
+        let mut c = client(&url, None, Some(&secret)).await.unwrap();
+        let (code, _) = status_code(c.status(pb::StatusRequest { job_id: 0 }).await);
+        assert_eq!(code, Code::PermissionDenied);
+    });
+    drop(rt);
+    render.signal(2);
+    render.wait(Duration::from_secs(30));
+}
+
+/// A worker with a wrong token or role is told so once and exits, rather than retrying
+/// forever.
+#[test]
+fn a_worker_with_a_refused_token_says_so_and_exits() {
+    let s = Secrets::new();
+    let data = s.path("data");
+    let (_coord, url) = tls_coordinator(&s, &data, &[]);
+    let ca = s.ca();
+    for (token, says) in
+        [("not-a-token-of-this-farm-at-all", "unknown token"), (VIEWER, "viewer `wall` may not work")]
+    {
+        let mut w = Proc::spawn_with_env(
+            &["worker", "--coordinator", &url, "--ca", &ca, "--threads", "1"],
+            &[("TESSERA_TOKEN", token)],
+        );
+        assert!(!w.wait(Duration::from_secs(30)).success());
+        let err = w.stderr.lock().unwrap().clone();
+        assert!(err.contains("the coordinator refused") && err.contains(says), "{err}");
+    }
+}
+
+/// The in-process harness serves TLS with mutual certificates too: a fake worker with a
+/// worker certificate renders a job submitted with an admin certificate.
+#[test]
+fn the_harness_serves_mutual_tls() {
+    use tessera_harness::{FakeWorker, Harness, Security, ServeStats};
+    use tessera_proto::credentials::ServerTls;
+    let s = Secrets::new();
+    let server =
+        ServerTls::read(&s.path("pki/server.pem"), &s.path("pki/server.key"), Some(&s.path("pki/ca.pem")))
+            .unwrap();
+    let ca = s.path("pki/ca.pem");
+    let identity = |name: &str| {
+        ClientTls::new()
+            .ca_file(&ca)
+            .unwrap()
+            .identity_files(&s.path(&format!("pki/{name}.pem")), &s.path(&format!("pki/{name}.key")))
+            .unwrap()
+    };
+    runtime().block_on(async {
+        let security = Security {
+            auth: tessera_coordinator::Auth::new(None, true),
+            tls: Some(server),
+            client_tls: identity("root"),
+            host: Some("localhost".into()),
+            ..Security::default()
+        };
+        let h = Harness::start_secured(tessera_coordinator::Timing::default(), security).await.unwrap();
+        assert!(h.url.starts_with("https://localhost:"), "{}", h.url);
+        let worker = EndpointConfig::new(&h.url).unwrap().tls(identity("node-1")).unwrap();
+        let ch = tessera_harness::connect_with(&worker).await.unwrap();
+        let w = FakeWorker::connect(&ch, "node-1", 2).await.unwrap();
+        let task = tokio::spawn(async move {
+            let _ = w.serve(Duration::ZERO, std::sync::Arc::new(ServeStats::new(false))).await;
+        });
+        let job = h.submit_small(16, 16, 2).await.unwrap();
+        assert!(h.wait_over(job).await.unwrap().state == tessera_description::job::JobState::Done);
+        // The worker's certificate may not submit.
+        let settings = pb::RenderSettings { spp: 1, width: 8, height: 8, ..Default::default() };
+        let e = tessera_harness::submit(&ch, "small.toml", tessera_harness::SMALL_SCENE, settings)
+            .await
+            .unwrap_err();
+        assert!(e.to_string().contains("worker `node-1` may not submit"), "{e}");
+        task.abort();
+    });
+}

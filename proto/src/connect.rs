@@ -60,6 +60,20 @@ pub enum ConnectError {
     Lost(String),
 }
 
+impl ConnectError {
+    /// A call that failed at `url`: refused credentials (`UNAUTHENTICATED`,
+    /// `PERMISSION_DENIED`) are `Refused`, which retrying does not change; anything else is
+    /// `Unreachable`.
+    pub fn from_call(url: &str, status: &tonic::Status) -> ConnectError {
+        match status.code() {
+            tonic::Code::Unauthenticated | tonic::Code::PermissionDenied => {
+                ConnectError::Refused(status.message().to_string())
+            }
+            _ => ConnectError::Unreachable { url: url.to_string(), reason: status.message().to_string() },
+        }
+    }
+}
+
 /// HTTP/2 keep-alive pings, so that a silent peer is noticed on an idle connection.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub struct KeepAlive {
@@ -163,9 +177,13 @@ impl EndpointConfig {
         let endpoint = match &self.tls {
             // The handshake verifies the coordinator; a failure is an error, never a
             // fallback to plain text.
-            Some(tls) => endpoint
-                .tls_config(tls.config())
-                .map_err(|e| ConnectError::BadAddress { url: self.url.clone(), reason: error_chain(&e) })?,
+            Some(tls) => endpoint.tls_config(tls.config()).map_err(|e| ConnectError::BadAddress {
+                url: self.url.clone(),
+                reason: format!(
+                    "its TLS settings (the CA or the client certificate) cannot be used: {}",
+                    error_chain(&e)
+                ),
+            })?,
             None => endpoint,
         };
         Ok(match self.keep_alive {

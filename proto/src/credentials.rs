@@ -159,9 +159,12 @@ impl ServerTls {
         self.client_ca.is_some()
     }
 
-    /// tonic's server configuration.
+    /// tonic's server configuration. A handshake must finish within 10 s, so that
+    /// connections that never finish one do not pile up.
     pub fn config(&self) -> ServerTlsConfig {
-        let config = ServerTlsConfig::new().identity(Identity::from_pem(&self.cert.bytes, &self.key.bytes));
+        let config = ServerTlsConfig::new()
+            .identity(Identity::from_pem(&self.cert.bytes, &self.key.bytes))
+            .timeout(std::time::Duration::from_secs(10));
         match &self.client_ca {
             Some(ca) => config.client_ca_root(Certificate::from_pem(&ca.bytes)).client_auth_optional(false),
             None => config,

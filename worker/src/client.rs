@@ -185,7 +185,7 @@ async fn session(
     let mut inbound = client
         .work(ReceiverStream::new(out_rx))
         .await
-        .map_err(|s| ConnectError::Unreachable { url: url.clone(), reason: s.message().to_string() })?
+        .map_err(|s| ConnectError::from_call(url, &s))?
         .into_inner();
     let heartbeat = match inbound.message().await {
         Ok(Some(pb::CoordinatorMessage { msg: Some(In::Welcome(w)) })) => {
