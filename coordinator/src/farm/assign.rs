@@ -465,9 +465,12 @@ impl Farm {
     }
 
     /// Ends the jobs that are complete: every batch merged, no repair left, and their
-    /// audits resolved. An audit that no connected worker of another identity can render
-    /// is skipped (counted) once nothing else holds the job open; a mismatch waits for a
-    /// third identity to decide.
+    /// audits resolved. Once nothing else holds a job open, an audit that no connected
+    /// worker of another identity can render is skipped (counted) at once, and one not
+    /// answered within the straggler patience (`SPECULATE_PATIENCE` mean batch times, at
+    /// least `SPECULATE_MIN_AGE`: its only possible auditor may be frozen) is skipped then;
+    /// a mismatch waits for a third identity to decide. Called after every answer and by
+    /// the reaper (through `expire_silent`) every second.
     pub(super) fn settle(&mut self, now: Instant) {
         let ready: Vec<JobId> =
             self.jobs.values().filter(|j| !j.is_over() && j.queue.is_finished()).map(|j| j.id).collect();
@@ -475,11 +478,24 @@ impl Farm {
             let able = self.able_identities(id);
             let job = self.jobs.get_mut(&id).expect("listed above");
             if job.fence.repairs.is_idle() {
+                let since = *job.audits_since.get_or_insert(now);
+                let patience = job
+                    .queue
+                    .mean_batch_time()
+                    .map_or(SPECULATE_MIN_AGE, |m| (m * SPECULATE_PATIENCE).max(SPECULATE_MIN_AGE));
+                let waited = now.saturating_duration_since(since) >= patience;
                 let before = job.fence.audits.len();
-                job.fence.audits.retain(|a| {
-                    a.lease.is_some() || a.answers.len() > 1 || able.iter().any(|i| a.open_to(i))
+                let mut released = Vec::new();
+                job.fence.audits.retain_mut(|a| {
+                    let keep = a.answers.len() > 1
+                        || (!waited && (a.lease.is_some() || able.iter().any(|i| a.open_to(i))));
+                    if !keep {
+                        released.extend(a.lease.take());
+                    }
+                    keep
                 });
                 self.counters.audits_skipped += (before - job.fence.audits.len()) as u64;
+                job.fence.release_all(released);
             }
             job.finish_if_done(now);
         }

@@ -51,6 +51,9 @@ pub struct Job {
     /// Rendering time before a restart, counted against a time budget.
     pub(super) spent_before: Duration,
     pub(super) halted: Option<&'static str>,
+    /// When every batch was merged and no repair was left, while audits still ran: the
+    /// start of their grace (see `Farm::settle`).
+    pub(super) audits_since: Option<Instant>,
 }
 
 impl Job {
@@ -230,6 +233,7 @@ impl Job {
             nonfinite_samples: 0,
             spent_before: Duration::ZERO,
             halted: None,
+            audits_since: None,
         })
     }
 

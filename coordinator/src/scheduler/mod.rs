@@ -252,6 +252,11 @@ impl PassQueue {
         self.pass_one_pixels_done
     }
 
+    /// The mean time from lease to merge so far, if a batch merged.
+    pub fn mean_batch_time(&self) -> Option<Duration> {
+        self.mean_batch_time
+    }
+
     /// Batches leased right now.
     pub fn leased(&self) -> usize {
         self.leased.len()
