@@ -505,7 +505,12 @@ fn a_local_render_takes_only_its_own_secret() {
                     credit: 2,
                 })),
             };
-            let (code, _) = status_code(c.work(tokio_stream::iter([hello])).await);
+            let mut w = tessera_proto::connect::worker_client(
+                &EndpointConfig::new(&url).unwrap().token(token.map(|t| Token::new(t, "test").unwrap())),
+            )
+            .await
+            .unwrap();
+            let (code, _) = status_code(w.work(tokio_stream::iter([hello])).await);
             assert_eq!(code, Code::Unauthenticated);
         }
     });

@@ -306,7 +306,9 @@ async fn zeroed_and_doubled_sums_are_caught_and_repaired() {
 }
 
 /// A worker that zeroes one batch in fifty and is honest otherwise is caught at that
-/// batch when it is audited (here every batch is), quarantined, and repaired.
+/// batch when it is audited (here every batch is), quarantined, and repaired. Its first
+/// lie is its second answer: how many batches a worker gets depends on the machine's
+/// load, and a lie it never gets to tell cannot be caught.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_worker_lying_once_in_fifty_batches_is_caught() {
     let (w, ht, spp) = MANY;
@@ -315,7 +317,7 @@ async fn a_worker_lying_once_in_fifty_batches_is_caught() {
     let mut n = 0u32;
     let (h, image) = with_liar(policy, move |_, r| {
         n += 1;
-        if n % 50 == 20 {
+        if n % 50 == 2 {
             r.sums.iter_mut().for_each(|s| *s = 0);
         }
     })

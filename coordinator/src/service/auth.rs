@@ -402,7 +402,6 @@ pub(super) fn caller<T>(request: &Request<T>) -> Result<Principal, Status> {
 
 /// The verified name of the caller of `request`, once the RPC layer authenticated it: a
 /// worker's identity.
-#[allow(dead_code)] // wired to the worker's identity by the lease-fencing work
 pub(super) fn principal_name<T>(request: &Request<T>) -> Option<String> {
     request.extensions().get::<Principal>().map(|p| p.name.clone())
 }
