@@ -415,3 +415,19 @@ async fn the_coordinator_stays_within_its_budget_under_attack() {
         .await;
     assert!(ok.is_ok(), "a viewer is accepted after the others left");
 }
+
+/// A work stream that never says Hello is closed after the worker timeout, not kept.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_work_stream_without_hello_is_closed() {
+    let coord = Coordinator::start(&["--worker-timeout", "1"]);
+    let channel = tessera_proto::connect::connect(&EndpointConfig::new(&coord.url).unwrap()).await.unwrap();
+    let (_tx, rx) = tokio::sync::mpsc::channel::<pb::WorkerMessage>(1);
+    let mut client = pb::workers_client::WorkersClient::new(channel);
+    let start = Instant::now();
+    let mut inbound =
+        client.work(tokio_stream::wrappers::ReceiverStream::new(rx)).await.unwrap().into_inner();
+    let end =
+        tokio::time::timeout(Duration::from_secs(10), inbound.message()).await.expect("closed, not kept");
+    assert!(matches!(end, Ok(None) | Err(_)), "{end:?}");
+    assert!(start.elapsed() >= Duration::from_millis(900), "{:?}", start.elapsed());
+}
