@@ -98,14 +98,6 @@ async fn oversized_submissions_are_refused_with_one_line_errors() {
         m.starts_with("\"small.toml\" needs 9798 MB of coordinator memory (16384x16384 framebuffer 9798 MB"),
         "{m}"
     );
-    // Jobs that fit one by one, until the budget is spent: the third 1920x1080 is refused.
-    for _ in 0..3 {
-        c.submit(request(bundle("small.toml", SMALL, vec![]), 1920, 1080)).await.unwrap();
-    }
-    let (code, m) = refuse(c.submit(request(bundle("small.toml", SMALL, vec![]), 1920, 1080)).await);
-    assert_eq!(code, ResourceExhausted);
-    assert!(m.contains("of the budget of 269 MB are free"), "{m}");
-
     // A scene text over 16 MiB, refused before the TOML parser sees it.
     let text = format!("{SMALL}#{}\n", "x".repeat(17 << 20));
     let (code, m) = refuse(c.submit(request(bundle("huge.toml", &text, vec![]), 0, 0)).await);
@@ -151,6 +143,14 @@ async fn oversized_submissions_are_refused_with_one_line_errors() {
     let (code, m) =
         refuse(c.submit(request(bundle("small.toml", SMALL, vec![("big.bin", big)]), 0, 0)).await);
     assert_eq!(code, OutOfRange, "{m}");
+
+    // Jobs that fit one by one, until the budget is spent: the fourth 1920x1080 is refused.
+    for _ in 0..3 {
+        c.submit(request(bundle("small.toml", SMALL, vec![]), 1920, 1080)).await.unwrap();
+    }
+    let (code, m) = refuse(c.submit(request(bundle("small.toml", SMALL, vec![]), 1920, 1080)).await);
+    assert_eq!(code, ResourceExhausted);
+    assert!(m.contains("of the budget of 269 MB are free"), "{m}");
 
     // Still serving, and Status stays small.
     let status = c.status(pb::StatusRequest { job_id: 0 }).await.unwrap().into_inner();
@@ -430,4 +430,26 @@ async fn a_work_stream_without_hello_is_closed() {
         tokio::time::timeout(Duration::from_secs(10), inbound.message()).await.expect("closed, not kept");
     assert!(matches!(end, Ok(None) | Err(_)), "{end:?}");
     assert!(start.elapsed() >= Duration::from_millis(900), "{:?}", start.elapsed());
+}
+
+/// A submission whose decoding and validation would not fit what is left of the budget is
+/// refused from its length prefix, before its body is read.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_submission_that_cannot_be_decoded_within_the_budget_is_refused_unread() {
+    let coord = Coordinator::start(&["--memory-budget", "64M"]);
+    let mut c = client(&coord.url).await;
+    let before = memory_of(coord.proc.pid()).0;
+    let junk = vec![1; 30 << 20];
+    let e = c.submit(request(bundle("small.toml", SMALL, vec![("junk.bin", junk)]), 0, 0)).await.unwrap_err();
+    assert_eq!(e.code(), tonic::Code::ResourceExhausted, "{e}");
+    assert!(e.message().starts_with("a submission of 32 MB needs up to 181 MB of coordinator memory to decode and validate, but 68 MB of the budget of 68 MB are free"), "{}", e.message());
+    let after = memory_of(coord.proc.pid()).0;
+    assert!(
+        after < before + 16 * MB,
+        "VmHWM {} -> {} MB: the body was not buffered",
+        before / MB,
+        after / MB
+    );
+    // A small one still goes through.
+    c.submit(request(bundle("small.toml", SMALL, vec![]), 0, 0)).await.unwrap();
 }

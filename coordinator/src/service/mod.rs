@@ -206,11 +206,11 @@ impl CoordinatorService {
         let workers = WorkersServer::new(self.clone())
             .max_decoding_message_size(MAX_WORKER_MESSAGE_BYTES)
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
-        let permits = self.submits.clone();
+        let (permits, budget) = (self.submits.clone(), self.budget.clone());
         let clients = CoordinatorServer::new(self)
             .max_decoding_message_size(MAX_MESSAGE_BYTES)
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
-        Routes::new(workers).add_service(gate::SubmitGate::new(clients, permits))
+        Routes::new(workers).add_service(gate::SubmitGate::new(clients, permits, budget))
     }
 
     /// Takes back the leases of silent workers and ends jobs whose time budget is spent,
