@@ -227,10 +227,17 @@ impl Validator<'_> {
         let path = check_asset_path(&d.file).map_err(|e| self.ctx.err(span, format!("mesh.file: {e}")))?;
         let bytes = (self.assets.get(&path))
             .ok_or_else(|| self.ctx.err(span, unreadable(self.assets, "mesh.file", &d.file)))?;
-        let text = std::str::from_utf8(bytes)
-            .map_err(|_| self.ctx.err(span, format!("mesh.file: {:?} is not text", d.file)))?;
-        let (counts, extent) =
-            scan_obj_extent(text).map_err(|e| self.ctx.err(span, format!("mesh {:?}: {e}", d.file)))?;
+        let (counts, extent) = match self.scans.get(&path) {
+            Some(scan) => *scan,
+            None => {
+                let text = std::str::from_utf8(bytes)
+                    .map_err(|_| self.ctx.err(span, format!("mesh.file: {:?} is not text", d.file)))?;
+                let scan = scan_obj_extent(text)
+                    .map_err(|e| self.ctx.err(span, format!("mesh {:?}: {e}", d.file)))?;
+                self.scans.insert(path.clone(), scan);
+                scan
+            }
+        };
         if counts.triangles == 0 {
             // An empty mesh would draw nothing, without a word.
             return Err(self

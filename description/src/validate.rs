@@ -84,6 +84,9 @@ pub(crate) struct Validator<'a> {
     pub(crate) objects: Vec<Object>,
     /// Triangles so far, every use of a mesh counted.
     pub(crate) triangles: usize,
+    /// Each mesh file's scan, made once however often the scene uses it: a scene of many
+    /// uses of one large file costs one scan, not one per use.
+    pub(crate) scans: BTreeMap<String, (crate::obj::ObjCounts, Vec3)>,
 }
 
 /// Parses and validates a scene whose meshes and images come from `assets`.
@@ -150,6 +153,7 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
         emitter_material: None,
         objects: Vec::new(),
         triangles: 0,
+        scans: BTreeMap::new(),
     };
     for (name, t) in &raw.textures {
         v.texture(name, &t.span(), t.get_ref())?;

@@ -67,24 +67,48 @@ impl MemoryBudget {
 
     /// Reserves `job`'s footprint, or says why it does not fit. `what` names the job.
     pub(super) fn admit(&self, what: &str, job: &Footprint) -> Result<Reservation, SubmitError> {
-        let needs = job.bytes();
-        let mut h = lock(&self.held);
-        let held = h.pending + h.jobs.values().sum::<u64>();
-        if held.saturating_add(needs) > self.limit {
-            let others = h.jobs.len();
-            return Err(SubmitError::OverBudget(format!(
+        self.reserve(job.bytes(), |free, jobs| {
+            format!(
                 "{what} needs {} MB of coordinator memory ({}x{} framebuffer {} MB{}, bundle {} MB), but \
-                 {} MB of the budget of {} MB are free (the rest held by {others} jobs and submissions \
+                 {} MB of the budget of {} MB are free (the rest held by {jobs} jobs and submissions \
                  in progress); a smaller image, or a coordinator with a larger --memory-budget",
-                mb(needs),
+                mb(job.bytes()),
                 job.width,
                 job.height,
                 mb(job.framebuffer_bytes()),
                 if job.even_sums { " with even sums" } else { "" },
                 mb(job.bundle_bytes),
-                mb(self.limit.saturating_sub(held)),
+                mb(free),
                 mb(self.limit),
-            )));
+            )
+        })
+    }
+
+    /// Reserves what decoding and validating a submission of `message` bytes takes
+    /// (`bytes`), for as long as the reservation lives.
+    pub(super) fn admit_submission(&self, message: u64, bytes: u64) -> Result<Reservation, SubmitError> {
+        self.reserve(bytes, |free, jobs| {
+            format!(
+                "a submission of {} MB needs up to {} MB of coordinator memory to decode and validate, but \
+                 {} MB of the budget of {} MB are free (the rest held by {jobs} jobs and submissions in \
+                 progress); try again later, or send a smaller bundle",
+                mb(message),
+                mb(bytes),
+                mb(free),
+                mb(self.limit),
+            )
+        })
+    }
+
+    fn reserve(
+        &self,
+        needs: u64,
+        refusal: impl FnOnce(u64, usize) -> String,
+    ) -> Result<Reservation, SubmitError> {
+        let mut h = lock(&self.held);
+        let held = h.pending + h.jobs.values().sum::<u64>();
+        if held.saturating_add(needs) > self.limit {
+            return Err(SubmitError::OverBudget(refusal(self.limit.saturating_sub(held), h.jobs.len())));
         }
         h.pending += needs;
         Ok(Reservation { budget: self.clone(), bytes: needs })

@@ -1,31 +1,54 @@
-//! A gate in front of `Submit`: at most `budget::SUBMITS_AT_ONCE` submissions are decoded
-//! and validated at once. tonic buffers a request's message before the handler sees it, so
-//! the gate must stand before tonic's own service: a submission waits here, with nothing of
-//! its body read, until one in progress ends.
+//! A gate in front of `Submit`. tonic buffers a request's whole message, and prost then
+//! copies its bytes out, before the handler sees it; so the gate stands before tonic's own
+//! service and, for each submission:
+//!
+//! - waits for a turn: at most `budget::SUBMITS_AT_ONCE` are decoded and validated at once;
+//! - reads the gRPC length prefix (the first 5 bytes of the body, nothing more) and reserves
+//!   what decoding and validating that message can take from the memory budget
+//!   ([`transient_bytes`]), refusing with `RESOURCE_EXHAUSTED` before a byte more is read
+//!   when it does not fit; the reservation is held until the call ends.
+//!
+//! So jobs and the submissions in flight together stay within the budget.
 
+use std::collections::VecDeque;
 use std::convert::Infallible;
+use std::pin::Pin;
 use std::sync::Arc;
 use std::task::{Context, Poll};
 
+use bytes::{Buf, Bytes};
+use http_body::Frame;
+use http_body_util::BodyExt;
+use tessera_description::limits::MAX_SCENE_BYTES;
 use tokio::sync::Semaphore;
 use tonic::body::Body;
 use tonic::codegen::http::{Request, Response};
 use tonic::codegen::{BoxFuture, Service};
 use tonic::server::NamedService;
+use tonic::Status;
+
+use super::budget::MemoryBudget;
 
 /// The path of the one gated method.
 const SUBMIT: &str = "/tessera.v1.Coordinator/Submit";
 
-/// `inner` with its `Submit` calls taken `permits` at a time.
+/// What decoding and validating a submission of `message` bytes can take: tonic's buffer
+/// and prost's copy of it, and the TOML parser's ~7 bytes per byte of scene text.
+pub(super) fn transient_bytes(message: u64) -> u64 {
+    2 * message + 7 * message.min(MAX_SCENE_BYTES)
+}
+
+/// `inner` with its `Submit` calls admitted as above.
 #[derive(Clone)]
 pub(super) struct SubmitGate<S> {
     inner: S,
     permits: Arc<Semaphore>,
+    budget: MemoryBudget,
 }
 
 impl<S> SubmitGate<S> {
-    pub(super) fn new(inner: S, permits: Arc<Semaphore>) -> Self {
-        SubmitGate { inner, permits }
+    pub(super) fn new(inner: S, permits: Arc<Semaphore>, budget: MemoryBudget) -> Self {
+        SubmitGate { inner, permits, budget }
     }
 }
 
@@ -53,11 +76,64 @@ where
         if request.uri().path() != SUBMIT {
             return Box::pin(inner.call(request));
         }
-        let permits = self.permits.clone();
+        let (permits, budget) = (self.permits.clone(), self.budget.clone());
         Box::pin(async move {
             // Never closed, so acquiring only waits.
             let _permit = permits.acquire_owned().await;
-            inner.call(request).await
+            let (parts, mut body) = request.into_parts();
+            let mut read = VecDeque::new();
+            let mut prefix = Vec::with_capacity(5);
+            while prefix.len() < 5 {
+                match body.frame().await {
+                    Some(Ok(frame)) => {
+                        if let Some(data) = frame.data_ref() {
+                            let take = (5 - prefix.len()).min(data.len());
+                            prefix.extend_from_slice(&data.chunk()[..take]);
+                        }
+                        read.push_back(frame);
+                    }
+                    // The body ended or broke: tonic reports it as it would have.
+                    _ => break,
+                }
+            }
+            let len = (prefix.len() == 5)
+                .then(|| u64::from(u32::from_be_bytes([prefix[1], prefix[2], prefix[3], prefix[4]])));
+            // Past the message limit, tonic refuses it from the same prefix (OUT_OF_RANGE).
+            let _reservation = if let Some(len) = len.filter(|&l| l <= super::MAX_MESSAGE_BYTES as u64) {
+                match budget.admit_submission(len, transient_bytes(len)) {
+                    Ok(r) => Some(r),
+                    Err(e) => return Ok(Status::resource_exhausted(e.to_string()).into_http::<Body>()),
+                }
+            } else {
+                None
+            };
+            let body = Body::new(Prefixed { read, rest: body });
+            inner.call(Request::from_parts(parts, body)).await
         })
+    }
+}
+
+/// A body whose first frames were read already.
+struct Prefixed {
+    read: VecDeque<Frame<Bytes>>,
+    rest: Body,
+}
+
+impl http_body::Body for Prefixed {
+    type Data = Bytes;
+    type Error = Status;
+
+    fn poll_frame(
+        mut self: Pin<&mut Self>,
+        cx: &mut Context<'_>,
+    ) -> Poll<Option<Result<Frame<Bytes>, Status>>> {
+        if let Some(frame) = self.read.pop_front() {
+            return Poll::Ready(Some(Ok(frame)));
+        }
+        Pin::new(&mut self.rest).poll_frame(cx)
+    }
+
+    fn is_end_stream(&self) -> bool {
+        self.read.is_empty() && self.rest.is_end_stream()
     }
 }

@@ -221,12 +221,15 @@ impl CoordinatorService {
         let workers = WorkersServer::new(self.clone())
             .max_decoding_message_size(MAX_WORKER_MESSAGE_BYTES)
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
-        let permits = self.submits.clone();
+        let (permits, budget) = (self.submits.clone(), self.budget.clone());
         let clients = CoordinatorServer::new(self)
             .max_decoding_message_size(MAX_MESSAGE_BYTES)
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
-        Routes::new(InterceptedService::new(workers, authenticate.clone()))
-            .add_service(InterceptedService::new(gate::SubmitGate::new(clients, permits), authenticate))
+        // Authentication first: an unknown caller is refused before the gate reads
+        // anything of its body or reserves any of the budget for it.
+        Routes::new(InterceptedService::new(workers, authenticate.clone())).add_service(
+            InterceptedService::new(gate::SubmitGate::new(clients, permits, budget), authenticate),
+        )
     }
 
     /// Takes back the leases of silent workers and ends jobs whose time budget is spent,

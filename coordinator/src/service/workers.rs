@@ -31,7 +31,13 @@ impl CoordinatorService {
     ) {
         let refuse =
             |reason: String| pb::CoordinatorMessage { msg: Some(Out::Refused(pb::Refused { reason })) };
-        let hello = match inbound.message().await {
+        // A stream that never says Hello holds its buffers no longer than a silent worker.
+        let first = tokio::time::timeout(self.timing.silence_timeout, inbound.message()).await;
+        let Ok(first) = first else {
+            debug!("worker stream sent no Hello within {:?}; closed", self.timing.silence_timeout);
+            return;
+        };
+        let hello = match first {
             Ok(Some(pb::WorkerMessage { msg: Some(In::Hello(h)) })) => h,
             Ok(_) => {
                 let _ =
