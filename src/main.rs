@@ -139,7 +139,7 @@ enum Command {
     /// Benchmarks that print figures.
     #[command(subcommand)]
     Bench(bench::BenchCommand),
-    /// Make a private CA and certificates for a farm's TLS (see docs/security-tls.md).
+    /// Make a private CA and certificates for a farm's TLS (see docs/security/connections.md).
     #[command(subcommand)]
     Certs(certs::CertsCommand),
 }

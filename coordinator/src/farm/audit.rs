@@ -23,7 +23,7 @@ pub struct AuditPolicy {
 }
 
 /// 3 % of batches: a worker that lies in every batch survives at most ~100 batches at
-/// the 95th percentile after probation, at 3 % more rendering (`docs/security-fence.md`).
+/// the 95th percentile after probation, at 3 % more rendering (`docs/security/workers.md`).
 pub const DEFAULT_AUDIT_FRACTION: f64 = 0.03;
 /// Batches on probation per identity.
 pub const PROBATION_BATCHES: u64 = 20;
