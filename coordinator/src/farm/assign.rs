@@ -117,6 +117,10 @@ impl Job {
     }
 }
 
+/// Audits of one job that may wait, holding their sums, for a worker of another identity
+/// to join; a lone worker's further audits are skipped.
+const MAX_WAITING_AUDITS: usize = 256;
+
 impl Farm {
     /// The next batch for `worker`: a repair or an audit it may render first, then from
     /// the first job in service order that has a new or taken-back batch; failing that, a
@@ -338,17 +342,20 @@ impl Farm {
         if let Some(w) = self.workers.get_mut(&worker) {
             w.batches_done += 1;
         }
-        // With no other identity to render it, an audit could only wait (holding the sums):
-        // it is skipped, and counted, at once.
+        // With no other identity to render it yet, an audit waits for one (a farm's first
+        // worker is often alone for a moment, and a liar that joins first must not pass
+        // unchecked), holding the sums, up to `MAX_WAITING_AUDITS` per job; beyond that it
+        // is skipped and counted. At the job's end, `settle` skips what no one can render.
         let checkable = self.able_identities(job_id).iter().any(|i| i != identity);
+        let waiting = self.jobs.get(&job_id).map_or(0, |j| j.fence.audits.len());
         let standing = self.standing.entry(identity.to_owned()).or_default();
         let rate = self.audit.rate(standing.delivered);
         standing.delivered += 1;
         let chosen = rate > 0.0 && self.entropy.chance(rate);
-        if chosen && !checkable {
+        let audit = chosen && (checkable || waiting < MAX_WAITING_AUDITS);
+        if chosen && !audit {
             self.counters.audits_skipped += 1;
         }
-        let audit = chosen && checkable;
         let Some(job) = self.jobs.get_mut(&job_id) else { return };
         let width = u64::from(job.framebuffer.width());
         let set = job.fence.delivered.entry(identity.to_owned()).or_default();

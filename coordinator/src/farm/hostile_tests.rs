@@ -224,8 +224,9 @@ fn a_caught_liar_is_repaired_to_the_clean_accumulators() {
     }
 }
 
-/// Audits of honest workers agree, and an audit with no other identity to render it is
-/// skipped (counted) rather than holding the job open.
+/// Audits of honest workers agree, and an audit with no other identity to render it waits
+/// only until the rest of its job is done: then it is skipped (counted) rather than
+/// holding the job open.
 #[test]
 fn honest_audits_pass_and_a_lone_worker_is_not_held_up() {
     let settings = JobSettings::sized(Some(65), Some((32, 32)));
