@@ -126,68 +126,115 @@ fn read(text: &str, sink: &mut impl Sink) -> Result<ObjCounts, ObjError> {
     let mut n = ObjCounts::default();
     for (i, raw) in text.lines().enumerate() {
         let line = i + 1;
-        let err = |message: String| ObjError { line, message };
-        let content = raw.split('#').next().unwrap_or("").trim();
-        let mut words = content.split_whitespace();
-        let Some(keyword) = words.next() else { continue };
-        let numbers = |words: std::str::SplitWhitespace, count: usize| -> Result<[f32; 3], ObjError> {
-            let mut v = [0f32; 3];
-            let mut got = 0;
-            for (slot, w) in v.iter_mut().zip(words.take(count)) {
-                *slot = w.parse::<f32>().map_err(|_| err(format!("expected a number, got {w:?}")))?;
-                got += 1;
-            }
-            if got < count {
-                return Err(err(format!("expected {count} numbers after {keyword:?}")));
-            }
-            if v.iter().any(|x| !x.is_finite()) {
-                return Err(err("coordinates must be finite".into()));
-            }
-            Ok(v)
-        };
-        match keyword {
-            "v" => {
-                sink.position(Vec3::from(numbers(words, 3)?));
-                n.positions += 1;
-            }
-            "vn" => {
-                sink.normal(Vec3::from(numbers(words, 3)?));
-                n.normals += 1;
-            }
-            "vt" => {
-                let v = numbers(words, 2)?;
-                sink.uv(Vec2::new(v[0], v[1]));
-                n.uvs += 1;
-            }
-            "f" => {
-                // Fan triangulation as the corners come: no list of corners is kept.
-                let (mut first, mut prev, mut corners) = ([0u32; 3], [0u32; 3], 0usize);
-                for w in words {
-                    let c = corner(w, n.positions, n.uvs, n.normals).map_err(&err)?;
-                    match corners {
-                        0 => first = c,
-                        1 => {}
-                        // A face that fails later fails the whole file: its first triangles never count.
-                        _ => sink.triangle([first, prev, c]),
-                    }
-                    prev = c;
-                    corners += 1;
-                }
-                if corners < 3 {
-                    return Err(err(format!("a face needs at least 3 corners, got {corners}")));
-                }
-                n.faces += 1;
-            }
-            // Groups, objects, smoothing groups and materials do not change the geometry.
-            "g" | "o" | "s" | "usemtl" | "mtllib" | "l" | "p" => {}
-            other => return Err(err(format!("unknown statement {other:?}"))),
+        // A million-line file is mostly short ASCII lines: split those on bytes. Lines with
+        // other characters take `split_whitespace`, which knows Unicode's spaces; both
+        // split ASCII text alike (U+0009..U+000D and U+0020 are its ASCII whitespace).
+        if raw.is_ascii() {
+            // Lines are short: a plain loop beats `memchr`'s set-up.
+            let content = raw.as_bytes().iter().position(|&b| b == b'#').map_or(raw, |at| &raw[..at]);
+            statement(AsciiWords(content), line, &mut n, sink)?;
+        } else {
+            let content = raw.split('#').next().unwrap_or("");
+            statement(content.split_whitespace(), line, &mut n, sink)?;
         }
     }
     Ok(n)
 }
 
+/// The words of an ASCII line, split on ASCII whitespace as `char::is_whitespace` sees it.
+#[derive(Clone)]
+struct AsciiWords<'a>(&'a str);
+
+impl<'a> Iterator for AsciiWords<'a> {
+    type Item = &'a str;
+    #[inline]
+    fn next(&mut self) -> Option<&'a str> {
+        let space = |b: &u8| matches!(b, b' ' | b'\t'..=b'\r');
+        let bytes = self.0.as_bytes();
+        let start = bytes.iter().position(|b| !space(b))?;
+        let len = bytes[start..].iter().position(space).unwrap_or(bytes.len() - start);
+        // ASCII bytes are char boundaries: the slices are valid.
+        let (word, rest) = self.0[start..].split_at(len);
+        self.0 = rest;
+        Some(word)
+    }
+}
+
+/// One statement (a line's words) into `sink`, counted in `n`.
+#[inline]
+fn statement<'a>(
+    mut words: impl Iterator<Item = &'a str>,
+    line: usize,
+    n: &mut ObjCounts,
+    sink: &mut impl Sink,
+) -> Result<(), ObjError> {
+    let err = |message: String| ObjError { line, message };
+    let Some(keyword) = words.next() else { return Ok(()) };
+    let mut numbers = |count: usize| -> Result<[f32; 3], ObjError> {
+        let mut v = [0f32; 3];
+        let mut got = 0;
+        for (slot, w) in v.iter_mut().zip(words.by_ref().take(count)) {
+            *slot = w.parse::<f32>().map_err(|_| err(format!("expected a number, got {w:?}")))?;
+            got += 1;
+        }
+        if got < count {
+            return Err(err(format!("expected {count} numbers after {keyword:?}")));
+        }
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(err("coordinates must be finite".into()));
+        }
+        Ok(v)
+    };
+    match keyword {
+        "v" => {
+            sink.position(Vec3::from(numbers(3)?));
+            n.positions += 1;
+        }
+        "vn" => {
+            sink.normal(Vec3::from(numbers(3)?));
+            n.normals += 1;
+        }
+        "vt" => {
+            let v = numbers(2)?;
+            sink.uv(Vec2::new(v[0], v[1]));
+            n.uvs += 1;
+        }
+        "f" => {
+            // Fan triangulation as the corners come: no list of corners is kept.
+            let (mut first, mut prev, mut corners) = ([0u32; 3], [0u32; 3], 0usize);
+            for w in words {
+                let c = corner(w, n.positions, n.uvs, n.normals).map_err(&err)?;
+                match corners {
+                    0 => first = c,
+                    1 => {}
+                    // A face that fails later fails the whole file: its first triangles never count.
+                    _ => sink.triangle([first, prev, c]),
+                }
+                prev = c;
+                corners += 1;
+            }
+            if corners < 3 {
+                return Err(err(format!("a face needs at least 3 corners, got {corners}")));
+            }
+            n.faces += 1;
+        }
+        // Groups, objects, smoothing groups and materials do not change the geometry.
+        "g" | "o" | "s" | "usemtl" | "mtllib" | "l" | "p" => {}
+        other => return Err(err(format!("unknown statement {other:?}"))),
+    }
+    Ok(())
+}
+
 /// One face corner `v`, `v/vt`, `v//vn` or `v/vt/vn` as (position, normal, uv) indices.
 fn corner(word: &str, np: usize, nuv: usize, nn: usize) -> Result<[u32; 3], String> {
+    // The common case, a bare positive vertex index, without the general path's splitting
+    // and parsing (the same value and checks).
+    if (1..=9).contains(&word.len()) && word.bytes().all(|b| b.is_ascii_digit()) {
+        let i = word.bytes().fold(0usize, |v, b| v * 10 + usize::from(b - b'0'));
+        if i >= 1 && i <= np {
+            return Ok([(i - 1) as u32, u32::MAX, u32::MAX]);
+        }
+    }
     let mut parts = word.split('/');
     let index = |s: Option<&str>, count: usize, what: &str| -> Result<u32, String> {
         match s {
@@ -231,6 +278,22 @@ mod tests {
         assert!(parse_obj("v 0 0 0\nf 1 1\n").unwrap_err().message.contains("at least 3"));
         assert!(parse_obj("v 0 0 0\nf 0 1 1\n").unwrap_err().message.contains("out of range"));
         assert!(parse_obj("bogus 1\n").unwrap_err().message.contains("unknown statement"));
+    }
+
+    /// The byte splitter of ASCII lines splits as `split_whitespace` does.
+    #[test]
+    fn ascii_words_split_like_split_whitespace() {
+        for line in
+            ["", "   ", "v 1 2 3", "\tv\x0b1\x0c2\r3  ", "f 1/2/3  4//5\t6", "  vn  -0 +1 .5e3 ", "x\t\ty"]
+        {
+            let ours: Vec<&str> = AsciiWords(line).collect();
+            let std: Vec<&str> = line.split_whitespace().collect();
+            assert_eq!(ours, std, "{line:?}");
+        }
+        // A line with a non-ASCII space takes the Unicode splitter.
+        let m = parse_obj("v 0\u{a0}0 0\nv 1 0 0\nv 0 1 0 # é\nf 1 2 3\n").unwrap();
+        assert_eq!(m.p.len(), 3);
+        assert_eq!(m.tris.len(), 1);
     }
 
     #[test]
