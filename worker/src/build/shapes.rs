@@ -143,6 +143,7 @@ impl Shapes {
             return Err(err(o.at, NOT_FINITE.into()));
         }
         let index = self.meshes.len() as u32;
+        self.prims.reserve(mesh.tris.len());
         for tri in 0..mesh.tris.len() as u32 {
             self.push(Shape::Triangle { mesh: index, tri }, o.material, None, motion);
         }
