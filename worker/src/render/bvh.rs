@@ -114,7 +114,7 @@ impl Bvh {
         let mut items: Vec<Item> =
             bounds.iter().enumerate().map(|(i, b)| Item { bounds: *b, index: i as u32 }).collect();
         let mut nodes = Vec::with_capacity(bounds.len() / 2);
-        build_subtree(&mut items, 0, &mut nodes);
+        build_subtree(&mut items, 0, &mut nodes, None);
         Bvh { nodes, indices: items.iter().map(|it| it.index).collect() }
     }
 
@@ -280,36 +280,70 @@ pub const PARALLEL_MIN: usize = 16 * 1024;
 
 /// Appends the subtree over `items` to `nodes` in depth first order (a node, its first
 /// subtree, its second); `start` is the position of `items[0]` in the final order.
-fn build_subtree(items: &mut [Item], start: usize, nodes: &mut Vec<Node>) {
-    // Folded in item order, as every pass below: the same boxes in the same order give
-    // the same bits whatever the thread count.
-    // The node's box and its centres' box in one pass.
-    let (node_bounds, cb) = items
-        .iter()
-        .fold((Aabb::EMPTY, Aabb::EMPTY), |(b, c), it| (b.union(it.bounds), c.grow(it.centroid())));
+fn build_subtree(items: &mut [Item], start: usize, nodes: &mut Vec<Node>, known: Option<Boxes>) {
+    // The node's box and its centres' box: from the parent's bins when it had them, else
+    // in one pass.
+    let Boxes { bounds: node_bounds, centroids: cb } = known.unwrap_or_else(|| {
+        items.iter().fold(Boxes::EMPTY, |b, it| Boxes {
+            bounds: b.bounds.union(it.bounds),
+            centroids: b.centroids.grow(it.centroid()),
+        })
+    });
     let node = nodes.len();
-    let Some((mid, axis)) = split(items, &node_bounds, &cb) else {
+    let Some(Split { mid, axis, children }) = split(items, &node_bounds, &cb) else {
         nodes.push(Node { bounds: node_bounds, offset: start as u32, count: items.len() as u32, axis: 0 });
         return;
     };
     nodes.push(Node { bounds: node_bounds, offset: 0, count: 0, axis: axis as u8 });
     let parallel = items.len() >= PARALLEL_MIN;
     let (first, second) = items.split_at_mut(mid);
+    let (a, b) = (children.map(|c| c[0]), children.map(|c| c[1]));
     if parallel {
         let mut far = Vec::new();
-        rayon::join(|| build_subtree(first, start, nodes), || build_subtree(second, start + mid, &mut far));
+        rayon::join(
+            || build_subtree(first, start, nodes, a),
+            || build_subtree(second, start + mid, &mut far, b),
+        );
         nodes[node].offset = (nodes.len() - node) as u32;
         nodes.append(&mut far);
     } else {
-        build_subtree(first, start, nodes);
+        build_subtree(first, start, nodes, a);
         nodes[node].offset = (nodes.len() - node) as u32;
-        build_subtree(second, start + mid, nodes);
+        build_subtree(second, start + mid, nodes, b);
     }
 }
 
-/// Chooses a split of `items` by the binned SAH; reorders `items` and returns the split
-/// position and axis, or `None` for a leaf.
-fn split(items: &mut [Item], node_bounds: &Aabb, cb: &Aabb) -> Option<(usize, usize)> {
+/// A set of primitives' box and their centres' box.
+///
+/// Unions are exact (min and max round nothing), and the boxes are finite, so a union in
+/// any order is the same box; only the sign of a zero coordinate may differ, which no box
+/// test, area or bin below can tell (-0 and +0 compare equal, give the same differences
+/// and products up to that sign, and `hit` only compares them). Building the children's
+/// boxes from the bins therefore makes the same tree as folding their items.
+#[derive(Debug, Clone, Copy)]
+struct Boxes {
+    bounds: Aabb,
+    centroids: Aabb,
+}
+
+impl Boxes {
+    const EMPTY: Boxes = Boxes { bounds: Aabb::EMPTY, centroids: Aabb::EMPTY };
+
+    fn union(self, o: Boxes) -> Boxes {
+        Boxes { bounds: self.bounds.union(o.bounds), centroids: self.centroids.union(o.centroids) }
+    }
+}
+
+/// A chosen split: the first child holds `items[..mid]`; its boxes, when the bins gave them.
+struct Split {
+    mid: usize,
+    axis: usize,
+    children: Option<[Boxes; 2]>,
+}
+
+/// Chooses a split of `items` by the binned SAH; reorders `items` and returns the split,
+/// or `None` for a leaf.
+fn split(items: &mut [Item], node_bounds: &Aabb, cb: &Aabb) -> Option<Split> {
     let n = items.len();
     if n <= 2 {
         return None;
@@ -322,58 +356,63 @@ fn split(items: &mut [Item], node_bounds: &Aabb, cb: &Aabb) -> Option<(usize, us
     } else {
         2
     };
+    let median = |items: &mut [Item]| {
+        let mid = median_split(items, axis);
+        Split { mid, axis, children: None }
+    };
     if !(extent[axis] > 0.0) {
         // All centroids coincide: no split can separate them.
-        return (n > MAX_LEAF).then_some((n / 2, axis));
+        return (n > MAX_LEAF).then_some(Split { mid: n / 2, axis, children: None });
     }
     let bin_of = |it: &Item| {
         let b = ((it.centroid()[axis] - cb.min[axis]) / extent[axis] * BINS as f32) as usize;
         b.min(BINS - 1)
     };
-    let mut bins = [(Aabb::EMPTY, 0usize); BINS];
+    let mut bins = [(Boxes::EMPTY, 0usize); BINS];
     for it in items.iter() {
         let b = bin_of(it);
-        bins[b].0 = bins[b].0.union(it.bounds);
+        bins[b].0.bounds = bins[b].0.bounds.union(it.bounds);
+        bins[b].0.centroids = bins[b].0.centroids.grow(it.centroid());
         bins[b].1 += 1;
     }
-    // Sweep from the right to get the area and count of each right side.
-    let mut right = [(0.0f32, 0usize); BINS];
-    let (mut acc, mut count) = (Aabb::EMPTY, 0);
+    // Sweep from the right to get the boxes, area and count of each right side.
+    let mut right = [(Boxes::EMPTY, 0.0f32, 0usize); BINS];
+    let (mut acc, mut count) = (Boxes::EMPTY, 0);
     for b in (1..BINS).rev() {
         acc = acc.union(bins[b].0);
         count += bins[b].1;
-        right[b] = (acc.surface_area(), count);
+        right[b] = (acc, acc.bounds.surface_area(), count);
     }
-    let (mut acc, mut count) = (Aabb::EMPTY, 0);
-    let mut best = (f32::INFINITY, 0);
+    let (mut acc, mut count) = (Boxes::EMPTY, 0);
+    let mut best = (f32::INFINITY, 0, Boxes::EMPTY);
     for b in 0..BINS - 1 {
         acc = acc.union(bins[b].0);
         count += bins[b].1;
-        let (ra, rc) = right[b + 1];
+        let (_, ra, rc) = right[b + 1];
         if count == 0 || rc == 0 {
             continue;
         }
-        let cost = acc.surface_area() * count as f32 + ra * rc as f32;
+        let cost = acc.bounds.surface_area() * count as f32 + ra * rc as f32;
         if cost < best.0 {
-            best = (cost, b);
+            best = (cost, b, acc);
         }
     }
     let leaf_cost = node_bounds.surface_area() * n as f32;
     let split_cost = TRAVERSAL_COST * node_bounds.surface_area() + best.0;
     if best.0.is_infinite() || (split_cost >= leaf_cost && n <= MAX_LEAF) {
-        return (n > MAX_LEAF).then(|| median_split(items, axis));
+        return (n > MAX_LEAF).then(|| median(items));
     }
     let mid = partition(items, |it| bin_of(it) <= best.1);
     if mid == 0 || mid == n {
-        return Some(median_split(items, axis));
+        return Some(median(items));
     }
-    Some((mid, axis))
+    Some(Split { mid, axis, children: Some([best.2, right[best.1 + 1].0]) })
 }
 
-fn median_split(items: &mut [Item], axis: usize) -> (usize, usize) {
+fn median_split(items: &mut [Item], axis: usize) -> usize {
     let mid = items.len() / 2;
     items.select_nth_unstable_by(mid, |a, b| a.centroid()[axis].total_cmp(&b.centroid()[axis]));
-    (mid, axis)
+    mid
 }
 
 fn partition(items: &mut [Item], left: impl Fn(&Item) -> bool) -> usize {
@@ -420,12 +459,10 @@ mod tests {
         }
     }
 
+    /// The same nodes (boxes equal as numbers: see `Boxes` on the sign of zero) and the
+    /// same leaf order.
     fn same_tree(a: &Bvh, b: &Bvh) -> bool {
-        let bits =
-            |n: &Node| (n.bounds.min.to_array().map(f32::to_bits), n.bounds.max.to_array().map(f32::to_bits));
-        a.indices == b.indices
-            && a.nodes.len() == b.nodes.len()
-            && a.nodes.iter().zip(&b.nodes).all(|(x, y)| x == y && bits(x) == bits(y))
+        a.indices == b.indices && a.nodes == b.nodes
     }
 
     /// The builder makes the tree the sequential builder it replaced made, bit for bit,
@@ -433,6 +470,18 @@ mod tests {
     #[test]
     fn build_matches_the_old_builder_on_any_thread_count() {
         let mut sets = vec![random_boxes(1000, 7), random_boxes(3 * PARALLEL_MIN, 8)];
+        // Zeros of both signs on the box faces (an OBJ's "-0.0").
+        sets.push(
+            random_boxes(20_000, 9)
+                .into_iter()
+                .enumerate()
+                .map(|(i, b)| {
+                    let z = if i % 2 == 0 { 0.0 } else { -0.0 };
+                    let min = if i % 3 == 0 { Vec3::new(z, b.min.y, z) } else { b.min };
+                    Aabb { min: min.min(b.max), max: b.max }
+                })
+                .collect(),
+        );
         // Many equal centroids and flat boxes: the median and leaf fallbacks.
         sets.push(
             (0..40_000)
