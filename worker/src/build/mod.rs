@@ -59,6 +59,7 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
         shapes.prims.par_iter().map(|p| p.bounds(&shapes.meshes, &shapes.motions)).collect()
     };
     let bvh = Bvh::build(&bounds);
+    drop(bounds);
     let slots = crate::render::triangles::slots(&bvh, &shapes.prims, &shapes.meshes);
     let world = World {
         materials: desc.materials.iter().map(materials::material).collect(),

@@ -115,7 +115,7 @@ impl Shapes {
             self.lights.push(Light::Rect { rect: rect.clone(), radiance });
             self.lights.len() as u32 - 1
         });
-        self.push(Shape::Rect(rect), o.material, light, motion);
+        self.push(Shape::Rect(Box::new(rect)), o.material, light, motion);
     }
 
     /// Adds a mesh of object `o`, baked into world space unless it moves.

@@ -176,8 +176,9 @@ pub fn moller_trumbore(p0: Vec3, e1: Vec3, e2: Vec3, ray: &Ray, t_max: f32) -> O
 pub enum Shape {
     /// A sphere.
     Sphere(Sphere),
-    /// A parallelogram.
-    Rect(Rect),
+    /// A parallelogram (boxed: it is four times a triangle's size, and a mesh makes a
+    /// million primitives).
+    Rect(Box<Rect>),
     /// Triangle `tri` of mesh `mesh`.
     Triangle {
         /// Mesh index.

@@ -53,9 +53,11 @@ impl Slot {
 /// The slots of a BVH built over `prims`, in its leaf order (slot k holds primitive
 /// `bvh.indices()[k]`).
 pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Vec<Slot> {
+    use rayon::prelude::*;
     assert!(prims.len() < GENERIC as usize, "more primitives than slots can index");
+    // A map in order: the same slots on any number of threads.
     bvh.indices()
-        .iter()
+        .par_iter()
         .map(|&i| {
             let generic = Slot { p0: Vec3::ZERO, e1: Vec3::ZERO, e2: Vec3::ZERO, prim: i | GENERIC };
             let prim = &prims[i as usize];
