@@ -52,6 +52,8 @@ trait Sink {
     fn normal(&mut self, n: Vec3);
     fn uv(&mut self, uv: Vec2);
     fn triangle(&mut self, t: [[u32; 3]; 3]);
+    /// Takes what another sink read from the text after this one's.
+    fn append(&mut self, later: Self);
 }
 
 impl Sink for ObjMesh {
@@ -66,6 +68,12 @@ impl Sink for ObjMesh {
     }
     fn triangle(&mut self, t: [[u32; 3]; 3]) {
         self.tris.push(t);
+    }
+    fn append(&mut self, mut later: Self) {
+        self.p.append(&mut later.p);
+        self.n.append(&mut later.n);
+        self.uv.append(&mut later.uv);
+        self.tris.append(&mut later.tris);
     }
 }
 
@@ -84,6 +92,11 @@ impl Sink for Scan {
     fn uv(&mut self, _: Vec2) {}
     fn triangle(&mut self, _: [[u32; 3]; 3]) {
         self.triangles += 1;
+    }
+    fn append(&mut self, later: Self) {
+        self.triangles += later.triangles;
+        // |x| of finite coordinates: the maximum is the same in any order.
+        self.extent = self.extent.max(later.extent);
     }
 }
 
@@ -120,82 +133,220 @@ pub fn parse_obj(text: &str) -> Result<ObjMesh, ObjError> {
     Ok(mesh)
 }
 
+/// Text at least this long is read in parallel chunks.
+const PARALLEL_BYTES: usize = 1 << 20;
+
 /// Reads every statement into `sink`; returns the counts of positions, normals, uvs and
-/// faces (triangles are the sink's to count).
-fn read(text: &str, sink: &mut impl Sink) -> Result<ObjCounts, ObjError> {
+/// faces (triangles are the sink's to count). A large file is read in chunks of whole
+/// lines on every core: a first pass counts each chunk's lines and vertex statements, so
+/// that each chunk then knows the line numbers and the vertices before it, and the second
+/// reads the chunks in parallel and joins them in order. The result, and the first error
+/// (the one of the lowest line), are those of one sequential pass.
+fn read<S: Sink + Default + Send>(text: &str, sink: &mut S) -> Result<ObjCounts, ObjError> {
+    let threads = rayon::current_num_threads();
+    if text.len() < PARALLEL_BYTES || threads < 2 {
+        return read_lines(text, 0, ObjCounts::default(), sink);
+    }
+    use rayon::prelude::*;
+    let chunks = chunks(text, threads * 4);
+    let before: Vec<(usize, ObjCounts)> = chunks.par_iter().map(|c| count_lines(c)).collect();
+    let mut starts = Vec::with_capacity(chunks.len());
+    let (mut line, mut n) = (0, ObjCounts::default());
+    for (lines, c) in &before {
+        starts.push((line, n));
+        line += lines;
+        n.positions += c.positions;
+        n.normals += c.normals;
+        n.uvs += c.uvs;
+    }
+    let parts: Vec<Result<(S, ObjCounts), ObjError>> = chunks
+        .par_iter()
+        .zip(&starts)
+        .map(|(c, &(line, n))| {
+            let mut part = S::default();
+            read_lines(c, line, n, &mut part).map(|counts| (part, counts))
+        })
+        .collect();
+    let mut total = ObjCounts::default();
+    for part in parts {
+        let (part, counts) = part?;
+        sink.append(part);
+        // The vertex counts run on from chunk to chunk; faces are each chunk's own.
+        total = ObjCounts { faces: total.faces + counts.faces, ..counts };
+    }
+    Ok(total)
+}
+
+/// `text` cut after newlines into about `count` pieces.
+fn chunks(text: &str, count: usize) -> Vec<&str> {
+    let mut out = Vec::with_capacity(count);
+    let mut rest = text;
+    let size = text.len().div_ceil(count).max(1);
+    while !rest.is_empty() {
+        let cut = match rest.as_bytes().get(size..).and_then(|b| b.iter().position(|&c| c == b'\n')) {
+            Some(at) => size + at + 1,
+            None => rest.len(),
+        };
+        let (piece, tail) = rest.split_at(cut);
+        out.push(piece);
+        rest = tail;
+    }
+    out
+}
+
+/// The lines of `text` and its vertex statements (what the chunks after it need to know).
+fn count_lines(text: &str) -> (usize, ObjCounts) {
     let mut n = ObjCounts::default();
-    for (i, raw) in text.lines().enumerate() {
-        let line = i + 1;
-        let err = |message: String| ObjError { line, message };
-        let content = raw.split('#').next().unwrap_or("").trim();
-        let mut words = content.split_whitespace();
-        let Some(keyword) = words.next() else { continue };
-        let numbers = |words: std::str::SplitWhitespace, count: usize| -> Result<[f32; 3], ObjError> {
-            let mut v = [0f32; 3];
-            let mut got = 0;
-            for (slot, w) in v.iter_mut().zip(words.take(count)) {
-                *slot = w.parse::<f32>().map_err(|_| err(format!("expected a number, got {w:?}")))?;
-                got += 1;
-            }
-            if got < count {
-                return Err(err(format!("expected {count} numbers after {keyword:?}")));
-            }
-            if v.iter().any(|x| !x.is_finite()) {
-                return Err(err("coordinates must be finite".into()));
-            }
-            Ok(v)
+    let mut lines = 0;
+    for raw in text.lines() {
+        lines += 1;
+        let keyword = if raw.is_ascii() {
+            AsciiWords(content(raw)).next()
+        } else {
+            content(raw).split_whitespace().next()
         };
         match keyword {
-            "v" => {
-                sink.position(Vec3::from(numbers(words, 3)?));
-                n.positions += 1;
-            }
-            "vn" => {
-                sink.normal(Vec3::from(numbers(words, 3)?));
-                n.normals += 1;
-            }
-            "vt" => {
-                let v = numbers(words, 2)?;
-                sink.uv(Vec2::new(v[0], v[1]));
-                n.uvs += 1;
-            }
-            "f" => {
-                // Fan triangulation as the corners come: no list of corners is kept.
-                let (mut first, mut prev, mut corners) = ([0u32; 3], [0u32; 3], 0usize);
-                for w in words {
-                    // Bounded before anything is made of them: the builder holds a face's
-                    // triangles as it goes.
-                    if corners == crate::limits::MAX_FACE_CORNERS {
-                        return Err(err(format!(
-                            "a face has more than {} corners",
-                            crate::limits::MAX_FACE_CORNERS
-                        )));
-                    }
-                    let c = corner(w, n.positions, n.uvs, n.normals).map_err(&err)?;
-                    match corners {
-                        0 => first = c,
-                        1 => {}
-                        // A face that fails later fails the whole file: its first triangles never count.
-                        _ => sink.triangle([first, prev, c]),
-                    }
-                    prev = c;
-                    corners += 1;
-                }
-                if corners < 3 {
-                    return Err(err(format!("a face needs at least 3 corners, got {corners}")));
-                }
-                n.faces += 1;
-            }
-            // Groups, objects, smoothing groups and materials do not change the geometry.
-            "g" | "o" | "s" | "usemtl" | "mtllib" | "l" | "p" => {}
-            other => return Err(err(format!("unknown statement {other:?}"))),
+            Some("v") => n.positions += 1,
+            Some("vn") => n.normals += 1,
+            Some("vt") => n.uvs += 1,
+            _ => {}
+        }
+    }
+    (lines, n)
+}
+
+/// A line without its comment.
+#[inline]
+fn content(raw: &str) -> &str {
+    if raw.is_ascii() {
+        // Lines are short: a plain loop beats `memchr`'s set-up.
+        raw.as_bytes().iter().position(|&b| b == b'#').map_or(raw, |at| &raw[..at])
+    } else {
+        raw.split('#').next().unwrap_or("")
+    }
+}
+
+/// Reads the statements of `text`, whose first line is number `first_line + 1` and before
+/// which the file had the vertices counted in `n`; returns the counts after it.
+fn read_lines(
+    text: &str,
+    first_line: usize,
+    mut n: ObjCounts,
+    sink: &mut impl Sink,
+) -> Result<ObjCounts, ObjError> {
+    for (i, raw) in text.lines().enumerate() {
+        let line = first_line + i + 1;
+        // A million-line file is mostly short ASCII lines: split those on bytes. Lines with
+        // other characters take `split_whitespace`, which knows Unicode's spaces; both
+        // split ASCII text alike (U+0009..U+000D and U+0020 are its ASCII whitespace).
+        if raw.is_ascii() {
+            statement(AsciiWords(content(raw)), line, &mut n, sink)?;
+        } else {
+            statement(content(raw).split_whitespace(), line, &mut n, sink)?;
         }
     }
     Ok(n)
 }
 
+/// The words of an ASCII line, split on ASCII whitespace as `char::is_whitespace` sees it.
+#[derive(Clone)]
+struct AsciiWords<'a>(&'a str);
+
+impl<'a> Iterator for AsciiWords<'a> {
+    type Item = &'a str;
+    #[inline]
+    fn next(&mut self) -> Option<&'a str> {
+        let space = |b: &u8| matches!(b, b' ' | b'\t'..=b'\r');
+        let bytes = self.0.as_bytes();
+        let start = bytes.iter().position(|b| !space(b))?;
+        let len = bytes[start..].iter().position(space).unwrap_or(bytes.len() - start);
+        // ASCII bytes are char boundaries: the slices are valid.
+        let (word, rest) = self.0[start..].split_at(len);
+        self.0 = rest;
+        Some(word)
+    }
+}
+
+/// One statement (a line's words) into `sink`, counted in `n`.
+#[inline]
+fn statement<'a>(
+    mut words: impl Iterator<Item = &'a str>,
+    line: usize,
+    n: &mut ObjCounts,
+    sink: &mut impl Sink,
+) -> Result<(), ObjError> {
+    let err = |message: String| ObjError { line, message };
+    let Some(keyword) = words.next() else { return Ok(()) };
+    let mut numbers = |count: usize| -> Result<[f32; 3], ObjError> {
+        let mut v = [0f32; 3];
+        let mut got = 0;
+        for (slot, w) in v.iter_mut().zip(words.by_ref().take(count)) {
+            *slot = w.parse::<f32>().map_err(|_| err(format!("expected a number, got {w:?}")))?;
+            got += 1;
+        }
+        if got < count {
+            return Err(err(format!("expected {count} numbers after {keyword:?}")));
+        }
+        if v.iter().any(|x| !x.is_finite()) {
+            return Err(err("coordinates must be finite".into()));
+        }
+        Ok(v)
+    };
+    match keyword {
+        "v" => {
+            sink.position(Vec3::from(numbers(3)?));
+            n.positions += 1;
+        }
+        "vn" => {
+            sink.normal(Vec3::from(numbers(3)?));
+            n.normals += 1;
+        }
+        "vt" => {
+            let v = numbers(2)?;
+            sink.uv(Vec2::new(v[0], v[1]));
+            n.uvs += 1;
+        }
+        "f" => {
+            // Fan triangulation as the corners come: no list of corners is kept.
+            let (mut first, mut prev, mut corners) = ([0u32; 3], [0u32; 3], 0usize);
+            for w in words {
+                // Bounded before anything is made of them: the builder holds a face's
+                // triangles as it goes.
+                if corners == crate::limits::MAX_FACE_CORNERS {
+                    return Err(err(format!("a face has more than {} corners", crate::limits::MAX_FACE_CORNERS)));
+                }
+                let c = corner(w, n.positions, n.uvs, n.normals).map_err(&err)?;
+                match corners {
+                    0 => first = c,
+                    1 => {}
+                    // A face that fails later fails the whole file: its first triangles never count.
+                    _ => sink.triangle([first, prev, c]),
+                }
+                prev = c;
+                corners += 1;
+            }
+            if corners < 3 {
+                return Err(err(format!("a face needs at least 3 corners, got {corners}")));
+            }
+            n.faces += 1;
+        }
+        // Groups, objects, smoothing groups and materials do not change the geometry.
+        "g" | "o" | "s" | "usemtl" | "mtllib" | "l" | "p" => {}
+        other => return Err(err(format!("unknown statement {other:?}"))),
+    }
+    Ok(())
+}
+
 /// One face corner `v`, `v/vt`, `v//vn` or `v/vt/vn` as (position, normal, uv) indices.
 fn corner(word: &str, np: usize, nuv: usize, nn: usize) -> Result<[u32; 3], String> {
+    // The common case, a bare positive vertex index, without the general path's splitting
+    // and parsing (the same value and checks).
+    if (1..=9).contains(&word.len()) && word.bytes().all(|b| b.is_ascii_digit()) {
+        let i = word.bytes().fold(0usize, |v, b| v * 10 + usize::from(b - b'0'));
+        if i >= 1 && i <= np {
+            return Ok([(i - 1) as u32, u32::MAX, u32::MAX]);
+        }
+    }
     let mut parts = word.split('/');
     let index = |s: Option<&str>, count: usize, what: &str| -> Result<u32, String> {
         match s {
@@ -239,6 +390,56 @@ mod tests {
         assert!(parse_obj("v 0 0 0\nf 1 1\n").unwrap_err().message.contains("at least 3"));
         assert!(parse_obj("v 0 0 0\nf 0 1 1\n").unwrap_err().message.contains("out of range"));
         assert!(parse_obj("bogus 1\n").unwrap_err().message.contains("unknown statement"));
+    }
+
+    /// The byte splitter of ASCII lines splits as `split_whitespace` does.
+    #[test]
+    fn ascii_words_split_like_split_whitespace() {
+        for line in
+            ["", "   ", "v 1 2 3", "\tv\x0b1\x0c2\r3  ", "f 1/2/3  4//5\t6", "  vn  -0 +1 .5e3 ", "x\t\ty"]
+        {
+            let ours: Vec<&str> = AsciiWords(line).collect();
+            let std: Vec<&str> = line.split_whitespace().collect();
+            assert_eq!(ours, std, "{line:?}");
+        }
+        // A line with a non-ASCII space takes the Unicode splitter.
+        let m = parse_obj("v 0\u{a0}0 0\nv 1 0 0\nv 0 1 0 # é\nf 1 2 3\n").unwrap();
+        assert_eq!(m.p.len(), 3);
+        assert_eq!(m.tris.len(), 1);
+    }
+
+    /// A file read in parallel chunks gives what one sequential pass gives: the same mesh,
+    /// counts and extent, and the same first error with its line.
+    #[test]
+    fn parallel_chunks_read_like_one_pass() {
+        let mut text = String::new();
+        let n = 40_000;
+        for i in 0..n {
+            text.push_str(&format!("v {} {} -{}.25 # c\nvt 0.{i} 1\nvn 0 0 1\n", i % 97, i / 97, i % 13));
+        }
+        for i in 0..n - 2 {
+            // Absolute and relative corners, with and without normals and uvs.
+            text.push_str(&format!("f {}/{}/1 -2 -1//-1\n", i + 1, i + 1));
+        }
+        assert!(text.len() > 2 * PARALLEL_BYTES);
+        let sequential = |t: &str| {
+            let mut m = ObjMesh::default();
+            read_lines(t, 0, ObjCounts::default(), &mut m).map(|c| (m, c))
+        };
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
+        let mut m = ObjMesh::default();
+        let c = pool.install(|| read(&text, &mut m)).unwrap();
+        assert_eq!((m, c), sequential(&text).unwrap());
+        let scan = pool.install(|| scan_obj_extent(&text)).unwrap();
+        let mut s = Scan::default();
+        let sc = read_lines(&text, 0, ObjCounts::default(), &mut s).unwrap();
+        assert_eq!(scan, (ObjCounts { triangles: s.triangles, ..sc }, s.extent));
+        // Errors late in the file, one of them behind a chunk boundary: the first is named.
+        let bad = format!("{text}f 1 2 {}\nv x 0 0\n", n + 1);
+        let mut m = ObjMesh::default();
+        let e = pool.install(|| read(&bad, &mut m)).unwrap_err();
+        assert_eq!(e, sequential(&bad).unwrap_err());
+        assert_eq!(e.line, 4 * n - 2 + 1);
     }
 
     #[test]

@@ -19,6 +19,7 @@ mod convergence;
 mod farm;
 mod font;
 mod plot;
+mod rays;
 mod reference;
 mod submit;
 mod viewers;
@@ -182,6 +183,20 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 1_000_000)]
         triangles: usize,
     },
+    /// Ray casting against Embree's on the same rays: reads the ray files and rays.json that
+    /// `../shared/benchmarks/peers/embree_rays.py --out DIR` writes, casts each set (closest
+    /// or any hit as the file says), checks the hit fractions match Embree's within 1e-3
+    /// and prints Mrays/s with 1 and 2 threads beside Embree's.
+    Rays {
+        /// The folder the script wrote.
+        dir: PathBuf,
+        /// The mesh [default: the one rays.json names].
+        #[arg(long)]
+        mesh: Option<PathBuf>,
+        /// Runs of each set and thread count (the median is reported) [default: 3].
+        #[arg(long, default_value_t = 3)]
+        repeats: usize,
+    },
     /// The farm's overhead: `tessera render` with local workers against the same image
     /// traced in one process on the same cores, as a ratio, and the time to the first
     /// full-frame preview.
@@ -214,6 +229,7 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             audit::run(trials, audit_fraction)?;
             Ok(ExitCode::SUCCESS)
         }
+        BenchCommand::Rays { dir, mesh, repeats } => rays::run(&dir, mesh.as_deref(), repeats.max(1)),
         BenchCommand::Farm { sizes, workers, viewers, seconds, batch_ms, spp, credit, viewer_rate } => {
             if spp < 2 || credit == 0 || workers.contains(&0) {
                 anyhow::bail!("--spp must be at least 2, --credit and every --workers at least 1");

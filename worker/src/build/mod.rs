@@ -54,13 +54,19 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
             }
         });
     }
-    let bounds: Vec<_> = shapes.prims.iter().map(|p| p.bounds(&shapes.meshes, &shapes.motions)).collect();
+    let bounds: Vec<_> = {
+        use rayon::prelude::*;
+        shapes.prims.par_iter().map(|p| p.bounds(&shapes.meshes, &shapes.motions)).collect()
+    };
     let bvh = Bvh::build(&bounds);
+    drop(bounds);
+    let slots = crate::render::triangles::slots(&bvh, &shapes.prims, &shapes.meshes);
     let world = World {
         materials: desc.materials.iter().map(materials::material).collect(),
         textures,
         prims: shapes.prims,
         bvh,
+        slots,
         planes,
         meshes: shapes.meshes,
         motions: shapes.motions,

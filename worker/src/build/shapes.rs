@@ -115,7 +115,7 @@ impl Shapes {
             self.lights.push(Light::Rect { rect: rect.clone(), radiance });
             self.lights.len() as u32 - 1
         });
-        self.push(Shape::Rect(rect), o.material, light, motion);
+        self.push(Shape::Rect(Box::new(rect)), o.material, light, motion);
     }
 
     /// Adds a mesh of object `o`, baked into world space unless it moves.
@@ -143,6 +143,7 @@ impl Shapes {
             return Err(err(o.at, NOT_FINITE.into()));
         }
         let index = self.meshes.len() as u32;
+        self.prims.reserve(mesh.tris.len());
         for tri in 0..mesh.tris.len() as u32 {
             self.push(Shape::Triangle { mesh: index, tri }, o.material, None, motion);
         }

@@ -13,6 +13,7 @@ pub mod sampler;
 pub mod shape;
 pub mod texture;
 pub mod transform;
+pub mod triangles;
 
 use std::sync::Arc;
 
@@ -65,6 +66,8 @@ pub struct World {
     pub prims: Vec<Primitive>,
     /// The BVH over `prims`.
     pub bvh: Bvh,
+    /// The BVH's slots in leaf order: its static triangles inline (`triangles::slots`).
+    pub slots: Vec<triangles::Slot>,
     /// Infinite planes with their material (not in the BVH: they have no bounds).
     pub planes: Vec<(Plane, u32)>,
     /// Triangle meshes.
@@ -107,16 +110,38 @@ impl Scene {
 
     /// The nearest surface the ray hits before `t_max`, at shutter fraction `time`.
     pub fn intersect(&self, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceHit> {
+        let w = &*self.world;
+        // An inline triangle's hit is completed (point, normals, uv) only once it is known
+        // to be the nearest; it is the same hit `Primitive::intersect` would have made.
+        let mut nearest: Option<(u32, f32, f32, f32)> = None;
         let mut best: Option<SurfaceHit> = None;
-        let t_max = self.world.bvh.traverse(ray, t_max, |i, t_max| {
-            let prim = &self.world.prims[i as usize];
-            let mut hit = prim.intersect(ray, t_max, time, &self.world.meshes, &self.world.motions)?;
-            hit.prim = i;
-            best = Some(SurfaceHit { hit, material: prim.material, light: prim.light });
-            Some(hit.t)
+        let t_max = w.bvh.traverse_slots(ray, t_max, |k, t_max| match w.slots[k].kind() {
+            triangles::SlotKind::Triangle(i) => {
+                let (t, b1, b2) = w.slots[k].hit(ray, t_max)?;
+                nearest = Some((i, t, b1, b2));
+                best = None;
+                Some(t)
+            }
+            triangles::SlotKind::Generic(i) => {
+                let prim = &w.prims[i as usize];
+                let mut hit = prim.intersect(ray, t_max, time, &w.meshes, &w.motions)?;
+                hit.prim = i;
+                nearest = None;
+                best = Some(SurfaceHit { hit, material: prim.material, light: prim.light });
+                Some(hit.t)
+            }
         });
+        if let Some((i, t, b1, b2)) = nearest {
+            let prim = &w.prims[i as usize];
+            if let shape::Shape::Triangle { mesh, tri } = prim.shape {
+                best = w.meshes[mesh as usize].hit_at(tri, t, b1, b2).map(|mut hit| {
+                    hit.prim = i;
+                    SurfaceHit { hit, material: prim.material, light: prim.light }
+                });
+            }
+        }
         let mut t_max = t_max;
-        for (plane, material) in &self.world.planes {
+        for (plane, material) in &w.planes {
             if let Some(mut hit) = plane.intersect(ray, t_max) {
                 // Planes are not in `prims`: no index may point there.
                 hit.prim = u32::MAX;
@@ -150,9 +175,16 @@ impl Scene {
             tr != Vec3::ZERO
         };
         let mut open = true;
-        self.world.bvh.visit(ray, dist, |i| {
-            let prim = &self.world.prims[i as usize];
-            for _ in 0..prim.crossings(ray, dist, time, &self.world.meshes, &self.world.motions) {
+        let w = &*self.world;
+        w.bvh.visit_slots(ray, dist, |k| {
+            let (i, crossings) = match w.slots[k].kind() {
+                triangles::SlotKind::Triangle(i) => (i, u32::from(w.slots[k].hit(ray, dist).is_some())),
+                triangles::SlotKind::Generic(i) => {
+                    (i, w.prims[i as usize].crossings(ray, dist, time, &w.meshes, &w.motions))
+                }
+            };
+            let prim = &w.prims[i as usize];
+            for _ in 0..crossings {
                 open = pass(prim.material, prim.light.is_some());
                 if !open {
                     break;

@@ -94,7 +94,8 @@ pub struct Mesh {
 }
 
 impl Mesh {
-    fn corners(&self, tri: u32) -> [Vec3; 3] {
+    /// The corners of triangle `tri`.
+    pub fn corners(&self, tri: u32) -> [Vec3; 3] {
         let t = &self.tris[tri as usize];
         [self.p[t[0][0] as usize], self.p[t[1][0] as usize], self.p[t[2][0] as usize]]
     }
@@ -103,33 +104,16 @@ impl Mesh {
     /// never hit).
     pub fn intersect(&self, tri: u32, ray: &Ray, t_max: f32) -> Option<Hit> {
         let [p0, p1, p2] = self.corners(tri);
-        let e1 = p1 - p0;
-        let e2 = p2 - p0;
-        let pv = ray.dir.cross(e2);
-        let det = e1.dot(pv);
-        if det == 0.0 || !det.is_finite() {
-            return None;
-        }
-        let inv = 1.0 / det;
-        let tv = ray.origin - p0;
-        let b1 = tv.dot(pv) * inv;
-        if !(0.0..=1.0).contains(&b1) {
-            return None;
-        }
-        let qv = tv.cross(e1);
-        let b2 = ray.dir.dot(qv) * inv;
-        if b2 < 0.0 || b1 + b2 > 1.0 {
-            return None;
-        }
-        let t = e2.dot(qv) * inv;
-        if !(t > 0.0 && t < t_max) {
-            return None;
-        }
+        let (t, b1, b2) = moller_trumbore(p0, p1 - p0, p2 - p0, ray, t_max)?;
+        self.hit_at(tri, t, b1, b2)
+    }
+
+    /// The hit of triangle `tri` at ray parameter `t` and barycentrics `b1`, `b2` found by
+    /// [`moller_trumbore`]; `None` when its normal is not finite (a degenerate triangle).
+    pub fn hit_at(&self, tri: u32, t: f32, b1: f32, b2: f32) -> Option<Hit> {
+        let [p0, p1, p2] = self.corners(tri);
+        let n = normal(p1 - p0, p2 - p0)?;
         let b0 = 1.0 - b1 - b2;
-        let n = e1.cross(e2).normalize();
-        if !n.is_finite() {
-            return None;
-        }
         let p = p0 * b0 + p1 * b1 + p2 * b2;
         let p_error = ((p0 * b0).abs() + (p1 * b1).abs() + (p2 * b2).abs()) * gamma(7);
         let c = &self.tris[tri as usize];
@@ -151,13 +135,50 @@ impl Mesh {
     }
 }
 
+/// The unit normal `e1 × e2` of a triangle with edges `e1`, `e2`, if finite (a triangle
+/// whose normal is not is never hit).
+#[inline]
+pub fn normal(e1: Vec3, e2: Vec3) -> Option<Vec3> {
+    let n = e1.cross(e2).normalize();
+    n.is_finite().then_some(n)
+}
+
+/// The ray parameter and barycentrics (t, b1, b2) where the ray meets the triangle with
+/// corner `p0` and edges `e1`, `e2`, for t in (0, t_max) (Möller–Trumbore). The one
+/// triangle test: the mesh's and the BVH-ordered copies' give the same bits.
+#[inline(always)]
+pub fn moller_trumbore(p0: Vec3, e1: Vec3, e2: Vec3, ray: &Ray, t_max: f32) -> Option<(f32, f32, f32)> {
+    let pv = ray.dir.cross(e2);
+    let det = e1.dot(pv);
+    if det == 0.0 || !det.is_finite() {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let tv = ray.origin - p0;
+    let b1 = tv.dot(pv) * inv;
+    if !(0.0..=1.0).contains(&b1) {
+        return None;
+    }
+    let qv = tv.cross(e1);
+    let b2 = ray.dir.dot(qv) * inv;
+    if b2 < 0.0 || b1 + b2 > 1.0 {
+        return None;
+    }
+    let t = e2.dot(qv) * inv;
+    if !(t > 0.0 && t < t_max) {
+        return None;
+    }
+    Some((t, b1, b2))
+}
+
 /// A shape.
 #[derive(Debug, Clone)]
 pub enum Shape {
     /// A sphere.
     Sphere(Sphere),
-    /// A parallelogram.
-    Rect(Rect),
+    /// A parallelogram (boxed: it is four times a triangle's size, and a mesh makes a
+    /// million primitives).
+    Rect(Box<Rect>),
     /// Triangle `tri` of mesh `mesh`.
     Triangle {
         /// Mesh index.

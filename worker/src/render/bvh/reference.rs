@@ -1,0 +1,126 @@
+//! The builder as it was before items moved with their boxes and subtrees built in
+//! parallel (only the link to the second child is now relative): the tests check that the
+//! new one makes the same tree, node for node, so that traversal order and images keep
+//! their bits.
+
+use glam::Vec3;
+
+use super::{Aabb, Bvh, Node, BINS, MAX_LEAF, TRAVERSAL_COST};
+
+pub(super) fn build(bounds: &[Aabb]) -> Bvh {
+    let mut bvh =
+        Bvh { nodes: Vec::with_capacity(bounds.len() * 2), indices: (0..bounds.len() as u32).collect() };
+    if bounds.is_empty() {
+        return bvh;
+    }
+    let centroids: Vec<Vec3> = bounds.iter().map(|b| b.centroid()).collect();
+    let mut stack = vec![(0usize, bounds.len(), usize::MAX)];
+    while let Some((start, end, parent)) = stack.pop() {
+        let node = bvh.nodes.len();
+        if parent != usize::MAX {
+            bvh.nodes[parent].offset = (node - parent) as u32;
+        }
+        let idx = &mut bvh.indices[start..end];
+        let node_bounds = idx.iter().fold(Aabb::EMPTY, |b, &i| b.union(bounds[i as usize]));
+        let split = split(idx, bounds, &centroids, &node_bounds);
+        match split {
+            None => bvh.nodes.push(Node {
+                bounds: node_bounds,
+                offset: start as u32,
+                count: (end - start) as u32,
+                axis: 0,
+            }),
+            Some((mid, axis)) => {
+                bvh.nodes.push(Node { bounds: node_bounds, offset: 0, count: 0, axis: axis as u8 });
+                // Second child first onto the stack, so that the first child is built
+                // right after its parent (and sits at parent + 1).
+                stack.push((start + mid, end, node));
+                stack.push((start, start + mid, usize::MAX));
+            }
+        }
+    }
+    bvh
+}
+
+/// Chooses a split of `idx` by the binned SAH; reorders `idx` and returns the split
+/// position and axis, or `None` for a leaf.
+fn split(idx: &mut [u32], bounds: &[Aabb], centroids: &[Vec3], node_bounds: &Aabb) -> Option<(usize, usize)> {
+    let n = idx.len();
+    if n <= 2 {
+        return None;
+    }
+    let cb = Aabb::from_points(idx.iter().map(|&i| centroids[i as usize]));
+    let extent = cb.max - cb.min;
+    let axis = if extent.x >= extent.y && extent.x >= extent.z {
+        0
+    } else if extent.y >= extent.z {
+        1
+    } else {
+        2
+    };
+    if !(extent[axis] > 0.0) {
+        // All centroids coincide: no split can separate them.
+        return (n > MAX_LEAF).then_some((n / 2, axis));
+    }
+    let bin_of = |i: u32| {
+        let b = ((centroids[i as usize][axis] - cb.min[axis]) / extent[axis] * BINS as f32) as usize;
+        b.min(BINS - 1)
+    };
+    let mut bins = [(Aabb::EMPTY, 0usize); BINS];
+    for &i in idx.iter() {
+        let b = bin_of(i);
+        bins[b].0 = bins[b].0.union(bounds[i as usize]);
+        bins[b].1 += 1;
+    }
+    // Sweep from the right to get the area and count of each right side.
+    let mut right = [(0.0f32, 0usize); BINS];
+    let (mut acc, mut count) = (Aabb::EMPTY, 0);
+    for b in (1..BINS).rev() {
+        acc = acc.union(bins[b].0);
+        count += bins[b].1;
+        right[b] = (acc.surface_area(), count);
+    }
+    let (mut acc, mut count) = (Aabb::EMPTY, 0);
+    let mut best = (f32::INFINITY, 0);
+    for b in 0..BINS - 1 {
+        acc = acc.union(bins[b].0);
+        count += bins[b].1;
+        let (ra, rc) = right[b + 1];
+        if count == 0 || rc == 0 {
+            continue;
+        }
+        let cost = acc.surface_area() * count as f32 + ra * rc as f32;
+        if cost < best.0 {
+            best = (cost, b);
+        }
+    }
+    let leaf_cost = node_bounds.surface_area() * n as f32;
+    let split_cost = TRAVERSAL_COST * node_bounds.surface_area() + best.0;
+    if best.0.is_infinite() || (split_cost >= leaf_cost && n <= MAX_LEAF) {
+        return (n > MAX_LEAF).then(|| median_split(idx, centroids, axis));
+    }
+    let mid = partition(idx, |i| bin_of(i) <= best.1);
+    if mid == 0 || mid == n {
+        return Some(median_split(idx, centroids, axis));
+    }
+    Some((mid, axis))
+}
+
+fn median_split(idx: &mut [u32], centroids: &[Vec3], axis: usize) -> (usize, usize) {
+    let mid = idx.len() / 2;
+    idx.select_nth_unstable_by(mid, |&a, &b| {
+        centroids[a as usize][axis].total_cmp(&centroids[b as usize][axis])
+    });
+    (mid, axis)
+}
+
+fn partition(idx: &mut [u32], left: impl Fn(u32) -> bool) -> usize {
+    let mut mid = 0;
+    for i in 0..idx.len() {
+        if left(idx[i]) {
+            idx.swap(i, mid);
+            mid += 1;
+        }
+    }
+    mid
+}
