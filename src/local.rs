@@ -126,6 +126,22 @@ pub struct Checkpoints {
     pub resume: bool,
 }
 
+/// Removes the database this run made in `dir` (and `dir` itself, if this run made it and
+/// it is empty); best effort, since the job's own error is what the user needs to see.
+fn remove_fresh_store(dir: &Path, dir_existed: bool) {
+    let prefix = tessera_coordinator::store::DB_FILE;
+    if let Ok(entries) = std::fs::read_dir(dir) {
+        for e in entries.flatten() {
+            if e.file_name().to_string_lossy().starts_with(prefix) {
+                let _ = std::fs::remove_file(e.path());
+            }
+        }
+    }
+    if !dir_existed {
+        let _ = std::fs::remove_dir(dir);
+    }
+}
+
 /// The in-process coordinator with its job: a new one, or with `--resume` the one in the
 /// data directory, which must be of the same scene and settings.
 async fn start_job(
@@ -139,6 +155,7 @@ async fn start_job(
         return Ok((service, job));
     };
     let had = c.dir.join(tessera_coordinator::store::DB_FILE).exists();
+    let dir_existed = c.dir.exists();
     if c.resume && !had {
         bail!("nothing to resume: no checkpoint in {}", c.dir.display());
     }
@@ -154,8 +171,17 @@ async fn start_job(
                     c.dir.display()
                 );
             }
-            let job = service.submit(bundle, settings, 0).await.map_err(|e| anyhow!(e))?;
-            Ok((service, job))
+            match service.submit(bundle, settings, 0).await {
+                Ok(job) => Ok((service, job)),
+                Err(e) => {
+                    // A refused job leaves nothing behind that a later --resume would find.
+                    if !had {
+                        drop(service);
+                        remove_fresh_store(&c.dir, dir_existed);
+                    }
+                    Err(anyhow!(e))
+                }
+            }
         }
         ([(id, hash, stored)], true) => {
             if *hash != bundle.hash() || *stored != settings {

@@ -77,10 +77,17 @@ fn bad_arguments_are_refused_before_work() {
     assert!(e.contains("use .png or .exr"), "{e}");
     let e = stderr_of(&["render", scene, "-o", "/no/such/dir/x.png"]);
     assert!(e.contains("does not exist"), "{e}");
-    let e = stderr_of(&["render", scene, "-o", "/tmp/x.png", "--workers", "0"]);
+    // A private folder: a shared /tmp/x.png would meet other runs' leftovers.
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("x.png");
+    let out = out.to_str().unwrap();
+    let e = stderr_of(&["render", scene, "-o", out, "--workers", "0"]);
     assert!(e.contains("--workers"), "{e}");
-    let e = stderr_of(&["render", scene, "-o", "/tmp/x.png", "--spp", "0"]);
+    let e = stderr_of(&["render", scene, "-o", out, "--spp", "0"]);
     assert!(e.contains("spp"), "{e}");
+    // Bug this protects against: a refused job left its checkpoint folder behind.
+    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().flatten().map(|e| e.file_name()).collect();
+    assert!(left.is_empty(), "a refused render left {left:?} behind");
     let o = run(&["render", scene]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--output"));
 }

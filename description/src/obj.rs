@@ -313,7 +313,10 @@ fn statement<'a>(
                 // Bounded before anything is made of them: the builder holds a face's
                 // triangles as it goes.
                 if corners == crate::limits::MAX_FACE_CORNERS {
-                    return Err(err(format!("a face has more than {} corners", crate::limits::MAX_FACE_CORNERS)));
+                    return Err(err(format!(
+                        "a face has more than {} corners",
+                        crate::limits::MAX_FACE_CORNERS
+                    )));
                 }
                 let c = corner(w, n.positions, n.uvs, n.normals).map_err(&err)?;
                 match corners {
