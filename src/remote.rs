@@ -116,8 +116,13 @@ impl SecurityArgs {
             tracing::warn!("--insecure: listening on {listen} with no authentication");
         }
         if beyond_loopback && auth.required() && tls.is_none() {
+            if !self.insecure {
+                bail!(
+                    "refusing to take tokens in plain text on {listen}: anyone on the network could read                      them and act as their owners. Give --tls-cert and --tls-key, listen on 127.0.0.1, or                      say --insecure"
+                );
+            }
             tracing::warn!(
-                "tokens travel in plain text on {listen}: anyone on the network can read them; give --tls-cert and --tls-key"
+                "--insecure: tokens travel in plain text on {listen}: anyone on the network can read them"
             );
         }
         Ok((tls, auth))

@@ -415,7 +415,15 @@ fn listening_beyond_loopback_needs_authentication_or_insecure() {
     open.wait_for("coordinator listening on ", Duration::from_secs(30));
     let s = Secrets::new();
     let tokens = s.arg("tokens");
-    let with_tokens = Proc::spawn(&["coordinator", "--listen", "0.0.0.0:0", "--tokens", &tokens]);
+    // Tokens in plain text beyond loopback: refused, unless --insecure.
+    let o = run_with_timeout(
+        &["coordinator", "--listen", "0.0.0.0:0", "--tokens", &tokens],
+        Duration::from_secs(30),
+    );
+    assert!(!o.status.success());
+    assert!(String::from_utf8_lossy(&o.stderr).contains("refusing to take tokens in plain text"), "{o:?}");
+    let with_tokens =
+        Proc::spawn(&["coordinator", "--listen", "0.0.0.0:0", "--tokens", &tokens, "--insecure"]);
     with_tokens.wait_for("coordinator listening on ", Duration::from_secs(30));
     // A tokens file every user can read is refused.
     {

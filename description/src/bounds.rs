@@ -71,7 +71,8 @@ pub(crate) fn check_text(file: &str, text: &str) -> Result<(), SceneError> {
 pub(crate) fn check_bundle(bundle: &Bundle) -> Result<(), SceneError> {
     check_text(&bundle.name, &bundle.text)?;
     let mut total = bundle.text.len() as u64;
-    for (i, (path, data)) in bundle.assets.iter().enumerate() {
+    let mut seen = std::collections::HashSet::with_capacity(bundle.assets.len());
+    for (path, data) in bundle.assets.iter() {
         if path.len() > MAX_NAME_BYTES {
             return Err(at_start(
                 &bundle.name,
@@ -82,7 +83,9 @@ pub(crate) fn check_bundle(bundle: &Bundle) -> Result<(), SceneError> {
                 ),
             ));
         }
-        if bundle.assets[..i].iter().any(|(p, _)| p == path) {
+        // A set, not a scan of those before: a bundle of many short paths must not cost
+        // quadratic time.
+        if !seen.insert(path.as_str()) {
             return Err(at_start(&bundle.name, format!("the bundle carries asset {} twice", quoted(path))));
         }
         total += (path.len() + data.len()) as u64;

@@ -109,3 +109,33 @@ async fn priorities_above_the_ceiling_need_an_admin() {
     alice.clone().pause(pb::PauseRequest { job_id: job, paused: true }).await.unwrap();
     assert_eq!(h.job(tessera_description::ids::JobId(job)).await.unwrap().state, JobState::Paused);
 }
+
+/// Bugs this protects against: a submitter's Watch without a job id listed every job's
+/// scene name, and a submitter's Cancel of an id not yet used passed the ownership check,
+/// so a guess of the next id could cancel another's job as it was inserted.
+#[tokio::test]
+async fn a_submitter_sees_and_touches_only_its_own_jobs_even_by_guessing() {
+    let h = secured().await;
+    let alice = h.channel_with(token(ALICE)).await.unwrap();
+    let bob = h.channel_with(token(BOB)).await.unwrap();
+    let settings = pb::RenderSettings { spp: 2, width: 16, height: 16, ..Default::default() };
+    let job = tessera_harness::submit(&alice, "secret-project.toml", tessera_harness::SMALL_SCENE, settings)
+        .await
+        .unwrap();
+    // Bob's Watch with no job finds none of his and names nothing of Alice's.
+    let watch = pb::WatchRequest {
+        job_id: 0,
+        protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
+        ..Default::default()
+    };
+    let refused = tessera_harness::client(&bob).watch(watch).await.err().expect("nothing to watch");
+    assert_eq!(refused.code(), Code::NotFound, "{refused:?}");
+    assert!(!refused.message().contains("secret"), "{}", refused.message());
+    // An id that does not exist yet is not found for a submitter, not let through.
+    let next = job.0 + 1;
+    let e = tessera_harness::client(&bob).cancel(pb::CancelRequest { job_id: next }).await.unwrap_err();
+    assert_eq!(e.code(), Code::NotFound);
+    let e = tessera_harness::client(&bob).cancel(pb::CancelRequest { job_id: job.0 }).await.unwrap_err();
+    assert_eq!(e.code(), Code::PermissionDenied);
+    assert_eq!(h.job(job).await.unwrap().state, JobState::Queued);
+}

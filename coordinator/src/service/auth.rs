@@ -376,7 +376,13 @@ impl tonic::service::Interceptor for Authenticate {
 /// The caller of `request` if it may do `action`: `UNAUTHENTICATED` without a principal
 /// (the service served without its interceptor), `PERMISSION_DENIED` for another role.
 pub(super) fn require<T>(request: &Request<T>, action: Action) -> Result<Principal, Status> {
-    let p = caller(request)?;
+    require_of(request.extensions().get::<Principal>(), action)
+}
+
+/// As `require`, for the principal the interceptor left in a request's extensions (the
+/// submit gate asks before it reads a body or reserves budget).
+pub(super) fn require_of(p: Option<&Principal>, action: Action) -> Result<Principal, Status> {
+    let p = p.cloned().ok_or_else(|| Status::unauthenticated("the call carries no verified identity"))?;
     if action.roles().contains(&p.role) {
         return Ok(p);
     }
@@ -408,7 +414,10 @@ pub(super) fn principal_name<T>(request: &Request<T>) -> Option<String> {
 
 impl CoordinatorService {
     /// Refuses a submitter's call on a job that is not its own; others pass (their role
-    /// was checked). A job that does not exist passes too: the handler says not found.
+    /// was checked). For a submitter a job that does not exist is `NOT_FOUND` here, not
+    /// later: ids are never reused, so a job that exists and is its own now stays its own
+    /// when the handler acts (a job submitted by another between a check that let a
+    /// missing id pass and the act could otherwise be cancelled by a guess of its id).
     pub(super) fn check_owner(&self, who: &Principal, job: JobId) -> Result<(), Status> {
         if who.role != Role::Submitter {
             return Ok(());
@@ -418,7 +427,8 @@ impl CoordinatorService {
                 info!(principal = %who.name, %job, "refused: another's job");
                 Err(Status::permission_denied(format!("{job} belongs to another submitter")))
             }
-            _ => Ok(()),
+            Some(_) => Ok(()),
+            None => Err(Status::not_found(format!("no {job}"))),
         }
     }
 

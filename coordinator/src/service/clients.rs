@@ -81,7 +81,14 @@ impl CoordinatorService {
                 strikes: farm.strikes(id),
                 ..Default::default()
             })
-            .chain(super::workers::quarantined_to_wire(&farm))
+            .chain(super::workers::quarantined_to_wire(&farm).map(|mut q| {
+                // Nor which identities are quarantined, or why.
+                if who.role == auth::Role::Submitter {
+                    q.name.clear();
+                    q.quarantine_reason.clear();
+                }
+                q
+            }))
             .collect();
         Ok(Response::new(pb::StatusResponse { jobs, workers }))
     }

@@ -76,6 +76,13 @@ where
         if request.uri().path() != SUBMIT {
             return Box::pin(inner.call(request));
         }
+        // The role before anything else: a worker's or viewer's token must not hold a
+        // permit, reserve budget or have its body decoded (the interceptor, which stands
+        // before the gate, only said who is calling).
+        let who = request.extensions().get::<super::auth::Principal>();
+        if let Err(refused) = super::auth::require_of(who, super::auth::Action::Submit) {
+            return Box::pin(async move { Ok(refused.into_http::<Body>()) });
+        }
         let (permits, budget) = (self.permits.clone(), self.budget.clone());
         Box::pin(async move {
             // Never closed, so acquiring only waits.

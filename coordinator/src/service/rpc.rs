@@ -55,7 +55,7 @@ impl Coordinator for CoordinatorService {
                 pb::ProtocolVersion::Current as i32
             )));
         }
-        let job = self.pick_job(req.job_id)?;
+        let job = self.pick_job(&who, req.job_id)?;
         self.check_owner(&who, job)?;
         let rate =
             if req.max_rate > 0.0 { req.max_rate.min(WATCH_DEFAULT_RATE * 10.0) } else { WATCH_DEFAULT_RATE };

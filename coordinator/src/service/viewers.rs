@@ -23,6 +23,7 @@ use tonic::Status;
 
 use tessera_proto::convert;
 
+use super::auth::Principal;
 use super::{lock, CoordinatorService};
 
 /// Pixels per watch update: about 1.8 MB, far below gRPC's message limit, and all a slow
@@ -233,7 +234,7 @@ impl CoordinatorService {
 
     /// The job a viewer asks for: by id; or (0) the active job (running, else paused, else
     /// queued, oldest first), or the only job; otherwise the jobs to choose from.
-    pub(super) fn pick_job(&self, id: u64) -> Result<JobId, Status> {
+    pub(super) fn pick_job(&self, who: &Principal, id: u64) -> Result<JobId, Status> {
         let farm = self.farm();
         if id != 0 {
             return farm
@@ -241,12 +242,14 @@ impl CoordinatorService {
                 .map(|j| j.id)
                 .ok_or_else(|| Status::not_found(format!("no job {id} on this coordinator")));
         }
+        // A submitter chooses among its own jobs only, and is told of no others.
+        let visible = || farm.jobs().filter(|j| CoordinatorService::sees_jobs_of(who, &j.owner));
         for state in [JobState::Running, JobState::Paused, JobState::Queued] {
-            if let Some(j) = farm.jobs().find(|j| j.state == state) {
+            if let Some(j) = visible().find(|j| j.state == state) {
                 return Ok(j.id);
             }
         }
-        let jobs: Vec<_> = farm.jobs().collect();
+        let jobs: Vec<_> = visible().collect();
         match jobs.as_slice() {
             [] => Err(Status::not_found("this coordinator has no jobs yet")),
             [only] => Ok(only.id),

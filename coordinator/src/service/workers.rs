@@ -49,6 +49,17 @@ impl CoordinatorService {
                 return;
             }
         };
+        // Names travel in every Status: bounded, and never echoed whole.
+        if hello.name.len() > tessera_description::limits::MAX_NAME_BYTES {
+            let reason = format!(
+                "the worker's name is {} bytes, more than the limit of {}",
+                hello.name.len(),
+                tessera_description::limits::MAX_NAME_BYTES
+            );
+            warn!("{reason}");
+            let _ = tx.send(Ok(refuse(reason))).await;
+            return;
+        }
         if hello.protocol_version != pb::ProtocolVersion::Current as i32 {
             let reason = format!(
                 "protocol version {} is not supported; this coordinator speaks version {}",
@@ -62,21 +73,10 @@ impl CoordinatorService {
         if hello.renderer_version != tessera_description::RENDERER_VERSION {
             let reason = format!(
                 "worker runs renderer {}, coordinator {}: images would not be bit-identical; run the same tessera build everywhere",
-                hello.renderer_version,
+                tessera_description::bounds::quoted(&hello.renderer_version),
                 tessera_description::RENDERER_VERSION
             );
             warn!(name = %hello.name, "{reason}");
-            let _ = tx.send(Ok(refuse(reason))).await;
-            return;
-        }
-        // Names travel in every Status: bounded, and never echoed whole.
-        if hello.name.len() > tessera_description::limits::MAX_NAME_BYTES {
-            let reason = format!(
-                "the worker's name is {} bytes, more than the limit of {}",
-                hello.name.len(),
-                tessera_description::limits::MAX_NAME_BYTES
-            );
-            warn!("{reason}");
             let _ = tx.send(Ok(refuse(reason))).await;
             return;
         }
@@ -199,6 +199,14 @@ impl CoordinatorService {
     fn apply(&self, id: WorkerId, m: pb::WorkerMessage, credit: &mut u32) -> Result<(), String> {
         match m.msg {
             Some(In::Results(r)) => {
+                // A worker holds at most MAX_CREDIT leases, so more answers than that in one
+                // message are not a worker's: refused whole, not walked one strike at a time.
+                if r.results.len() > MAX_CREDIT as usize {
+                    return Err(format!(
+                        "{} results in one message, more than the {MAX_CREDIT} leases a worker may hold",
+                        r.results.len()
+                    ));
+                }
                 let now = Instant::now();
                 for res in r.results {
                     let (job, batch) = (JobId(res.job_id), BatchId(res.batch_id));
@@ -219,7 +227,13 @@ impl CoordinatorService {
                             debug!(worker = %id, %job, "dropped duplicate: {e}")
                         }
                         Err(ResultError::UnknownJob(j)) => debug!(worker = %id, "result for unknown {j}"),
-                        Err(e @ ResultError::Forged { .. }) => warn!(worker = %id, "strike: {e}"),
+                        Err(e @ ResultError::Forged { .. }) => {
+                            warn!(worker = %id, "strike: {e}");
+                            // Struck out: the rest of the message is not heard.
+                            if let Some(why) = self.farm().quarantined(id).map(str::to_owned) {
+                                return Err(format!("quarantined: {why}"));
+                            }
+                        }
                         Err(ResultError::NotConnected) => return Err("not a connected worker".into()),
                         Err(e @ (ResultError::Malformed { .. } | ResultError::Invalid { .. })) => {
                             return Err(format!("malformed result: {e}"));
@@ -231,7 +245,17 @@ impl CoordinatorService {
             }
             // Heartbeats name no leases: they only keep the worker's leases from expiring.
             Some(In::Heartbeat(_)) => Ok(()),
-            Some(In::Failed(f)) => {
+            Some(In::Failed(mut f)) => {
+                // The error is logged, kept in the job's state and shown in every Status:
+                // bounded (a worker may send megabytes), cut at a character boundary.
+                if f.error.len() > super::limits::MAX_WORKER_ERROR_BYTES {
+                    let mut end = super::limits::MAX_WORKER_ERROR_BYTES;
+                    while !f.error.is_char_boundary(end) {
+                        end -= 1;
+                    }
+                    f.error.truncate(end);
+                    f.error.push('…');
+                }
                 warn!(worker = %id, job = f.job_id, batch = f.batch_id, scene_refused = f.scene_refused, "batch failed: {}", f.error);
                 let failure = BatchFailure {
                     job: JobId(f.job_id),
