@@ -128,7 +128,9 @@ async fn a_submitter_sees_and_touches_only_its_own_jobs_even_by_guessing() {
         protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
         ..Default::default()
     };
-    let refused = tessera_harness::client(&bob).watch(watch).await.err().expect("nothing to watch");
+    let Err(refused) = tessera_harness::client(&bob).watch(watch).await else {
+        panic!("Bob was given a job to watch")
+    };
     assert_eq!(refused.code(), Code::NotFound, "{refused:?}");
     assert!(!refused.message().contains("secret"), "{}", refused.message());
     // An id that does not exist yet is not found for a submitter, not let through.

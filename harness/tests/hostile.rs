@@ -356,7 +356,7 @@ async fn honest_workers_pass_every_audit() {
 
 /// Bug this protects against: a results message with millions of (empty) entries was
 /// walked entry by entry under the farm's lock, a strike and a log line each. More results
-/// than the leases a worker may hold are refused whole and the worker disconnected.
+/// than the protocol allows in one message are refused whole and the worker disconnected.
 #[tokio::test]
 async fn more_results_than_leases_in_one_message_are_refused_whole() {
     let h = harness(AuditPolicy::default()).await;
@@ -364,8 +364,8 @@ async fn more_results_than_leases_in_one_message_are_refused_whole() {
     let mut w = FakeWorker::connect(&h.channel(), "flood", 1).await.unwrap();
     let b = w.next_batch().await.unwrap();
     let one = tessera_harness::valid_result(&b);
-    let flood = vec![one; tessera_coordinator::service::MAX_CREDIT as usize + 1];
+    let flood = vec![one; tessera_proto::MAX_RESULTS_PER_MESSAGE + 1];
     w.send_results(flood, 0).await.unwrap();
     let reason = w.refusal().await.unwrap();
-    assert!(reason.contains("more than the 256 leases"), "{reason}");
+    assert!(reason.contains("more than the 8 the protocol allows"), "{reason}");
 }

@@ -22,3 +22,10 @@ pub use v1::*;
 
 /// The protocol version this build speaks.
 pub const PROTOCOL_VERSION: v1::ProtocolVersion = v1::ProtocolVersion::Current;
+
+/// The most batch results one `Results` message may carry. A worker sends more as several
+/// messages; the coordinator refuses a message with more. It bounds the largest legal
+/// worker message, and so the decode limit of the `Workers` service: a message of many
+/// tiny entries inflates many times in memory when decoded, so the fewer bytes a message
+/// may have, the less any message can cost.
+pub const MAX_RESULTS_PER_MESSAGE: usize = 8;

@@ -238,7 +238,8 @@ async fn session(
             }
             Some(first) = done.recv() => {
                 let mut results = vec![first];
-                while let Ok(r) = done.try_recv() {
+                while results.len() < tessera_proto::MAX_RESULTS_PER_MESSAGE {
+                    let Ok(r) = done.try_recv() else { break };
                     results.push(r);
                 }
                 let credit = results.len() as u32;

@@ -7,7 +7,6 @@ use std::time::Duration;
 use tessera_description::limits::MAX_NAME_BYTES;
 use tonic::transport::Server;
 
-use super::workers::MAX_CREDIT;
 use crate::scheduler::rounds::TILE;
 use crate::scheduler::{PASS_ONE_MAX, PASS_TWO_MAX_PIXELS};
 
@@ -35,12 +34,13 @@ const MAX_RESULT_BYTES: usize = 3 * (TAG + VARINT)   // job_id, batch_id, attemp
     + TAG + LEN + MAX_BATCH_PIXELS * VARINT          // even_sums
     + TAG + LEN + MAX_LEASE_TOKEN_BYTES; // lease
 
-/// The largest legal `WorkerMessage`: a `Results` returning a full credit of the largest
-/// batches at once (a `Hello` or a `BatchFailed` is far smaller). The `Workers` service
-/// decodes nothing larger, so a worker cannot make the coordinator buffer and inflate a
-/// bundle's worth of packed varints (~84 MB here against 257 MiB for `Coordinator`).
+/// The largest legal `WorkerMessage`: a `Results` returning `MAX_RESULTS_PER_MESSAGE` of
+/// the largest batches at once (a `Hello` or a `BatchFailed` is far smaller). The
+/// `Workers` service decodes nothing larger, so a worker cannot make the coordinator buffer
+/// and inflate a bundle's worth of packed varints (~2.6 MB here against 257 MiB for
+/// `Coordinator`).
 pub const MAX_WORKER_MESSAGE_BYTES: usize = TAG + LEN // WorkerMessage.results
-    + MAX_CREDIT as usize * (TAG + LEN + MAX_RESULT_BYTES)
+    + tessera_proto::MAX_RESULTS_PER_MESSAGE * (TAG + LEN + MAX_RESULT_BYTES)
     + TAG + VARINT; // credit
 
 // A `Hello` or `BatchFailed` at its limits fits; a bundle does not, by far.
@@ -106,7 +106,10 @@ mod tests {
 
     #[test]
     fn the_worker_limit_is_just_above_the_largest_legal_worker_message() {
-        let results = pb::Results { results: vec![largest_result(); MAX_CREDIT as usize], credit: u32::MAX };
+        let results = pb::Results {
+            results: vec![largest_result(); tessera_proto::MAX_RESULTS_PER_MESSAGE],
+            credit: u32::MAX,
+        };
         let largest = pb::WorkerMessage { msg: Some(pb::worker_message::Msg::Results(results)) };
         let len = largest.encoded_len();
         assert!(len <= MAX_WORKER_MESSAGE_BYTES, "{len} > {MAX_WORKER_MESSAGE_BYTES}");

@@ -199,12 +199,13 @@ impl CoordinatorService {
     fn apply(&self, id: WorkerId, m: pb::WorkerMessage, credit: &mut u32) -> Result<(), String> {
         match m.msg {
             Some(In::Results(r)) => {
-                // A worker holds at most MAX_CREDIT leases, so more answers than that in one
-                // message are not a worker's: refused whole, not walked one strike at a time.
-                if r.results.len() > MAX_CREDIT as usize {
+                // More answers in one message than the protocol allows are not a worker's:
+                // refused whole, not walked one strike at a time.
+                if r.results.len() > tessera_proto::MAX_RESULTS_PER_MESSAGE {
                     return Err(format!(
-                        "{} results in one message, more than the {MAX_CREDIT} leases a worker may hold",
-                        r.results.len()
+                        "{} results in one message, more than the {} the protocol allows",
+                        r.results.len(),
+                        tessera_proto::MAX_RESULTS_PER_MESSAGE
                     ));
                 }
                 let now = Instant::now();
