@@ -71,6 +71,16 @@ pub(crate) fn check_text(file: &str, text: &str) -> Result<(), SceneError> {
 pub(crate) fn check_bundle(bundle: &Bundle) -> Result<(), SceneError> {
     check_text(&bundle.name, &bundle.text)?;
     let mut total = bundle.text.len() as u64;
+    if bundle.assets.len() > crate::limits::MAX_ASSETS {
+        return Err(at_start(
+            &bundle.name,
+            format!(
+                "the bundle carries {} assets, more than the limit of {}",
+                bundle.assets.len(),
+                crate::limits::MAX_ASSETS
+            ),
+        ));
+    }
     let mut seen = std::collections::HashSet::with_capacity(bundle.assets.len());
     for (path, data) in bundle.assets.iter() {
         if path.len() > MAX_NAME_BYTES {

@@ -35,3 +35,8 @@ pub const MAX_NAME_BYTES: usize = 1024;
 pub const MAX_BUNDLE_BYTES: u64 = 256 << 20;
 /// What a message carrying a bundle may hold beyond it (settings, ids, names, framing).
 pub const BUNDLE_MESSAGE_SLACK: u64 = 1 << 20;
+
+/// The most assets a bundle may carry. Far beyond any scene's meshes and textures; it
+/// bounds what decoding a bundle of tiny or empty assets costs (about 50 bytes each in
+/// memory against 2 on the wire), checked on the wire before decoding.
+pub const MAX_ASSETS: usize = 65_536;

@@ -288,3 +288,32 @@ async fn a_viewer_of_another_protocol_is_refused_with_a_reason() {
     assert_eq!(status.code(), tonic::Code::FailedPrecondition);
     assert!(status.message().contains("protocol version 0"), "{}", status.message());
 }
+
+/// Bug this protects against: a bundle of millions of empty assets (2 bytes each on the
+/// wire, ~50 decoded, again when converted) cost gigabytes before validation could refuse
+/// it. The submit gate counts assets on the wire first; nothing is queued.
+#[tokio::test]
+async fn a_bundle_of_too_many_assets_is_refused_before_it_is_decoded() {
+    use tessera_proto::v1 as pb;
+    let h = Harness::start().await.unwrap();
+    let n = tessera_description::limits::MAX_ASSETS + 1;
+    let request = pb::SubmitRequest {
+        protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
+        bundle: Some(pb::SceneBundle {
+            name: "many.toml".into(),
+            text: tessera_harness::SMALL_SCENE.into(),
+            assets: vec![pb::Asset::default(); n],
+        }),
+        settings: None,
+        priority: 0,
+    };
+    let e = tessera_harness::client(&h.channel()).submit(request).await.unwrap_err();
+    assert_eq!(e.code(), tonic::Code::InvalidArgument, "{e:?}");
+    // From the gate (validation would name the scene file first).
+    assert!(
+        e.message().starts_with(&format!("the bundle carries {n} assets, more than the limit")),
+        "{}",
+        e.message()
+    );
+    assert!(h.status().await.unwrap().jobs.is_empty());
+}

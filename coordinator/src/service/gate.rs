@@ -8,7 +8,12 @@
 //!   ([`transient_bytes`]), refusing with `RESOURCE_EXHAUSTED` before a byte more is read
 //!   when it does not fit; the reservation is held until the call ends.
 //!
-//! So jobs and the submissions in flight together stay within the budget.
+//! - reads the whole message (as tonic would) and counts its assets over the wire bytes
+//!   (`scan.rs`), refusing more than `MAX_ASSETS` before prost allocates one per asset.
+//!
+//! So jobs and the submissions in flight together stay within the budget. Every other
+//! call of the service has its request refused beyond `MAX_REQUEST_BYTES` from the same
+//! prefix, instead of being buffered up to Submit's limit.
 
 use std::collections::VecDeque;
 use std::convert::Infallible;
@@ -19,7 +24,7 @@ use std::task::{Context, Poll};
 use bytes::{Buf, Bytes};
 use http_body::Frame;
 use http_body_util::BodyExt;
-use tessera_description::limits::MAX_SCENE_BYTES;
+use tessera_description::limits::{MAX_ASSETS, MAX_SCENE_BYTES};
 use tokio::sync::Semaphore;
 use tonic::body::Body;
 use tonic::codegen::http::{Request, Response};
@@ -28,9 +33,13 @@ use tonic::server::NamedService;
 use tonic::Status;
 
 use super::budget::MemoryBudget;
+use super::scan;
 
 /// The path of the one gated method.
 const SUBMIT: &str = "/tessera.v1.Coordinator/Submit";
+
+/// The largest request of any other `Coordinator` call (each is a few ids and flags).
+pub(super) const MAX_REQUEST_BYTES: usize = 64 << 10;
 
 /// What decoding and validating a submission of `message` bytes can take: tonic's buffer
 /// and prost's copy of it, and the TOML parser's ~7 bytes per byte of scene text.
@@ -73,22 +82,23 @@ where
         // The clone that was made ready serves this call (tower's rule for cloned services).
         let clone = self.inner.clone();
         let mut inner = std::mem::replace(&mut self.inner, clone);
-        if request.uri().path() != SUBMIT {
-            return Box::pin(inner.call(request));
-        }
-        // The role before anything else: a worker's or viewer's token must not hold a
-        // permit, reserve budget or have its body decoded (the interceptor, which stands
-        // before the gate, only said who is calling).
-        let who = request.extensions().get::<super::auth::Principal>();
-        if let Err(refused) = super::auth::require_of(who, super::auth::Action::Submit) {
-            return Box::pin(async move { Ok(refused.into_http::<Body>()) });
+        let submit = request.uri().path() == SUBMIT;
+        if submit {
+            // The role before anything else: a worker's or viewer's token must not hold a
+            // permit, reserve budget or have its body decoded (the interceptor, which stands
+            // before the gate, only said who is calling).
+            let who = request.extensions().get::<super::auth::Principal>();
+            if let Err(refused) = super::auth::require_of(who, super::auth::Action::Submit) {
+                return Box::pin(async move { Ok(refused.into_http::<Body>()) });
+            }
         }
         let (permits, budget) = (self.permits.clone(), self.budget.clone());
         Box::pin(async move {
             // Never closed, so acquiring only waits.
-            let _permit = permits.acquire_owned().await;
+            let _permit = if submit { Some(permits.acquire_owned().await) } else { None };
             let (parts, mut body) = request.into_parts();
             let mut read = VecDeque::new();
+            let mut have = 0usize;
             let mut prefix = Vec::with_capacity(5);
             while prefix.len() < 5 {
                 match body.frame().await {
@@ -96,6 +106,7 @@ where
                         if let Some(data) = frame.data_ref() {
                             let take = (5 - prefix.len()).min(data.len());
                             prefix.extend_from_slice(&data.chunk()[..take]);
+                            have += data.len();
                         }
                         read.push_back(frame);
                     }
@@ -105,15 +116,49 @@ where
             }
             let len = (prefix.len() == 5)
                 .then(|| u64::from(u32::from_be_bytes([prefix[1], prefix[2], prefix[3], prefix[4]])));
-            // Past the message limit, tonic refuses it from the same prefix (OUT_OF_RANGE).
-            let _reservation = if let Some(len) = len.filter(|&l| l <= super::MAX_MESSAGE_BYTES as u64) {
-                match budget.admit_submission(len, transient_bytes(len)) {
-                    Ok(r) => Some(r),
-                    Err(e) => return Ok(Status::resource_exhausted(e.to_string()).into_http::<Body>()),
+            if !submit {
+                // Every other call's request is a few ids and flags: tonic would buffer up
+                // to the Submit-sized limit for each of them otherwise.
+                if let Some(len) = len.filter(|&l| l > MAX_REQUEST_BYTES as u64) {
+                    let refused = Status::out_of_range(format!(
+                        "a request of {len} bytes; this call takes at most {MAX_REQUEST_BYTES}"
+                    ));
+                    return Ok(refused.into_http::<Body>());
                 }
-            } else {
-                None
+                let body = Body::new(Prefixed { read, rest: body });
+                return inner.call(Request::from_parts(parts, body)).await;
+            }
+            // Past the message limit, tonic refuses it from the same prefix (OUT_OF_RANGE).
+            let Some(len) = len.filter(|&l| l <= super::MAX_MESSAGE_BYTES as u64) else {
+                let body = Body::new(Prefixed { read, rest: body });
+                return inner.call(Request::from_parts(parts, body)).await;
             };
+            let _reservation = match budget.admit_submission(len, transient_bytes(len)) {
+                Ok(r) => r,
+                Err(e) => return Ok(Status::resource_exhausted(e.to_string()).into_http::<Body>()),
+            };
+            // The whole message, as tonic would buffer it (the reservation covers it), then
+            // its assets counted before prost makes one allocation per asset.
+            let whole = 5 + len as usize;
+            while have < whole {
+                match body.frame().await {
+                    Some(Ok(frame)) => {
+                        have += frame.data_ref().map_or(0, Bytes::len);
+                        read.push_back(frame);
+                    }
+                    _ => break,
+                }
+            }
+            let data: Vec<Bytes> = read.iter().filter_map(|f| f.data_ref().cloned()).collect();
+            if let Some(n) = scan::count_assets(&mut scan::Frames::new(&data, 5), len as usize) {
+                if n > MAX_ASSETS as u64 {
+                    let refused = Status::invalid_argument(format!(
+                        "the bundle carries {n} assets, more than the limit of {MAX_ASSETS}"
+                    ));
+                    return Ok(refused.into_http::<Body>());
+                }
+            }
+            drop(data);
             let body = Body::new(Prefixed { read, rest: body });
             inner.call(Request::from_parts(parts, body)).await
         })

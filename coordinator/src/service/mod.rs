@@ -17,6 +17,7 @@ mod clients;
 mod durability;
 mod gate;
 mod rpc;
+mod scan;
 mod viewers;
 mod workers;
 
