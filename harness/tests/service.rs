@@ -317,3 +317,33 @@ async fn a_bundle_of_too_many_assets_is_refused_before_it_is_decoded() {
     );
     assert!(h.status().await.unwrap().jobs.is_empty());
 }
+
+/// Bug this protects against: every call of the client service decoded up to Submit's
+/// 257 MiB limit, so a viewer's token could make the coordinator buffer that much per
+/// Status request. Requests of other calls are refused beyond 64 KiB from their prefix.
+#[tokio::test]
+async fn an_oversized_request_of_another_call_is_refused_from_its_prefix() {
+    use tessera_proto::v1 as pb;
+    /// A StatusRequest with an unknown field to pad it (prost skips unknown fields).
+    #[derive(Clone, PartialEq, prost::Message)]
+    struct Padded {
+        #[prost(bytes = "vec", tag = "100")]
+        pad: Vec<u8>,
+    }
+    let h = Harness::start().await.unwrap();
+    let mut grpc = tonic::client::Grpc::new(h.channel());
+    let path = tonic::codegen::http::uri::PathAndQuery::from_static("/tessera.v1.Coordinator/Status");
+    for (size, refused) in [(1000, false), (1 << 20, true)] {
+        grpc.ready().await.unwrap();
+        let codec = tonic_prost::ProstCodec::<Padded, pb::StatusResponse>::default();
+        let r = grpc.unary(tonic::Request::new(Padded { pad: vec![7; size] }), path.clone(), codec).await;
+        match (r, refused) {
+            (Ok(_), false) => {}
+            (Err(e), true) => {
+                assert_eq!(e.code(), tonic::Code::OutOfRange, "{e:?}");
+                assert!(e.message().contains("this call takes at most 65536"), "{}", e.message());
+            }
+            (r, _) => panic!("a padded Status request of {size} bytes: {r:?}"),
+        }
+    }
+}
