@@ -327,3 +327,17 @@ fn a_repaired_noise_target_job_is_exact_for_its_sample_counts() {
         assert!(fb == clean.job(cj).unwrap().framebuffer(), "equal counts, different bits");
     }
 }
+
+/// Bug this protects against: one identity could open work streams without end, each
+/// holding copies of the scenes sent to it.
+#[test]
+fn an_identity_holds_a_bounded_number_of_connections() {
+    let mut f = farm(AuditPolicy::default());
+    let now = Instant::now();
+    for i in 0..super::MAX_CONNECTIONS_PER_IDENTITY {
+        f.add_worker_as("principal node-1".into(), format!("w{i}"), 1, now).unwrap();
+    }
+    let e = f.add_worker_as("principal node-1".into(), "one more".into(), 1, now).unwrap_err();
+    assert!(e.contains("the most one identity may hold"), "{e}");
+    f.add_worker_as("principal node-2".into(), "other".into(), 1, now).unwrap();
+}

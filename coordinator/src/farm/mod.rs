@@ -36,6 +36,10 @@ pub use strikes::{FenceCounters, Standing, STRIKES_TO_QUARANTINE};
 
 use crate::scheduler::{BatchSpec, CompleteError, LeaseToken, RestoreError};
 
+/// Work streams one worker identity may hold at once: each holds copies of the scenes sent
+/// to it until it reads them. As many as `tessera render --workers` may start, since its
+/// local workers share one secret.
+pub const MAX_CONNECTIONS_PER_IDENTITY: usize = 256;
 /// A batch failing on this many distinct identities fails its job: the problem is not the
 /// worker. (Failures from one identity count once, so a saboteur cannot fail others' jobs.)
 pub const MAX_BATCH_FAILURES: u32 = 3;
@@ -313,7 +317,7 @@ impl Farm {
     }
 
     /// Registers a worker of `identity`; refused, with the reason, if that identity is
-    /// quarantined.
+    /// quarantined or holds `MAX_CONNECTIONS_PER_IDENTITY` connections already.
     pub fn add_worker_as(
         &mut self,
         identity: String,
@@ -323,6 +327,14 @@ impl Farm {
     ) -> Result<WorkerId, String> {
         if let Some(why) = self.standing.get(&identity).and_then(|s| s.quarantined.as_ref()) {
             return Err(format!("worker {identity} is quarantined: {why}"));
+        }
+        // Each connection of a worker holds the scenes sent to it until it reads them: an
+        // identity that opened connections without end could hold that many copies.
+        let open = self.workers.values().filter(|w| w.identity == identity).count();
+        if open >= MAX_CONNECTIONS_PER_IDENTITY {
+            return Err(format!(
+                "worker {identity} has {open} connections already, the most one identity may hold"
+            ));
         }
         Ok(self.register(identity, name, threads, now))
     }
