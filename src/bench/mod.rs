@@ -184,7 +184,7 @@ pub enum BenchCommand {
         triangles: usize,
     },
     /// Ray casting against Embree's on the same rays: reads the ray files and rays.json that
-    /// `../shared/benchmarks/peers/embree_rays.py --out DIR` writes, casts each set (closest
+    /// `bench/peers/embree_rays.py --out DIR` writes, casts each set (closest
     /// or any hit as the file says), checks the hit fractions match Embree's within 1e-3
     /// and prints Mrays/s with 1 and 2 threads beside Embree's.
     Rays {

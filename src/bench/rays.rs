@@ -1,5 +1,5 @@
 //! `tessera bench rays DIR`: the tracer's ray casting against Embree's on the same rays.
-//! `../shared/benchmarks/peers/embree_rays.py` writes the rays (DIR/<set>.rays: records of
+//! `bench/peers/embree_rays.py` writes the rays (DIR/<set>.rays: records of
 //! seven little-endian f32, origin, direction, t_max) and Embree's figures (DIR/rays.json);
 //! this casts every set through `Scene::intersect` (closest hit) or `Scene::transmittance`
 //! (any hit: an opaque mesh stops at the first blocker), as the renderer does, checks that
