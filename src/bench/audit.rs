@@ -9,7 +9,7 @@
 use std::time::Instant;
 
 use anyhow::{bail, Result};
-use tessera_coordinator::farm::{Assignment, AuditPolicy, BatchResult, Farm, JobSettings};
+use tessera_coordinator::farm::{Assignment, AuditPolicy, Farm, JobSettings};
 use tessera_description::bundle::Bundle;
 use tessera_description::ids::{JobId, WorkerId};
 
@@ -90,16 +90,7 @@ fn round(f: &mut Farm, ws: &[WorkerId; 4], mut lie: impl FnMut() -> Option<Lie>)
                 None => {}
             }
         }
-        let r = BatchResult {
-            job: a.job,
-            batch: a.batch.id,
-            sums: &sums,
-            even: None,
-            nonfinite: 0,
-            attempt: a.attempt,
-            lease: &a.token.0,
-        };
-        let _ = f.complete(w, &r, now);
+        let _ = f.complete(w, &a.answer(&sums, None), now);
     }
 }
 

@@ -7,7 +7,7 @@ use std::path::Path;
 use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Context, Result};
-use tessera_coordinator::farm::{BatchResult, Farm};
+use tessera_coordinator::farm::Farm;
 use tessera_coordinator::persist::JobStore;
 use tessera_coordinator::store::Store;
 use tessera_description::bundle::Bundle;
@@ -45,16 +45,7 @@ pub fn run(scene: &Path, spp: u32, runs: usize) -> Result<()> {
             let n = u64::from(a.batch.samples.end - a.batch.samples.start);
             let sums: Vec<u64> =
                 (0..a.batch.quads.len() * 3).map(|i| (i as u64 % 5 + 1) * n * 4_000_000).collect();
-            let r = BatchResult {
-                job: id,
-                batch: a.batch.id,
-                sums: &sums,
-                even: None,
-                nonfinite: 0,
-                attempt: a.attempt,
-                lease: &a.token.0,
-            };
-            farm.complete(worker, &r, Instant::now()).map_err(|e| anyhow!(e))?;
+            farm.complete(worker, &a.answer(&sums, None), Instant::now()).map_err(|e| anyhow!(e))?;
         }
         let job = farm.job(id).expect("submitted");
         let snapshot = fastest(runs, || {

@@ -23,15 +23,7 @@ fn honest(spec: &BatchSpec) -> Vec<u64> {
 }
 
 fn result<'a>(a: &'a Assignment, sums: &'a [u64]) -> BatchResult<'a> {
-    BatchResult {
-        job: a.job,
-        batch: a.batch.id,
-        sums,
-        even: None,
-        nonfinite: 0,
-        attempt: a.attempt,
-        lease: &a.token.0,
-    }
+    a.answer(sums, None)
 }
 
 fn failure<'a>(a: &'a Assignment, scene_refused: bool) -> BatchFailure<'a> {

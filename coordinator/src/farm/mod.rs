@@ -91,6 +91,22 @@ pub struct Assignment {
     pub token: LeaseToken,
 }
 
+impl Assignment {
+    /// The answer to this lease with `sums` (and `even`), as an in-process worker gives it:
+    /// its lease's token and attempt, no non-finite samples. For tests and benchmarks.
+    pub fn answer<'a>(&'a self, sums: &'a [u64], even: Option<&'a [u64]>) -> BatchResult<'a> {
+        BatchResult {
+            job: self.job,
+            batch: self.batch.id,
+            sums,
+            even,
+            nonfinite: 0,
+            attempt: self.attempt,
+            lease: &self.token.0,
+        }
+    }
+}
+
 /// A worker's result for one batch, as the farm merges it.
 #[derive(Debug, Clone, Copy)]
 pub struct BatchResult<'a> {

@@ -13,15 +13,7 @@ use crate::scheduler::BatchSpec;
 
 /// The result a fake worker sends for an assignment.
 fn result<'a>(a: &'a Assignment, sums: &'a [u64], even: Option<&'a [u64]>) -> BatchResult<'a> {
-    BatchResult {
-        job: a.job,
-        batch: a.batch.id,
-        sums,
-        even,
-        nonfinite: 0,
-        attempt: a.attempt,
-        lease: &a.token.0,
-    }
+    a.answer(sums, even)
 }
 
 const SCENE: &str = include_str!("../../../tests/scenes/small.toml");

@@ -442,28 +442,9 @@ mod tests {
     #[tokio::test]
     async fn jobs_and_checkpoints_go_through_the_store_trait() {
         let store = Arc::new(Mutex::new(MemoryStore::new()));
-        /// Shares one memory store between two services, as a database file would be.
-        struct Shared(Arc<Mutex<MemoryStore>>);
-        impl JobStore for Shared {
-            fn add_job(&mut self, job: &JobRecord) -> Result<(), StoreError> {
-                lock(&self.0).add_job(job)
-            }
-            fn set_state(&mut self, job: JobId, state: &JobState) -> Result<(), StoreError> {
-                lock(&self.0).set_state(job, state)
-            }
-            fn save(&mut self, c: &Checkpoint, state: &JobState) -> Result<i64, StoreError> {
-                lock(&self.0).save(c, state)
-            }
-            fn max_job_id(&self) -> u64 {
-                lock(&self.0).max_job_id()
-            }
-            fn remove(&mut self, job: JobId) -> Result<(), StoreError> {
-                lock(&self.0).remove(job)
-            }
-        }
         let (service, _) = CoordinatorService::with_store(
             Timing::default(),
-            Box::new(Shared(store.clone())),
+            Box::new(SharedStore(store.clone())),
             vec![],
             Duration::from_secs(60),
             Recovery::default(),
@@ -472,16 +453,7 @@ mod tests {
         let w = service.farm().add_worker("w".into(), 1, Instant::now());
         let a = service.farm().assign(w, Instant::now()).unwrap();
         let sums = vec![0; a.batch.quads.len() * 3];
-        let r = crate::farm::BatchResult {
-            job: id,
-            batch: a.batch.id,
-            sums: &sums,
-            even: None,
-            nonfinite: 0,
-            attempt: a.attempt,
-            lease: &a.token.0,
-        };
-        service.farm().complete(w, &r, Instant::now()).unwrap();
+        service.farm().complete(w, &a.answer(&sums, None), Instant::now()).unwrap();
         assert_eq!(service.checkpoint(true).await.unwrap(), 1);
         let loaded = lock(&store).load();
         assert_eq!(loaded.jobs.len(), 1);
