@@ -301,7 +301,8 @@ async fn run(command: Command) -> Result<ExitCode> {
                     .or_else(tessera_description::machine::available_memory)
                     .unwrap_or(4 << 30),
             };
-            tessera_worker::client::run(config).await?;
+            // SIGTERM (scancel, systemd, kubelet) or Ctrl-C: leave at once, leases handed back.
+            tessera_worker::client::run(config, shutdown_signal()).await?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Submit(args) => remote::submit(args).await,

@@ -3,6 +3,7 @@
 //! module of this crate that touches prost types.
 
 use std::collections::{HashMap, VecDeque};
+use std::future::Future;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -13,7 +14,7 @@ use tessera_proto::convert::bundle_from_wire;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_message::Msg as In;
 use tessera_proto::v1::worker_message::Msg as Out;
-use tokio::sync::mpsc;
+use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tracing::{debug, info, warn};
 
@@ -128,12 +129,33 @@ impl Pool {
 enum SessionEnd {
     /// The coordinator closed the stream.
     Closed,
+    /// Told to stop: the worker said goodbye (ended its stream) and is leaving.
+    Stopped,
 }
 
-/// Runs a worker until the coordinator refuses it, or (with `exit_on_disconnect`) until
-/// the coordinator goes away. A coordinator that cannot be reached at start is an error;
-/// one lost later is retried with backoff.
-pub async fn run(config: WorkerConfig) -> Result<(), ConnectError> {
+/// How long a stopping worker waits for the coordinator to see its stream end; past it the
+/// worker leaves anyway (the connection's close tells the coordinator the same, later).
+const LEAVE_WAIT: Duration = Duration::from_secs(2);
+
+/// Runs a worker until `stop` completes (SIGTERM, say: a scheduler ending the job), the
+/// coordinator refuses it, or (with `exit_on_disconnect`) the coordinator goes away. A
+/// coordinator that cannot be reached at start is an error; one lost later is retried with
+/// backoff.
+///
+/// On `stop` the worker ends its work stream at once instead of finishing the batches in
+/// hand, waits (briefly) for the coordinator to close its side, and returns: the
+/// coordinator sees a goodbye (`worker left (closed)`), not a lost connection, and leases
+/// the batches to others right away. The process then exits 0, which is what schedulers
+/// (Slurm's scancel, systemd, Kubernetes) expect of a SIGTERM.
+pub async fn run(
+    config: WorkerConfig,
+    stop: impl Future<Output = ()> + Send + 'static,
+) -> Result<(), ConnectError> {
+    let (stop_tx, mut stopping) = watch::channel(false);
+    tokio::spawn(async move {
+        stop.await;
+        let _ = stop_tx.send(true);
+    });
     // A worker sits on one long stream: pings notice a coordinator that vanished silently.
     let endpoint = config.coordinator.clone().keep_alive(Duration::from_secs(10), Duration::from_secs(20));
     let pool = Pool::new(config.threads.max(1));
@@ -141,13 +163,14 @@ pub async fn run(config: WorkerConfig) -> Result<(), ConnectError> {
     let mut backoff = Backoff::new(Duration::from_millis(250), Duration::from_secs(15));
     loop {
         let mut welcomed = false;
-        let result = session(&endpoint, &config, &pool, &mut welcomed).await;
+        let result = session(&endpoint, &config, &pool, &mut welcomed, &mut stopping).await;
         pool.generation.fetch_add(1, Ordering::Relaxed);
         if welcomed {
             connected_once = true;
             backoff.reset();
         }
         let reason = match result {
+            Ok(SessionEnd::Stopped) => return Ok(()),
             Ok(SessionEnd::Closed) => "the coordinator closed the connection".to_string(),
             Err(ConnectError::Unreachable { .. }) if connected_once => "unreachable".to_string(),
             Err(ConnectError::Lost(e)) => e,
@@ -159,7 +182,21 @@ pub async fn run(config: WorkerConfig) -> Result<(), ConnectError> {
         }
         let wait = backoff.next_delay();
         warn!("coordinator lost ({reason}); reconnecting in {wait:?}");
-        tokio::time::sleep(wait).await;
+        tokio::select! {
+            _ = tokio::time::sleep(wait) => {}
+            _ = stopped(&mut stopping) => {
+                info!("stopping while disconnected");
+                return Ok(());
+            }
+        }
+    }
+}
+
+/// Completes once the worker is told to stop (at once if it was already).
+async fn stopped(stopping: &mut watch::Receiver<bool>) {
+    // An error means the sender is gone, and with it any stop: wait forever.
+    if stopping.wait_for(|s| *s).await.is_err() {
+        std::future::pending::<()>().await;
     }
 }
 
@@ -169,9 +206,13 @@ async fn session(
     config: &WorkerConfig,
     pool: &Pool,
     welcomed: &mut bool,
+    stopping: &mut watch::Receiver<bool>,
 ) -> Result<SessionEnd, ConnectError> {
     let url = &endpoint.url;
-    let mut client = tessera_proto::connect::worker_client(endpoint).await?;
+    let mut client = tokio::select! {
+        c = tessera_proto::connect::worker_client(endpoint) => c?,
+        _ = stopped(stopping) => return Ok(SessionEnd::Stopped),
+    };
     let (out, out_rx) = mpsc::channel::<pb::WorkerMessage>(64);
     let threads = config.threads.max(1) as u32;
     let hello = pb::Hello {
@@ -182,12 +223,16 @@ async fn session(
         credit: threads * CREDIT_PER_THREAD,
     };
     out.send(pb::WorkerMessage { msg: Some(Out::Hello(hello)) }).await.expect("receiver is alive");
-    let mut inbound = client
-        .work(ReceiverStream::new(out_rx))
-        .await
-        .map_err(|s| ConnectError::from_call(url, &s))?
-        .into_inner();
-    let heartbeat = match inbound.message().await {
+    let opened = tokio::select! {
+        r = client.work(ReceiverStream::new(out_rx)) => r,
+        _ = stopped(stopping) => return Ok(SessionEnd::Stopped),
+    };
+    let mut inbound = opened.map_err(|s| ConnectError::from_call(url, &s))?.into_inner();
+    let first = tokio::select! {
+        m = inbound.message() => m,
+        _ = stopped(stopping) => return Ok(SessionEnd::Stopped),
+    };
+    let heartbeat = match first {
         Ok(Some(pb::CoordinatorMessage { msg: Some(In::Welcome(w)) })) => {
             info!(worker_id = w.worker_id, threads, "connected to {url}");
             Duration::from_millis(u64::from(w.heartbeat_interval_ms.clamp(100, 60_000)))
@@ -247,6 +292,22 @@ async fn session(
                 tick.reset();
             }
             _ = tick.tick() => send(&out, Out::Heartbeat(pb::Heartbeat {})).await?,
+            _ = stopped(stopping) => {
+                // Batches queued for the render threads are dropped, not rendered.
+                pool.generation.fetch_add(1, Ordering::Relaxed);
+                info!("stopping: ending the work stream; the coordinator takes back the batches in hand");
+                drop(out);
+                // The coordinator answers the end of our stream by ending its own once it
+                // has taken the leases back; wait for that, briefly.
+                let drained = tokio::time::timeout(LEAVE_WAIT, async {
+                    while let Ok(Some(_)) = inbound.message().await {}
+                })
+                .await;
+                if drained.is_err() {
+                    warn!("the coordinator did not close the stream within {LEAVE_WAIT:?}; leaving anyway");
+                }
+                return Ok(SessionEnd::Stopped);
+            }
         }
     }
 }
