@@ -330,18 +330,30 @@ fn slurm_workers_render_the_same_image_when_one_is_cancelled() {
     }
     fs::set_permissions(dir.join("munge"), fs::Permissions::from_mode(0o700)).unwrap();
     fs::set_permissions(dir.join("munge-run"), fs::Permissions::from_mode(0o755)).unwrap();
-    let mut cluster = Cluster {
-        net: Net { n: 20 + std::process::id() % 200 },
-        dir: dir.clone(),
-        tools: tools.clone(),
-        namespaces: vec![],
-        bridge: false,
-        daemons: vec![],
-    };
-    if let Err(e) = make_network(&mut cluster) {
-        eprintln!("SKIPPED: cannot make network namespaces and a bridge here ({e})");
-        return;
+    // A bridge and namespaces of this run's own; another name if one is taken.
+    let mut last_error = String::new();
+    let mut made = None;
+    for attempt in 0..5 {
+        let mut cluster = Cluster {
+            net: Net { n: 20 + (std::process::id() + attempt * 37) % 200 },
+            dir: dir.clone(),
+            tools: tools.clone(),
+            namespaces: vec![],
+            bridge: false,
+            daemons: vec![],
+        };
+        match make_network(&mut cluster) {
+            Ok(()) => {
+                made = Some(cluster);
+                break;
+            }
+            Err(e) => last_error = e,
+        }
     }
+    let Some(mut cluster) = made else {
+        eprintln!("SKIPPED: cannot make network namespaces and a bridge here ({last_error})");
+        return;
+    };
     let overlay = format!("lowerdir={}:/usr/sbin", tools.join("sbin").display());
     let probe = run_cmd(
         Command::new("unshare").args([
@@ -534,6 +546,7 @@ fn slurm_workers_render_the_same_image_when_one_is_cancelled() {
     });
     let leave_time = cancelled_at.elapsed();
     assert!(left.contains("worker left (closed)"), "the worker did not leave cleanly: {left}");
+    assert!(taken_back(&left) >= 1, "the cancelled worker held no batches mid-render: {left}");
     let worker_log = dir.join(format!("log/worker-{array}_{index}.log"));
     wait_for(Duration::from_secs(10), "the cancelled task leaving the queue", || {
         (!cluster.squeue(&array).contains(&on_node2)).then_some(())
@@ -556,4 +569,32 @@ fn slurm_workers_render_the_same_image_when_one_is_cancelled() {
     );
     drop(coordinator);
     drop(cluster);
+}
+
+/// The number in `batches_taken_back=N` of a `worker left` line.
+fn taken_back(line: &str) -> u64 {
+    field(line, "batches_taken_back").and_then(|n| n.parse().ok()).unwrap_or(0)
+}
+
+/// What scancel relies on, without Slurm: SIGTERM makes a worker end its stream, the
+/// coordinator take its leases back at once, and the process exit 0.
+#[test]
+fn a_worker_leaves_cleanly_on_sigterm() {
+    let coord = Coordinator::start_at("127.0.0.1:0", &["--worker-timeout", "60"], &[("NO_COLOR", "1")]);
+    let mut worker = coord.worker(1);
+    let scene = root().join(SCENE);
+    let mut submit = vec!["submit", scene.to_str().unwrap(), "--coordinator", coord.url.as_str()];
+    submit.extend_from_slice(&SETTINGS);
+    let o = run(&submit);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    coord.wait_until(1, Duration::from_secs(30), "the job rendering", |s| s.samples_done > 0);
+    let sent = Instant::now();
+    worker.signal(15);
+    let status = worker.wait(Duration::from_secs(5));
+    assert!(status.success(), "the worker exited with {status} on SIGTERM");
+    let left = coord.proc.wait_for("worker left", Duration::from_secs(5));
+    assert!(left.contains("worker left (closed)"), "not a clean leave: {left}");
+    assert!(taken_back(&left) >= 1, "the worker held no batches when it left: {left}");
+    assert!(sent.elapsed() < Duration::from_secs(5), "leaving took {:?}", sent.elapsed());
+    assert!(worker.stderr.lock().unwrap().contains("stopping: ending the work stream"));
 }
