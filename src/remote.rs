@@ -80,6 +80,11 @@ pub struct SecurityArgs {
     /// The highest priority a submitter may give a job; above it needs an admin.
     #[arg(long, default_value_t = tessera_coordinator::DEFAULT_MAX_PRIORITY, allow_negative_numbers = true)]
     pub max_priority: i32,
+    /// Also serve the gRPC health service alone on this address, in plain text and without
+    /// authentication, e.g. 0.0.0.0:7879: for probes that speak no TLS (Kubernetes' `grpc`
+    /// probe). It tells only whether the coordinator serves; nothing else is served there.
+    #[arg(long, value_name = "ADDR")]
+    pub health_listen: Option<SocketAddr>,
     /// Listen beyond loopback with no authentication at all (no --tokens, no
     /// --tls-client-ca): anyone who reaches the port may do anything.
     #[arg(long)]
@@ -193,18 +198,38 @@ pub async fn serve_coordinator(
         listener.local_addr()?,
         if tls.is_some() { " (TLS)" } else { "" }
     );
+    if let Some(addr) = security.health_listen {
+        let health = tokio::net::TcpListener::bind(addr)
+            .await
+            .with_context(|| format!("cannot listen on {addr} (--health-listen)"))?;
+        tracing::info!("health service listening on {} (plain text)", health.local_addr()?);
+        // Until the process ends: while the coordinator drains it answers NOT_SERVING.
+        let routes = service.health_routes();
+        tokio::spawn(async move {
+            let served = tessera_coordinator::service::server()
+                .add_routes(routes)
+                .serve_with_incoming(tessera_coordinator::service::incoming(health))
+                .await;
+            if let Err(e) = served {
+                tracing::error!("the health listener failed: {e}");
+            }
+        });
+    }
     let _reaper = service.spawn_reaper();
     let _checkpointer = service.spawn_checkpointer();
     let mut server = tessera_coordinator::service::server();
     if let Some(tls) = &tls {
         server = server.tls_config(tls.config()).context("the TLS certificate or key cannot be used")?;
     }
+    let stopping = service.clone();
     server
         .add_routes(service.clone().into_server())
-        .serve_with_incoming_shutdown(
-            tessera_coordinator::service::incoming(listener),
-            crate::shutdown_signal(),
-        )
+        .serve_with_incoming_shutdown(tessera_coordinator::service::incoming(listener), async move {
+            crate::shutdown_signal().await;
+            // Health turns NOT_SERVING, and the worker and viewer streams end, so that the
+            // graceful shutdown does not wait for them (a service manager's stop timeout).
+            stopping.shutdown();
+        })
         .await
         .context("coordinator server failed")?;
     tracing::info!("shutting down");

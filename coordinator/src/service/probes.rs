@@ -13,6 +13,7 @@ use tessera_proto::v1::coordinator_server::CoordinatorServer;
 use tessera_proto::v1::workers_server::WorkersServer;
 use tonic::server::NamedService;
 use tonic::service::Routes;
+use tonic_health::pb::health_server::{Health, HealthServer};
 use tonic_health::ServingStatus;
 
 use super::CoordinatorService;
@@ -26,11 +27,28 @@ pub const HEALTH_SERVICES: [&str; 2] = [
 /// The largest health or reflection request decoded (a service name or a symbol).
 const MAX_PROBE_REQUEST_BYTES: usize = super::gate::MAX_REQUEST_BYTES;
 
-/// `routes` with the health and reflection services added. Health is SERVING for `""`
-/// and every name in `HEALTH_SERVICES` from the start, and NOT_SERVING for all of them
-/// once `service` shuts down. Must be called within a Tokio runtime (a task watches for
-/// the shutdown).
+/// `routes` with the health and reflection services added. Must be called within a
+/// Tokio runtime (see [`health`]).
 pub(super) fn add(routes: Routes, service: &CoordinatorService) -> Routes {
+    routes
+        .add_service(health(service))
+        .add_service(reflection_v1().max_decoding_message_size(MAX_PROBE_REQUEST_BYTES))
+        .add_service(reflection_v1alpha().max_decoding_message_size(MAX_PROBE_REQUEST_BYTES))
+}
+
+impl CoordinatorService {
+    /// The health service alone, for a plain-text listener of its own (`coordinator
+    /// --health-listen`): Kubernetes' `grpc` probe speaks no TLS, and health tells nothing
+    /// but whether the coordinator serves. Must be called within a Tokio runtime.
+    pub fn health_routes(&self) -> Routes {
+        Routes::new(health(self))
+    }
+}
+
+/// The health service: SERVING for `""` and every name in `HEALTH_SERVICES` from the
+/// start, NOT_SERVING for all of them once `service` shuts down (a task spawned here
+/// watches for it, so this needs a Tokio runtime).
+fn health(service: &CoordinatorService) -> HealthServer<impl Health> {
     let (reporter, health) = tonic_health::server::health_reporter();
     // Set before the server answers, so that no probe sees a service as unknown; the lock
     // of a reporter just made is free, so this completes at once.
@@ -47,11 +65,7 @@ pub(super) fn add(routes: Routes, service: &CoordinatorService) -> Routes {
             reporter.set_service_status(name, ServingStatus::NotServing).await;
         }
     });
-    let health = health.max_decoding_message_size(MAX_PROBE_REQUEST_BYTES);
-    routes
-        .add_service(health)
-        .add_service(reflection_v1().max_decoding_message_size(MAX_PROBE_REQUEST_BYTES))
-        .add_service(reflection_v1alpha().max_decoding_message_size(MAX_PROBE_REQUEST_BYTES))
+    health.max_decoding_message_size(MAX_PROBE_REQUEST_BYTES)
 }
 
 /// The descriptor sets reflection serves: Tessera's, health's, and both reflection

@@ -134,3 +134,29 @@ fn the_descriptor_sets_build_both_reflection_versions() {
     super::reflection().build_v1().unwrap();
     super::reflection().build_v1alpha().unwrap();
 }
+
+#[tokio::test]
+async fn the_health_listener_serves_health_and_nothing_else() {
+    let service = CoordinatorService::new(Timing::default());
+    let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let url = format!("http://{}", listener.local_addr().unwrap());
+    let routes = service.health_routes();
+    tokio::spawn(
+        crate::service::server().add_routes(routes).serve_with_incoming(crate::service::incoming(listener)),
+    );
+    let channel = Channel::from_shared(url).unwrap().connect().await.unwrap();
+    assert_eq!(health(&channel, "tessera.v1.Coordinator").await.unwrap(), Wire::Serving);
+    // An open coordinator would answer anyone: here there is no Coordinator at all.
+    let mut client = pb::coordinator_client::CoordinatorClient::new(channel.clone());
+    assert_eq!(client.status(pb::StatusRequest { job_id: 0 }).await.unwrap_err().code(), Code::Unimplemented);
+    let mut reflection = v1::server_reflection_client::ServerReflectionClient::new(channel.clone());
+    let r = reflection.server_reflection_info(tokio_stream::iter([list_request()])).await;
+    assert_eq!(r.unwrap_err().code(), Code::Unimplemented);
+    service.shutdown();
+    let mut tries = 0;
+    while health(&channel, "").await.unwrap() != Wire::NotServing {
+        tries += 1;
+        assert!(tries < 200, "still serving 2 s after shutdown");
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+}
