@@ -267,3 +267,40 @@ pub fn free_loopback_addr() -> String {
     let l = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     l.local_addr().unwrap().to_string()
 }
+
+/// The target directory this test binary was built in (`target/` or `$CARGO_TARGET_DIR`).
+pub fn target_dir() -> PathBuf {
+    // .../target/debug/tessera
+    PathBuf::from(env!("CARGO_BIN_EXE_tessera")).parent().and_then(Path::parent).unwrap().to_path_buf()
+}
+
+/// A Python venv `name` with `requirements` (a file under the repository) installed by
+/// `scripts/python-venv.sh`, under the target directory; its `bin/python`. `None`, after
+/// printing `SKIPPED: <why>`, when Python, venv or the package index cannot be had.
+pub fn python_venv(name: &str, requirements: &str) -> Option<PathBuf> {
+    let out = Command::new("bash")
+        .arg(root().join("scripts/python-venv.sh"))
+        .arg(name)
+        .arg(root().join(requirements))
+        .env("CARGO_TARGET_DIR", target_dir())
+        .stdin(Stdio::null())
+        .output();
+    match out {
+        Ok(o) if o.status.success() => {
+            let venv = String::from_utf8_lossy(&o.stdout).trim().lines().last().unwrap_or("").to_string();
+            Some(PathBuf::from(venv).join("bin/python"))
+        }
+        Ok(o) => {
+            let why = String::from_utf8_lossy(&o.stderr);
+            eprintln!(
+                "SKIPPED: no Python venv {name}: {}",
+                why.trim().lines().last().unwrap_or("(no message)")
+            );
+            None
+        }
+        Err(e) => {
+            eprintln!("SKIPPED: cannot run bash for scripts/python-venv.sh: {e}");
+            None
+        }
+    }
+}

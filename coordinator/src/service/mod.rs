@@ -16,6 +16,7 @@ mod budget;
 mod clients;
 mod durability;
 mod gate;
+pub mod probes;
 mod rpc;
 mod scan;
 mod viewers;
@@ -148,6 +149,11 @@ impl CoordinatorService {
         self
     }
 
+    /// How callers are authenticated (the web API checks its tokens with it).
+    pub fn auth(&self) -> &Auth {
+        &self.auth
+    }
+
     /// The farm, locked: for short, bounded work only.
     fn farm(&self) -> MutexGuard<'_, Farm> {
         lock(&self.farm)
@@ -214,8 +220,9 @@ impl CoordinatorService {
     /// (clients and viewers) decodes up to a scene bundle, `Workers` only up to the largest
     /// legal worker message, so that a worker cannot make it buffer a bundle's worth.
     /// Every call is authenticated before its message is decoded, and before a submission
-    /// waits at the gate. Serve them with [`server`]'s settings:
-    /// `server().add_routes(service.into_server())`.
+    /// waits at the gate. Beside them, unauthenticated: the gRPC health service and server
+    /// reflection (`probes.rs`). Serve them with [`server`]'s settings, within a Tokio
+    /// runtime: `server().add_routes(service.into_server())`.
     pub fn into_server(self) -> Routes {
         use tonic::service::interceptor::InterceptedService;
         let authenticate = auth::Authenticate(self.auth.clone());
@@ -223,14 +230,16 @@ impl CoordinatorService {
             .max_decoding_message_size(MAX_WORKER_MESSAGE_BYTES)
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
         let (permits, budget) = (self.submits.clone(), self.budget.clone());
+        let this = self.clone();
         let clients = CoordinatorServer::new(self)
             .max_decoding_message_size(MAX_MESSAGE_BYTES)
             .max_encoding_message_size(MAX_MESSAGE_BYTES);
         // Authentication first: an unknown caller is refused before the gate reads
         // anything of its body or reserves any of the budget for it.
-        Routes::new(InterceptedService::new(workers, authenticate.clone())).add_service(
+        let routes = Routes::new(InterceptedService::new(workers, authenticate.clone())).add_service(
             InterceptedService::new(gate::SubmitGate::new(clients, permits, budget), authenticate),
-        )
+        );
+        probes::add(routes, &this)
     }
 
     /// Takes back the leases of silent workers and ends jobs whose time budget is spent,
