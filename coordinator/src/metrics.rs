@@ -64,8 +64,9 @@ impl Metrics {
     /// The exposition text of the farm as `census` saw it, with `viewers` watch streams
     /// open, and of these instruments.
     pub fn exposition(&self, census: Census, viewers: usize) -> String {
+        let mut state = Registry::default();
+        state.register_collector(Box::new(Scrape { census, viewers: viewers as u64 }));
         let mut registry = Registry::default();
-        registry.register_collector(Box::new(Scrape { census, viewers: viewers as u64 }));
         registry.register(
             "tessera_merge_seconds",
             "Time to check and merge one worker result (or compare an audit's) under the farm's lock",
@@ -83,8 +84,10 @@ impl Metrics {
         );
         let mut text = String::new();
         // Writing into a String cannot fail, and every name and label here is fixed.
-        prometheus_client::encoding::prometheus_text::encode(&mut text, &registry)
-            .expect("encoding metrics into a String");
+        for r in [&state, &registry] {
+            prometheus_client::encoding::prometheus_text::encode(&mut text, r)
+                .expect("encoding metrics into a String");
+        }
         text
     }
 }

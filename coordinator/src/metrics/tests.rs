@@ -177,3 +177,50 @@ fn strikes_are_counted() {
     assert!(farm.complete(w, &forged, now).is_err());
     assert_eq!(sample(&text(&farm, now), "tessera_strikes_total"), Some(1.0));
 }
+
+/// `promtool check metrics` (Debian's prometheus package, unpacked by
+/// `scripts/prometheus.sh`) accepts the text of a farm with leases out, a silent worker,
+/// a merge timed and a failed checkpoint: its format and its lint (names, suffixes, help).
+#[test]
+fn promtool_accepts_the_text() {
+    use std::io::Write;
+    use std::process::{Command, Stdio};
+    let script = concat!(env!("CARGO_MANIFEST_DIR"), "/../scripts/prometheus.sh");
+    let bin = match Command::new(script).stdin(Stdio::null()).output() {
+        Ok(o) if o.status.success() => std::path::PathBuf::from(String::from_utf8_lossy(&o.stdout).trim()),
+        Ok(o) => return eprintln!("SKIPPED: no promtool: {}", String::from_utf8_lossy(&o.stderr).trim()),
+        Err(e) => return eprintln!("SKIPPED: cannot run {script}: {e}"),
+    };
+    let mut farm = Farm::new();
+    let t0 = Instant::now();
+    farm.submit(bundle(), JobSettings::sized(Some(2), Some((16, 16))), 0).unwrap();
+    let (a, b) = (farm.add_worker("a".into(), 1, t0), farm.add_worker("b".into(), 1, t0));
+    let l = farm.assign(a, t0).unwrap();
+    farm.complete(a, &l.answer(&honest(&l.batch), None), t0).unwrap();
+    farm.assign(b, t0).unwrap();
+    farm.assign(a, t0).unwrap();
+    let later = t0 + Duration::from_secs(11);
+    farm.touch(a, later);
+    farm.expire_silent(later, Duration::from_secs(10));
+    let metrics = Metrics::default();
+    metrics.observe_merge(Duration::from_micros(40));
+    metrics.observe_checkpoint(Duration::from_millis(3), true);
+    metrics.observe_checkpoint(Duration::from_millis(3), false);
+    let text = metrics.exposition(farm.census(later), 2);
+    let mut check = Command::new(bin.join("promtool"))
+        .args(["check", "metrics"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    check.stdin.take().unwrap().write_all(text.as_bytes()).unwrap();
+    let out = check.wait_with_output().unwrap();
+    let said = format!("{}{}", String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    assert!(out.status.success() && said.trim().is_empty(), "promtool: {said}\n{text}");
+    assert_eq!(sample(&text, "tessera_checkpoint_failures_total"), Some(1.0), "{text}");
+    assert_eq!(sample(&text, "tessera_checkpoint_write_seconds_count"), Some(1.0), "{text}");
+    assert_eq!(sample(&text, "tessera_merge_seconds_bucket{le=\"3.2e-05\"}"), Some(0.0), "{text}");
+    assert_eq!(sample(&text, "tessera_merge_seconds_bucket{le=\"0.000128\"}"), Some(1.0), "{text}");
+    assert_eq!(sample(&text, "tessera_viewers"), Some(2.0), "{text}");
+}
