@@ -72,18 +72,19 @@ fn prometheus_scrapes_the_coordinator_with_a_token() {
     let dir = tempfile::tempdir().unwrap();
     let tokens = dir.path().join("tokens");
     write_secret(&tokens, &format!("admin root {ADMIN}\nworker node-1 {WORKER}\nviewer wall {VIEWER}\n"));
-    let http = free_loopback_addr();
     let coordinator = Proc::spawn(&[
         "coordinator",
         "--listen",
         "127.0.0.1:0",
         "--http",
-        &http,
+        "127.0.0.1:0",
         "--tokens",
         tokens.to_str().unwrap(),
     ]);
     let line = coordinator.wait_for("coordinator listening on ", Duration::from_secs(30));
     let url = format!("http://{}", line.rsplit("listening on ").next().unwrap().trim());
+    let line = coordinator.wait_for("web dashboard on http://", Duration::from_secs(30));
+    let http = line.rsplit("http://").next().unwrap().trim().to_string();
     let token = tessera_proto::credentials::TOKEN_ENV;
     let worker =
         Proc::spawn_with_env(&["worker", "--coordinator", &url, "--threads", "1"], &[(token, WORKER)]);
