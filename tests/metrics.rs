@@ -80,6 +80,8 @@ fn prometheus_scrapes_the_coordinator_with_a_token() {
         "127.0.0.1:0",
         "--tokens",
         tokens.to_str().unwrap(),
+        "--data",
+        dir.path().join("data").to_str().unwrap(),
     ]);
     let line = coordinator.wait_for("coordinator listening on ", Duration::from_secs(30));
     let url = format!("http://{}", line.rsplit("listening on ").next().unwrap().trim());
@@ -104,10 +106,10 @@ fn prometheus_scrapes_the_coordinator_with_a_token() {
     let deadline = Instant::now() + Duration::from_secs(30);
     let (code, text) = loop {
         let (code, text) = get(&http, "/metrics", Some(VIEWER));
-        if code != 200
-            || sample(&text, "tessera_jobs{state=\"done\"}") == Some(1.0)
-            || Instant::now() > deadline
-        {
+        // The job's last checkpoint is written on the checkpointer's next tick.
+        let written = sample(&text, "tessera_checkpoint_write_seconds_count").is_some_and(|n| n >= 1.0);
+        let done = sample(&text, "tessera_jobs{state=\"done\"}") == Some(1.0);
+        if code != 200 || (done && written) || Instant::now() > deadline {
             break (code, text);
         }
         std::thread::sleep(Duration::from_millis(50));
@@ -118,6 +120,8 @@ fn prometheus_scrapes_the_coordinator_with_a_token() {
     assert_eq!(sample(&text, "tessera_samples_queued"), Some(0.0), "{text}");
     assert_eq!(sample(&text, "tessera_workers{state=\"idle\"}"), Some(1.0), "{text}");
     assert!(sample(&text, "tessera_merge_seconds_count").is_some_and(|n| n >= 1.0), "{text}");
+    assert!(sample(&text, "tessera_checkpoint_write_seconds_count").is_some_and(|n| n >= 1.0), "{text}");
+    assert_eq!(sample(&text, "tessera_checkpoint_failures_total"), Some(0.0), "{text}");
     for bad in [None, Some("not-a-token-of-this-farm-at-all")] {
         let (code, body) = get(&http, "/metrics", bad);
         assert_eq!(code, 401, "{bad:?}: {body}");
