@@ -69,3 +69,20 @@ fn text_logs_stay_the_default() {
     assert!(serde_json::from_str::<serde_json::Value>(&line).is_err(), "{line}");
     assert!(line.contains(" INFO ") && !line.contains('\u{1b}'), "{line:?}");
 }
+
+/// `render --log-format json` starts its local workers with it too: their lines are JSON.
+#[test]
+fn a_render_passes_the_json_format_to_its_workers() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("small.png");
+    let scene = common::small_scene();
+    let args = ["--log-format", "json", "render", scene.to_str().unwrap(), "-o", out.to_str().unwrap()];
+    let run = common::run(&[&args[..], &["--workers", "1", "--size", "16x16", "--spp", "2"]].concat());
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let stderr = String::from_utf8_lossy(&run.stderr);
+    // The render's own summary ("wrote …") is output, not a log line.
+    let logs: String =
+        stderr.lines().filter(|l| !l.starts_with("wrote ")).map(|l| format!("{l}\n")).collect();
+    let lines = parse_lines("render", &logs);
+    assert!(lines.iter().any(|v| v["target"] == "tessera_worker::client"), "no worker line: {stderr}");
+}
