@@ -28,27 +28,36 @@ for tool in apt-get dpkg-deb flock; do
 done
 mkdir -p "$dir"
 log=$(mktemp)
-trap 'rm -f "$log"' EXIT
+work=$(mktemp -d)
+trap 'rm -rf "$log" "$work"' EXIT
+# One lock over the download and the unpacking: apt/dpkg of other helpers wait, and so
+# does a second copy of this script (two tests may ask at once), which then finds the
+# binaries unpacked.
+exec 9>/tmp/tessera-apt.lock
+flock 9
+if [ -x "$bin/promtool" ] && [ -x "$bin/prometheus" ]; then
+  echo "$bin"
+  exit 0
+fi
 fetch() {
-  (cd "$dir" && flock /tmp/tessera-apt.lock apt-get download prometheus >"$log" 2>&1)
+  (cd "$work" && apt-get download prometheus >"$log" 2>&1)
 }
 # A machine that has never fetched the package lists knows no prometheus yet (updating
 # them needs root).
 if ! fetch; then
   if [ "$(id -u)" = 0 ]; then
-    flock /tmp/tessera-apt.lock apt-get update >>"$log" 2>&1 || true
+    apt-get update >>"$log" 2>&1 || true
   fi
   if ! fetch; then
     echo "apt-get download prometheus failed: $(grep -E '^E:' "$log" | head -1)" >&2
     exit 2
   fi
 fi
-deb=$(ls -t "$dir"/prometheus_*.deb | head -1)
-if ! flock /tmp/tessera-apt.lock dpkg-deb -x "$deb" "$dir" >"$log" 2>&1; then
+deb=$(ls "$work"/prometheus_*.deb | head -1)
+if ! dpkg-deb -x "$deb" "$dir" >"$log" 2>&1; then
   echo "dpkg-deb -x $deb failed: $(head -1 "$log")" >&2
   exit 2
 fi
-rm -f "$deb"
 if [ -x "$bin/promtool" ] && [ -x "$bin/prometheus" ]; then
   echo "$bin"
   exit 0
