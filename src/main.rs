@@ -8,6 +8,7 @@ mod local;
 mod remote;
 mod report;
 
+use std::io::IsTerminal;
 use std::net::SocketAddr;
 use std::path::PathBuf;
 use std::process::ExitCode;
@@ -22,8 +23,21 @@ use tracing_subscriber::EnvFilter;
 #[command(version, about, long_about = None, propagate_version = true)]
 #[deny(missing_docs)]
 struct Cli {
+    /// How log lines are written on stderr: text, or json (one object a line with
+    /// timestamp, level, target and fields, for log collectors).
+    #[arg(long, global = true, value_enum, default_value_t = LogFormat::Text, env = "TESSERA_LOG_FORMAT")]
+    log_format: LogFormat,
     #[command(subcommand)]
     command: Command,
+}
+
+/// How log lines are written (`--log-format`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum LogFormat {
+    /// Lines for people.
+    Text,
+    /// One JSON object a line.
+    Json,
 }
 
 #[derive(Debug, Subcommand)]
@@ -199,9 +213,15 @@ pub struct ViewArgs {
     reconnect_for: f64,
 }
 
-fn init_tracing(default: &str) {
+fn init_tracing(default: &str, format: LogFormat) {
     let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new(default));
-    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
+    let logs = tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr);
+    match format {
+        // Colours only for a terminal: a log file or a collector gets plain text.
+        LogFormat::Text => logs.with_target(false).with_ansi(std::io::stderr().is_terminal()).init(),
+        // Spans carry nothing the events do not: one flat object per event.
+        LogFormat::Json => logs.json().with_ansi(false).with_current_span(false).with_span_list(false).init(),
+    }
 }
 
 /// The cores this process may use.
@@ -228,7 +248,11 @@ fn main() -> ExitCode {
             | Command::Bench(_)
             | Command::Certs(_)
     );
-    init_tracing(if quiet { "warn" } else { "info" });
+    init_tracing(if quiet { "warn" } else { "info" }, cli.log_format);
+    if cli.log_format == LogFormat::Json {
+        // Worker processes this one starts (`render`) log the same way. Still one thread.
+        std::env::set_var("TESSERA_LOG_FORMAT", "json");
+    }
     let runtime = match tokio::runtime::Builder::new_multi_thread().enable_all().build() {
         Ok(r) => r,
         Err(e) => {

@@ -5,6 +5,7 @@
 
 pub mod checkpoint;
 pub mod farm;
+pub mod metrics;
 pub mod persist;
 pub mod scheduler;
 pub mod service;

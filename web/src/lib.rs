@@ -9,6 +9,7 @@
 mod api;
 mod errors;
 mod json;
+mod metrics;
 mod pages;
 mod serve;
 mod sessions;
@@ -44,6 +45,7 @@ pub fn router(service: CoordinatorService, config: WebConfig) -> Router {
         .merge(api::routes())
         .merge(pages::routes())
         .route("/healthz", axum::routing::get(|| async { "ok" }))
+        .route("/metrics", axum::routing::get(metrics::metrics))
         .fallback(errors::no_route)
         .with_state(state)
 }

@@ -237,7 +237,13 @@ impl Farm {
         now: Instant,
     ) -> Result<(), ResultError> {
         let (job_id, batch) = (r.job, r.batch);
-        let (identity, held) = self.holder(worker, job_id, batch, r.lease)?;
+        let (identity, held) = match self.holder(worker, job_id, batch, r.lease) {
+            Err(e @ ResultError::Duplicate(_)) => {
+                self.lease_counters.duplicates += 1;
+                return Err(e);
+            }
+            other => other?,
+        };
         let job = self.jobs.get_mut(&job_id).expect("holder checked it");
         let spec = held.lease().spec.clone();
         let samples = spec.samples.end - spec.samples.start;
@@ -284,11 +290,13 @@ impl Farm {
                     job.queue.schedule_round(tile, round + 1, next);
                 }
                 job.after_merge(r.nonfinite, now);
+                self.lease_counters.samples_merged += spec.sample_count();
                 self.delivered(worker, &identity, job_id, &spec, lease.attempt, r);
             }
             Held::Repair(lease) => {
                 job.fence.repairs.finish(batch);
                 job.framebuffer.merge(&spec.quads, samples, r.sums, r.even).expect("sums were checked above");
+                self.lease_counters.samples_merged += spec.sample_count();
                 self.delivered(worker, &identity, job_id, &spec, lease.attempt, r);
             }
             Held::Audit(k, _) => {
@@ -310,6 +318,7 @@ impl Farm {
                         if first_check {
                             self.counters.audits_mismatched += 1;
                         }
+                        self.counters.audits_decided += 1;
                         let a: Audit = job.fence.audits.remove(k);
                         for liar in liars {
                             let detail = format!(

@@ -6,6 +6,7 @@ mod adaptive;
 mod assign;
 pub mod audit;
 pub mod budget;
+mod census;
 mod entropy;
 mod fence;
 #[cfg(test)]
@@ -29,6 +30,7 @@ use tessera_film::MergeError;
 pub use adaptive::{NOISE_FLOOR, NOISE_MIN_SAMPLES};
 pub use assign::BatchFailure;
 pub use audit::{AuditPolicy, DEFAULT_AUDIT_FRACTION};
+pub use census::{Census, LeaseCounters, JOB_STATES};
 pub use entropy::Entropy;
 pub use job::{Job, Snapshot};
 pub use repair::REPAIR_IDS;
@@ -240,6 +242,7 @@ pub struct Farm {
     /// Strikes and quarantine by identity.
     standing: BTreeMap<String, Standing>,
     counters: FenceCounters,
+    lease_counters: LeaseCounters,
     /// Lease tokens and audit choices (see `entropy.rs`).
     entropy: Entropy,
     audit: AuditPolicy,
@@ -393,6 +396,7 @@ impl Farm {
     /// audits no connected worker can render any more end (see `settle`).
     pub fn remove_worker(&mut self, worker: WorkerId, now: Instant) -> usize {
         let n = self.take_back_all(worker, false);
+        self.lease_counters.taken_back_left += n as u64;
         self.workers.remove(&worker);
         self.settle(now);
         n
@@ -415,6 +419,7 @@ impl Farm {
                     w.silent = true;
                 }
                 let n = self.take_back_all(id, true);
+                self.lease_counters.taken_back_silent += n as u64;
                 (n > 0).then_some((id, n))
             })
             .collect();

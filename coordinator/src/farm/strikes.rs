@@ -46,6 +46,8 @@ pub struct FenceCounters {
     pub audits_passed: u64,
     /// Audits with a mismatch.
     pub audits_mismatched: u64,
+    /// Audits with a mismatch that a third identity settled (the liars named).
+    pub audits_decided: u64,
     /// Audits dropped because no worker of another identity was left to render them
     /// while the job could otherwise end.
     pub audits_skipped: u64,

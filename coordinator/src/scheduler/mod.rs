@@ -321,6 +321,12 @@ impl PassQueue {
         self.spares.get(&id)
     }
 
+    /// Every lease out now, with whether it is a speculative duplicate (leases taken back
+    /// from silent workers are not out: their batches wait for, or went to, others).
+    pub fn outstanding_leases(&self) -> impl Iterator<Item = (&Lease, bool)> + '_ {
+        self.leased.values().map(|l| (l, false)).chain(self.spares.values().map(|l| (l, true)))
+    }
+
     /// Batches leased to `worker` now, speculative duplicates included.
     pub fn leased_by(&self, worker: WorkerId) -> usize {
         self.leased.values().chain(self.spares.values()).filter(|l| l.worker == worker).count()

@@ -295,11 +295,13 @@ impl CoordinatorService {
             else {
                 continue;
             };
-            let durable = durable.clone();
+            let (durable, metrics) = (durable.clone(), self.metrics.clone());
             tokio::task::spawn_blocking(move || {
                 let started = Instant::now();
                 let checkpoint = snapshot.checkpoint();
-                let generation = lock(&durable.store).save(&checkpoint, &saved.state)?;
+                let written = lock(&durable.store).save(&checkpoint, &saved.state);
+                metrics.observe_checkpoint(started.elapsed(), written.is_ok());
+                let generation = written?;
                 debug!(job = %checkpoint.job, generation, samples = checkpoint.samples_done, took = ?started.elapsed(), "checkpoint written");
                 lock(&durable.saved).insert(checkpoint.job, saved);
                 Ok::<_, StoreError>(())

@@ -19,6 +19,7 @@ mod gate;
 pub mod probes;
 mod rpc;
 mod scan;
+mod scrape;
 mod viewers;
 mod workers;
 
@@ -85,6 +86,8 @@ pub struct CoordinatorService {
     /// Submissions being decoded and validated (`budget::SUBMITS_AT_ONCE`).
     submits: Arc<tokio::sync::Semaphore>,
     auth: Arc<Auth>,
+    /// Timings and failures recorded where they happen (`crate::metrics`).
+    metrics: crate::metrics::Metrics,
 }
 
 /// A job's identity and what it was submitted with, for clients that look for a job.
@@ -140,6 +143,7 @@ impl CoordinatorService {
             keep_finished: KEEP_FINISHED,
             submits: Arc::new(tokio::sync::Semaphore::new(SUBMITS_AT_ONCE)),
             auth: Arc::new(Auth::open()),
+            metrics: crate::metrics::Metrics::default(),
         }
     }
 

@@ -221,7 +221,7 @@ impl CoordinatorService {
                         attempt: res.attempt,
                         lease: &res.lease,
                     };
-                    let done = self.farm().complete(id, &result, now);
+                    let done = self.merge(id, &result, now);
                     match done {
                         Ok(()) => {}
                         Err(ResultError::Duplicate(e)) => {
