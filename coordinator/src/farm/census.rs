@@ -122,9 +122,4 @@ impl Farm {
         c.identities_quarantined = self.standing.values().filter(|s| s.quarantined.is_some()).count() as u64;
         c
     }
-
-    /// Counts of lease events so far.
-    pub fn lease_counters(&self) -> LeaseCounters {
-        self.lease_counters
-    }
 }

@@ -100,6 +100,9 @@ mod tests {
         fn set_state(&mut self, job: JobId, state: &JobState) -> Result<(), StoreError> {
             self.0.set_state(job, state)
         }
+        fn set_priority(&mut self, job: JobId, priority: i32) -> Result<(), StoreError> {
+            self.0.set_priority(job, priority)
+        }
         fn save(&mut self, _: &Checkpoint, _: &JobState) -> Result<i64, StoreError> {
             Err(StoreError::NoSpace { path: "jobs.db".into() })
         }
