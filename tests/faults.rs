@@ -12,6 +12,8 @@ use std::time::{Duration, Instant};
 const SIZE: &str = "640x480";
 const SPP: &str = "4";
 const INTERVAL: f64 = 0.5;
+/// Seconds of work redone beyond the checkpoint interval that a loaded machine may add.
+const SLACK: f64 = 2.0;
 
 fn scene() -> std::path::PathBuf {
     root().join("scenes/showcase.toml")
@@ -92,8 +94,10 @@ fn coordinator_killed_three_times_resumes_to_the_same_bytes() {
     assert_eq!(before.pass, 1, "pass one ended too soon to kill inside it: {before:?}");
     let (coord, redone_1) = kill_and_restart(coord, &addr, &args, &[], "killed in pass one", &before);
     // The bound: one interval, a quarter interval of checkpointer tick, and slack for the
-    // rate estimate and a loaded machine.
-    assert!(redone_1 <= INTERVAL * 1.25 + 1.0, "pass one: {redone_1:.2} s of work redone");
+    // rate estimate and a loaded machine (on 2 cores shared with other test binaries the
+    // checkpointer's tick and the rate estimate drift by up to a second more; a lost
+    // checkpoint would redo the whole job's work, far beyond it).
+    assert!(redone_1 <= INTERVAL * 1.25 + SLACK, "pass one: {redone_1:.2} s of work redone");
 
     // A second worker joins the running job.
     let _w2 = coord.worker(1);
@@ -104,13 +108,13 @@ fn coordinator_killed_three_times_resumes_to_the_same_bytes() {
     let stall_ms = 1500;
     let stall = [("TESSERA_FAULT_STALL_CHECKPOINT_MS", "1500")];
     let (coord, redone_2) = kill_and_restart(coord, &addr, &args, &stall, "killed in pass two", &before);
-    assert!(redone_2 <= INTERVAL * 1.25 + 1.0, "pass two: {redone_2:.2} s of work redone");
+    assert!(redone_2 <= INTERVAL * 1.25 + SLACK, "pass two: {redone_2:.2} s of work redone");
 
     // 3. In the middle of a checkpoint write (written, not committed).
     coord.proc.wait_for("not committed (test stall)", Duration::from_secs(60));
     let before = coord.job(1).expect("the stalled coordinator still answers");
     let (coord, redone_3) = kill_and_restart(coord, &addr, &args, &[], "killed mid-checkpoint", &before);
-    let bound = INTERVAL * 1.25 + stall_ms as f64 / 1000.0 + 1.0;
+    let bound = INTERVAL * 1.25 + stall_ms as f64 / 1000.0 + SLACK;
     assert!(redone_3 <= bound, "mid-checkpoint: {redone_3:.2} s of work redone, bound {bound} s");
 
     coord.wait_until(1, Duration::from_secs(120), "job done", |s| s.state == "done");
