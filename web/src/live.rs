@@ -175,7 +175,7 @@ async fn stream_job(
                     }
                     if u.r#final {
                         send_status(&mut socket, &status, &mut sent_status).await?;
-                        if let Some(m) = live.message(true) {
+                        if let Some(m) = message(&mut live, true).await? {
                             socket.send(Message::Binary(m.into())).await.map_err(|e| e.to_string())?;
                         }
                         close(&mut socket, 1000, "the job is over").await;
@@ -193,7 +193,7 @@ async fn stream_job(
             },
             _ = tick.tick() => {
                 send_status(&mut socket, &status, &mut sent_status).await?;
-                if let Some(m) = live.message(false) {
+                if let Some(m) = message(&mut live, false).await? {
                     socket.send(Message::Binary(m.into())).await.map_err(|e| e.to_string())?;
                 }
             }
@@ -204,6 +204,22 @@ async fn stream_job(
             },
         }
     }
+}
+
+/// `live.message(last)`, resolved on a blocking thread: a large image takes milliseconds.
+async fn message(live: &mut Live, last: bool) -> Result<Option<Vec<u8>>, String> {
+    if !live.dirty && !last {
+        return Ok(None);
+    }
+    let mut taken = std::mem::take(live);
+    let (back, m) = tokio::task::spawn_blocking(move || {
+        let m = taken.message(last);
+        (taken, m)
+    })
+    .await
+    .map_err(|e| format!("encoding the image failed: {e}"))?;
+    *live = back;
+    Ok(m)
 }
 
 async fn send_text(socket: &mut WebSocket, value: serde_json::Value) -> Result<(), String> {
