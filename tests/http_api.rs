@@ -217,7 +217,7 @@ impl Canvas {
 #[test]
 fn the_live_socket_sends_a_snapshot_then_deltas_that_end_in_the_final_image() {
     let web = Web::start(&[]);
-    let id = submit_ok(&web, None, small_form(48, 36, 16));
+    let id = submit_ok(&web, None, small_form(48, 36, 400));
     let url = web.url(&format!("/api/jobs/{id}/live")).replace("http://", "ws://");
     let (mut socket, _) = tungstenite::connect(url.as_str()).expect("the live socket opens");
     let hello: Value = serde_json::from_str(socket.read().unwrap().to_text().unwrap()).unwrap();
@@ -241,6 +241,13 @@ fn the_live_socket_sends_a_snapshot_then_deltas_that_end_in_the_final_image() {
             other => panic!("unexpected message {other:?}"),
         }
     }
+    let elapsed = start.elapsed().as_secs_f64();
+    let images = canvas.resets + canvas.deltas;
+    eprintln!("live: {images} image messages, {statuses} status messages in {elapsed:.2} s");
+    assert!(
+        images as f64 <= elapsed * 10.0 + 2.0,
+        "more than 10 image messages a second: {images} in {elapsed} s"
+    );
     assert_eq!(canvas.resets, 1, "one snapshot at the start");
     assert!(canvas.deltas >= 1, "deltas after the snapshot");
     assert!(statuses >= 1);
