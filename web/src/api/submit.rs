@@ -3,9 +3,9 @@
 //! and part count bounded, then submitted through the Submit RPC.
 
 use axum::extract::multipart::{Field, MultipartRejection};
-use axum::extract::{Multipart, State};
+use axum::extract::{FromRequest, Multipart, Request, State};
 use axum::http::header::CONTENT_LENGTH;
-use axum::http::{HeaderMap, StatusCode};
+use axum::http::StatusCode;
 use axum::Json;
 use tessera_description::bundle::check_asset_path;
 use tessera_description::limits::{MAX_ASSETS, MAX_NAME_BYTES};
@@ -42,29 +42,50 @@ struct Form {
     priority: i32,
 }
 
+/// A refused upload this small is read (and dropped) before the answer: a client still
+/// sending when the connection closes would get a reset instead of the answer.
+const DRAIN_BYTES: u64 = 1 << 20;
+
+/// `e`, once what is left of a small upload was read.
+async fn drained(e: ApiError, request: Request, length: u64) -> ApiError {
+    if length <= DRAIN_BYTES {
+        let _ = axum::body::to_bytes(request.into_body(), DRAIN_BYTES as usize).await;
+    }
+    e
+}
+
 /// `POST /api/jobs`.
 pub(crate) async fn submit(
     State(state): State<AppState>,
-    Caller(who): Caller,
-    headers: HeaderMap,
-    multipart: Result<Multipart, MultipartRejection>,
+    caller: Result<Caller, ApiError>,
+    http: Request,
 ) -> Result<(StatusCode, Json<Submitted>), ApiError> {
     // Bounded before it is read: the declared length is checked and reserved first.
     let length =
-        headers.get(CONTENT_LENGTH).and_then(|v| v.to_str().ok()?.parse::<u64>().ok()).ok_or_else(|| {
-            ApiError::new(
-                StatusCode::LENGTH_REQUIRED,
-                "POST /api/jobs: the upload must declare its Content-Length",
-            )
-        })?;
+        http.headers().get(CONTENT_LENGTH).and_then(|v| v.to_str().ok()?.parse::<u64>().ok()).ok_or_else(
+            || {
+                ApiError::new(
+                    StatusCode::LENGTH_REQUIRED,
+                    "POST /api/jobs: the upload must declare its Content-Length",
+                )
+            },
+        )?;
+    let who = match caller {
+        Ok(Caller(who)) => who,
+        Err(e) => return Err(drained(e, http, length).await),
+    };
     if length > MAX_UPLOAD_BYTES {
         return Err(ApiError::too_large(format!(
             "POST /api/jobs: an upload of {length} bytes; a scene bundle may take at most {MAX_UPLOAD_BYTES}"
         )));
     }
-    let mut multipart =
-        multipart.map_err(|e| ApiError::bad_request(format!("POST /api/jobs: {}", e.body_text())))?;
-    let _admission = state.service.admit_submission(&who, length).await?;
+    let _admission = match state.service.admit_submission(&who, length).await {
+        Ok(a) => a,
+        Err(e) => return Err(drained(e.into(), http, length).await),
+    };
+    let mut multipart = Multipart::from_request(http, &state).await.map_err(|e: MultipartRejection| {
+        ApiError::bad_request(format!("POST /api/jobs: {}", e.body_text()))
+    })?;
     let form = read_form(&mut multipart).await?;
     let (name, text) = form.scene.ok_or_else(|| ApiError::bad_request("POST /api/jobs: no `scene` part"))?;
     let message = pb::SubmitRequest {
