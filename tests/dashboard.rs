@@ -50,20 +50,27 @@ impl Page {
 
     /// The JSON value of a JavaScript expression (a promise is awaited).
     fn js(&self, expr: &str) -> serde_json::Value {
+        self.try_js(expr).unwrap_or_else(|e| panic!("evaluating {expr}: {e}"))
+    }
+
+    /// The same, or why it could not be evaluated (e.g. the page is being replaced).
+    fn try_js(&self, expr: &str) -> Result<serde_json::Value, String> {
         let wrapped = format!("Promise.resolve({expr}).then((v) => JSON.stringify(v === undefined ? null : v))");
-        let r = self.tab.evaluate(&wrapped, true).unwrap_or_else(|e| panic!("evaluating {expr}: {e}"));
-        let text = r.value.and_then(|v| v.as_str().map(str::to_string)).unwrap_or_else(|| {
-            panic!("{expr} gave no value: {:?}", r.description.or(r.unserializable_value))
-        });
-        serde_json::from_str(&text).unwrap()
+        let r = self.tab.evaluate(&wrapped, true).map_err(|e| e.to_string())?;
+        let text = r.value.and_then(|v| v.as_str().map(str::to_string)).ok_or_else(|| {
+            format!("no value: {:?}", r.description.or(r.unserializable_value))
+        })?;
+        serde_json::from_str(&text).map_err(|e| e.to_string())
     }
 
     /// Waits until `expr` is true; panics with `what` and `detail` (an expression shown
     /// when it is not) after `limit`.
     fn wait(&self, expr: &str, limit: Duration, what: &str, detail: &str) {
         let start = Instant::now();
-        while self.js(expr) != serde_json::Value::Bool(true) {
-            assert!(start.elapsed() < limit, "{what}: not within {limit:?}; {}", self.js(detail));
+        while self.try_js(expr) != Ok(serde_json::Value::Bool(true)) {
+            if start.elapsed() > limit {
+                panic!("{what}: not within {limit:?}; {:?}", self.try_js(detail));
+            }
             std::thread::sleep(Duration::from_millis(25));
         }
     }
