@@ -60,6 +60,10 @@ enum Command {
         /// off [default: 0.03].
         #[arg(long, default_value_t = tessera_coordinator::farm::DEFAULT_AUDIT_FRACTION)]
         audit_fraction: f64,
+        /// Also serve the web dashboard and the HTTP API on this address, e.g.
+        /// 127.0.0.1:8080 (HTTPS with the certificate of --tls-cert; see docs/http-api.md).
+        #[arg(long, value_name = "ADDR", env = "TESSERA_HTTP")]
+        http: Option<SocketAddr>,
         /// TLS and authentication.
         #[command(flatten)]
         security: remote::SecurityArgs,
@@ -267,6 +271,7 @@ async fn run(command: Command) -> Result<ExitCode> {
             memory_budget,
             keep_finished,
             audit_fraction,
+            http,
             security,
         } => {
             let audit = tessera_coordinator::farm::AuditPolicy::with_fraction(audit_fraction)
@@ -283,7 +288,8 @@ async fn run(command: Command) -> Result<ExitCode> {
             if keep_finished == 0 {
                 anyhow::bail!("--keep-finished must be at least 1");
             }
-            remote::serve_coordinator(listen, timing, data, budget, keep_finished, &security, audit).await?;
+            remote::serve_coordinator(listen, http, timing, data, budget, keep_finished, &security, audit)
+                .await?;
             Ok(ExitCode::SUCCESS)
         }
         Command::Worker(args) => {

@@ -104,6 +104,13 @@ impl SecurityArgs {
         }
         let auth =
             Auth::new(tokens, tls.as_ref().is_some_and(ServerTls::mutual)).max_priority(self.max_priority);
+        self.check_exposure(listen, &auth, tls.is_some())?;
+        Ok((tls, auth))
+    }
+
+    /// Refuses to listen on `listen` beyond loopback without authentication, or with
+    /// tokens in plain text, unless `--insecure` (for the gRPC port and the --http one).
+    pub fn check_exposure(&self, listen: SocketAddr, auth: &Auth, tls: bool) -> Result<()> {
         let beyond_loopback = !listen.ip().is_loopback();
         if beyond_loopback && !auth.required() && !self.insecure {
             bail!(
@@ -115,7 +122,7 @@ impl SecurityArgs {
         if beyond_loopback && !auth.required() {
             tracing::warn!("--insecure: listening on {listen} with no authentication");
         }
-        if beyond_loopback && auth.required() && tls.is_none() {
+        if beyond_loopback && auth.required() && !tls {
             if !self.insecure {
                 bail!(
                     "refusing to take tokens in plain text on {listen}: anyone on the network could read                      them and act as their owners. Give --tls-cert and --tls-key, listen on 127.0.0.1, or                      say --insecure"
@@ -125,7 +132,7 @@ impl SecurityArgs {
                 "--insecure: tokens travel in plain text on {listen}: anyone on the network can read them"
             );
         }
-        Ok((tls, auth))
+        Ok(())
     }
 }
 
@@ -163,8 +170,10 @@ pub struct SubmitArgs {
 }
 
 /// Runs a coordinator until Ctrl-C or SIGTERM; with a data directory, its jobs survive.
+#[allow(clippy::too_many_arguments)]
 pub async fn serve_coordinator(
     listen: SocketAddr,
+    http: Option<SocketAddr>,
     timing: Timing,
     data: Option<(PathBuf, Duration)>,
     memory_budget: u64,
@@ -174,6 +183,9 @@ pub async fn serve_coordinator(
 ) -> Result<()> {
     // Before the data directory is opened: a refused start touches nothing.
     let (tls, auth) = security.load(listen)?;
+    if let Some(http) = http {
+        security.check_exposure(http, &auth, tls.is_some()).context("--http")?;
+    }
     tracing::info!(bytes = memory_budget, "memory budget of the jobs");
     let service = match &data {
         Some((dir, interval)) => {
@@ -195,24 +207,65 @@ pub async fn serve_coordinator(
     );
     let _reaper = service.spawn_reaper();
     let _checkpointer = service.spawn_checkpointer();
+    // One signal stops both servers.
+    let (stop, stopped) = tokio::sync::watch::channel(false);
+    let until_stopped = |mut rx: tokio::sync::watch::Receiver<bool>| async move {
+        let _ = rx.wait_for(|s| *s).await;
+    };
+    let web = http.map(|addr| {
+        tokio::spawn(serve_web(addr, service.clone(), tls.clone(), until_stopped(stopped.clone())))
+    });
     let mut server = tessera_coordinator::service::server();
     if let Some(tls) = &tls {
         server = server.tls_config(tls.config()).context("the TLS certificate or key cannot be used")?;
     }
-    server
-        .add_routes(service.clone().into_server())
-        .serve_with_incoming_shutdown(
-            tessera_coordinator::service::incoming(listener),
-            crate::shutdown_signal(),
-        )
-        .await
-        .context("coordinator server failed")?;
+    tokio::spawn(async move {
+        crate::shutdown_signal().await;
+        stop.send_replace(true);
+    });
+    let grpc = server.add_routes(service.clone().into_server()).serve_with_incoming_shutdown(
+        tessera_coordinator::service::incoming(listener),
+        until_stopped(stopped.clone()),
+    );
+    match web {
+        Some(mut web) => tokio::select! {
+            r = grpc => r.context("coordinator server failed")?,
+            r = &mut web => r.context("the web server panicked")??,
+        },
+        None => grpc.await.context("coordinator server failed")?,
+    }
     tracing::info!("shutting down");
     let n = service.checkpoint(true).await.context("writing the last checkpoints")?;
     if n > 0 {
         tracing::info!(jobs = n, "checkpointed");
     }
     Ok(())
+}
+
+/// Serves the web dashboard and the HTTP API of `service` on `addr` until `shutdown`.
+async fn serve_web(
+    addr: SocketAddr,
+    service: CoordinatorService,
+    tls: Option<ServerTls>,
+    shutdown: impl std::future::Future<Output = ()>,
+) -> Result<()> {
+    let acceptor = match &tls {
+        Some(tls) => {
+            let (cert, key) = tls.pem();
+            Some(tessera_web::tls_acceptor(cert, key).context("--http with --tls-cert")?)
+        }
+        None => None,
+    };
+    let listener = tokio::net::TcpListener::bind(addr)
+        .await
+        .with_context(|| format!("--http: cannot listen on {addr}"))?;
+    tracing::info!(
+        "web dashboard on {}://{}",
+        if acceptor.is_some() { "https" } else { "http" },
+        listener.local_addr()?
+    );
+    let router = tessera_web::router(service, tessera_web::WebConfig { secure_cookies: acceptor.is_some() });
+    tessera_web::serve(listener, router, acceptor, shutdown).await.context("the web server failed")
 }
 
 /// A client of the coordinator.

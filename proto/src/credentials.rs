@@ -154,6 +154,11 @@ impl ServerTls {
         })
     }
 
+    /// The certificate chain and the key, PEM (the web face serves HTTPS with them too).
+    pub fn pem(&self) -> (&[u8], &[u8]) {
+        (&self.cert.bytes, &self.key.bytes)
+    }
+
     /// Whether clients must show a certificate signed by the client CA.
     pub fn mutual(&self) -> bool {
         self.client_ca.is_some()

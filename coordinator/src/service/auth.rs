@@ -316,11 +316,9 @@ impl Auth {
                 return Ok(p);
             }
         }
-        let Some(tokens) = &self.tokens else {
-            return Err(Status::unauthenticated(
-                "this coordinator takes client certificates that name a role (OU); yours names none",
-            ));
-        };
+        if self.tokens.is_none() {
+            return self.authenticate_token(None);
+        }
         let Some(header) = request.metadata().get("authorization") else {
             return Err(Status::unauthenticated(
                 "no token: give the client one with --token-file FILE or the TESSERA_TOKEN environment variable",
@@ -330,6 +328,23 @@ impl Auth {
             .as_bytes()
             .strip_prefix(b"Bearer ")
             .ok_or_else(|| Status::unauthenticated("the authorization header is not `Bearer TOKEN`"))?;
+        self.authenticate_token(Some(token))
+    }
+
+    /// The principal of a bearer token, for callers that are not gRPC calls (the web API's
+    /// `Authorization` header and its login): the admin `anonymous` when no authentication
+    /// is required, else the token's principal (looked up in constant time), or
+    /// `UNAUTHENTICATED` for no token (`None`) or an unknown one.
+    pub fn authenticate_token(&self, token: Option<&[u8]>) -> Result<Principal, Status> {
+        if !self.required() {
+            return Ok(Principal { role: Role::Admin, name: "anonymous".into() });
+        }
+        let Some(tokens) = &self.tokens else {
+            return Err(Status::unauthenticated(
+                "this coordinator takes client certificates that name a role (OU); yours names none",
+            ));
+        };
+        let token = token.ok_or_else(|| Status::unauthenticated("no token"))?;
         tokens.find(token).cloned().ok_or_else(|| Status::unauthenticated("unknown token"))
     }
 }

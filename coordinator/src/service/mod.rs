@@ -148,6 +148,11 @@ impl CoordinatorService {
         self
     }
 
+    /// How callers are authenticated (the web API checks its tokens with it).
+    pub fn auth(&self) -> &Auth {
+        &self.auth
+    }
+
     /// The farm, locked: for short, bounded work only.
     fn farm(&self) -> MutexGuard<'_, Farm> {
         lock(&self.farm)

@@ -1,0 +1,102 @@
+//! Who is calling: a bearer token in `Authorization`, or the session cookie a login set;
+//! and the login, logout and whoami endpoints.
+
+use axum::extract::{FromRequestParts, State};
+use axum::http::header::{AUTHORIZATION, COOKIE, SET_COOKIE};
+use axum::http::request::Parts;
+use axum::http::{HeaderMap, HeaderValue, StatusCode};
+use axum::response::{IntoResponse, Response};
+use axum::Json;
+use bytes::Bytes;
+use serde::Deserialize;
+use tessera_coordinator::Principal;
+
+use crate::errors::ApiError;
+use crate::sessions::{self, COOKIE as SESSION_COOKIE, LIFETIME};
+use crate::AppState;
+
+/// The authenticated caller of a request.
+pub(crate) struct Caller(pub(crate) Principal);
+
+impl FromRequestParts<AppState> for Caller {
+    type Rejection = ApiError;
+
+    async fn from_request_parts(parts: &mut Parts, state: &AppState) -> Result<Self, Self::Rejection> {
+        authenticate(&parts.headers, state).map(Caller)
+    }
+}
+
+/// The principal of a request's bearer token, else of its session cookie; the admin
+/// `anonymous` on a coordinator without authentication.
+pub(crate) fn authenticate(headers: &HeaderMap, state: &AppState) -> Result<Principal, ApiError> {
+    let auth = state.service.auth();
+    if !auth.required() {
+        return Ok(auth.authenticate_token(None)?);
+    }
+    if let Some(h) = headers.get(AUTHORIZATION) {
+        let token = h
+            .as_bytes()
+            .strip_prefix(b"Bearer ")
+            .ok_or_else(|| ApiError::unauthorized("the Authorization header is not `Bearer TOKEN`"))?;
+        return Ok(auth.authenticate_token(Some(token))?);
+    }
+    let session =
+        headers.get_all(COOKIE).iter().filter_map(|h| h.to_str().ok()).find_map(sessions::from_cookie_header);
+    match session {
+        Some(id) => state
+            .sessions
+            .get(id)
+            .ok_or_else(|| ApiError::unauthorized("the session expired or was closed; log in again")),
+        None => Err(ApiError::unauthorized(
+            "no token: send `Authorization: Bearer TOKEN`, or log in with POST /api/login",
+        )),
+    }
+}
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct Login {
+    token: String,
+}
+
+/// A JSON body of type `T`, or a 400 saying what is wrong with it.
+pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(body: &[u8], what: &str) -> Result<T, ApiError> {
+    serde_json::from_slice(body).map_err(|e| ApiError::bad_request(format!("{what}: bad JSON body: {e}")))
+}
+
+/// `POST /api/login {"token": ...}`: 204 and the session cookie.
+pub(crate) async fn login(State(state): State<AppState>, body: Bytes) -> Result<Response, ApiError> {
+    let login: Login = parse_json(&body, "POST /api/login")?;
+    let who = state.service.auth().authenticate_token(Some(login.token.as_bytes()))?;
+    tracing::info!(principal = %who.name, role = %who.role, "web login");
+    let id = state
+        .sessions
+        .open(who)
+        .map_err(|e| ApiError::new(StatusCode::SERVICE_UNAVAILABLE, e.to_string()))?;
+    let cookie = format!(
+        "{SESSION_COOKIE}={id}; Path=/; HttpOnly; SameSite=Strict; Max-Age={}{}",
+        LIFETIME.as_secs(),
+        if state.config.secure_cookies { "; Secure" } else { "" }
+    );
+    let cookie = HeaderValue::from_str(&cookie).expect("a cookie of hex digits and ASCII");
+    Ok((StatusCode::NO_CONTENT, [(SET_COOKIE, cookie)]).into_response())
+}
+
+/// `POST /api/logout`: drops the session, clears the cookie.
+pub(crate) async fn logout(State(state): State<AppState>, headers: HeaderMap) -> Response {
+    for id in headers
+        .get_all(COOKIE)
+        .iter()
+        .filter_map(|h| h.to_str().ok())
+        .filter_map(sessions::from_cookie_header)
+    {
+        state.sessions.close(id);
+    }
+    let clear = HeaderValue::from_static("tessera_session=; Path=/; HttpOnly; SameSite=Strict; Max-Age=0");
+    (StatusCode::NO_CONTENT, [(SET_COOKIE, clear)]).into_response()
+}
+
+/// `GET /api/whoami`: `{"name", "role"}`.
+pub(crate) async fn whoami(Caller(who): Caller) -> Json<serde_json::Value> {
+    Json(serde_json::json!({ "name": who.name, "role": who.role.name() }))
+}

@@ -1,0 +1,29 @@
+//! The JSON API under `/api`.
+
+pub(crate) mod auth;
+mod jobs;
+
+pub(crate) use jobs::job_id;
+
+use axum::routing::{get, post};
+use axum::Router;
+use tessera_coordinator::Principal;
+
+use crate::AppState;
+
+/// A gRPC request of `who`, as the coordinator's interceptor would hand it to the RPC: the
+/// principal in its extensions.
+pub(crate) fn request<T>(who: &Principal, message: T) -> tonic::Request<T> {
+    let mut r = tonic::Request::new(message);
+    r.extensions_mut().insert(who.clone());
+    r
+}
+
+pub(crate) fn routes() -> Router<AppState> {
+    Router::new()
+        .route("/api/login", post(auth::login))
+        .route("/api/logout", post(auth::logout))
+        .route("/api/whoami", get(auth::whoami))
+        .route("/api/jobs", get(jobs::list))
+        .route("/api/jobs/{id}", get(jobs::one))
+}
