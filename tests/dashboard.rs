@@ -132,6 +132,25 @@ impl Page {
         eprintln!("saved {}", path.display());
     }
 
+    /// The id of the job the submit form just submitted; panics with the form's error.
+    fn submitted(&self, limit: Duration) -> u64 {
+        let start = Instant::now();
+        // The previous submission's link is removed when the button is pressed.
+        loop {
+            let v = self.js(
+                "[document.querySelector('[data-submitted]')?.dataset.submitted ?? null,
+                  document.getElementById('submit-error').textContent]",
+            );
+            if let Some(id) = v[0].as_str() {
+                return id.parse().unwrap();
+            }
+            let error = v[1].as_str().unwrap();
+            assert!(error.is_empty(), "the submit form says: {error}");
+            assert!(start.elapsed() < limit, "no job submitted within {limit:?}");
+            std::thread::sleep(Duration::from_millis(25));
+        }
+    }
+
     /// The job page's status figures.
     fn status(&self) -> serde_json::Value {
         self.js("({...document.getElementById('status-line').dataset})")
@@ -263,13 +282,7 @@ fn the_dashboard_in_a_real_browser() {
     page.fill("#submit-height", "300");
     page.fill("#submit-spp", "12");
     page.click("#submit-button");
-    page.wait(
-        "!!document.querySelector('[data-submitted]')",
-        long,
-        "job 1 submitted",
-        "document.getElementById('submit-error').textContent",
-    );
-    assert_eq!(page.js("document.querySelector('[data-submitted]').dataset.submitted"), "1");
+    assert_eq!(page.submitted(long), 1);
     page.pick_files("#submit-scene", &[&scenes.join("spheres.toml")]);
     page.pick_files("#submit-assets", &[]);
     page.fill("#submit-width", "320");
@@ -277,12 +290,7 @@ fn the_dashboard_in_a_real_browser() {
     page.fill("#submit-spp", "256");
     page.fill("#submit-priority", "-5");
     page.click("#submit-button");
-    page.wait(
-        "document.querySelector('[data-submitted]')?.dataset.submitted === '2'",
-        long,
-        "job 2 submitted",
-        "document.getElementById('submit-error').textContent",
-    );
+    assert_eq!(page.submitted(long), 2);
     // The table follows the event stream.
     page.wait(
         "document.querySelectorAll('#jobs-body tr[data-state=queued]').length === 2",
