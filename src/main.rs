@@ -109,6 +109,18 @@ enum Command {
         #[command(flatten)]
         conn: remote::ClientArgs,
     },
+    /// Change a job's priority: jobs with a higher one are served first (a submitter may
+    /// ask at most the coordinator's --max-priority).
+    Priority {
+        /// The job id.
+        job: u64,
+        /// The new priority.
+        #[arg(allow_negative_numbers = true)]
+        priority: i32,
+        /// Where the coordinator is and how to reach it.
+        #[command(flatten)]
+        conn: remote::ClientArgs,
+    },
     /// Resume a paused job.
     Resume {
         /// The job id.
@@ -323,6 +335,7 @@ async fn run(command: Command) -> Result<ExitCode> {
         }
         Command::Pause { job, conn } => remote::pause(&conn, JobId(job), true).await,
         Command::Resume { job, conn } => remote::pause(&conn, JobId(job), false).await,
+        Command::Priority { job, priority, conn } => remote::set_priority(&conn, JobId(job), priority).await,
         Command::Order { width, height } => {
             use std::io::Write;
             let stdout = std::io::stdout();
@@ -443,35 +456,9 @@ pub async fn shutdown_signal() {
     let _ = tokio::signal::ctrl_c().await;
 }
 
-/// A duration such as `90`, `90s`, `2m`, `1h30m` or `1.5h`.
+/// A duration such as `90`, `90s`, `2m`, `1h30m` or `1.5h` (also the web API's `time`).
 pub fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
-    let bad = || format!("expected a duration such as 90s, 2m or 1h30m, got {s:?}");
-    let mut total = 0.0f64;
-    let mut number = String::new();
-    let mut any = false;
-    for c in s.trim().chars() {
-        if c.is_ascii_digit() || c == '.' {
-            number.push(c);
-            continue;
-        }
-        let unit = match c {
-            's' => 1.0,
-            'm' => 60.0,
-            'h' => 3600.0,
-            _ => return Err(bad()),
-        };
-        total += number.parse::<f64>().map_err(|_| bad())? * unit;
-        number.clear();
-        any = true;
-    }
-    if !number.is_empty() {
-        total += number.parse::<f64>().map_err(|_| bad())?;
-        any = true;
-    }
-    if !(any && total.is_finite() && total > 0.0 && total < 1e9) {
-        return Err(bad());
-    }
-    Ok(std::time::Duration::from_secs_f64(total))
+    tessera_description::job::parse_duration(s)
 }
 
 pub fn parse_size(s: &str) -> Result<(u32, u32), String> {

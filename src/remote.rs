@@ -483,6 +483,14 @@ pub async fn pause(conn: &ClientArgs, job: JobId, paused: bool) -> Result<ExitCo
     Ok(ExitCode::SUCCESS)
 }
 
+/// `tessera priority`.
+pub async fn set_priority(conn: &ClientArgs, job: JobId, priority: i32) -> Result<ExitCode> {
+    let mut client = connect(conn).await?;
+    client.set_priority(pb::SetPriorityRequest { job_id: job.0, priority }).await.map_err(status_error)?;
+    eprintln!("{job} has priority {priority}");
+    Ok(ExitCode::SUCCESS)
+}
+
 /// `tessera cancel`.
 pub async fn cancel(conn: &ClientArgs, job: JobId) -> Result<ExitCode> {
     let mut client = connect(conn).await?;

@@ -115,6 +115,8 @@ pub trait JobStore: Send {
     fn add_job(&mut self, job: &JobRecord) -> Result<(), StoreError>;
     /// Records a job's state (paused, resumed, cancelled, ...).
     fn set_state(&mut self, job: JobId, state: &JobState) -> Result<(), StoreError>;
+    /// Records a job's new priority.
+    fn set_priority(&mut self, job: JobId, priority: i32) -> Result<(), StoreError>;
     /// Writes a checkpoint and the job's state together, keeping the previous checkpoint
     /// to fall back on; returns the new checkpoint's generation.
     fn save(&mut self, checkpoint: &Checkpoint, state: &JobState) -> Result<i64, StoreError>;
@@ -160,6 +162,13 @@ impl JobStore for MemoryStore {
     fn set_state(&mut self, job: JobId, state: &JobState) -> Result<(), StoreError> {
         if let Some((r, _)) = self.jobs.get_mut(&job) {
             r.state = state.clone();
+        }
+        Ok(())
+    }
+
+    fn set_priority(&mut self, job: JobId, priority: i32) -> Result<(), StoreError> {
+        if let Some((r, _)) = self.jobs.get_mut(&job) {
+            r.priority = priority;
         }
         Ok(())
     }

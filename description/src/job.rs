@@ -114,3 +114,34 @@ impl JobProgress {
         }
     }
 }
+
+/// A duration such as `90`, `90s`, `2m`, `1h30m` or `1.5h`.
+pub fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
+    let bad = || format!("expected a duration such as 90s, 2m or 1h30m, got {s:?}");
+    let mut total = 0.0f64;
+    let mut number = String::new();
+    let mut any = false;
+    for c in s.trim().chars() {
+        if c.is_ascii_digit() || c == '.' {
+            number.push(c);
+            continue;
+        }
+        let unit = match c {
+            's' => 1.0,
+            'm' => 60.0,
+            'h' => 3600.0,
+            _ => return Err(bad()),
+        };
+        total += number.parse::<f64>().map_err(|_| bad())? * unit;
+        number.clear();
+        any = true;
+    }
+    if !number.is_empty() {
+        total += number.parse::<f64>().map_err(|_| bad())?;
+        any = true;
+    }
+    if !(any && total.is_finite() && total > 0.0 && total < 1e9) {
+        return Err(bad());
+    }
+    Ok(std::time::Duration::from_secs_f64(total))
+}

@@ -192,6 +192,9 @@ pub fn status_to_wire(p: &JobProgress) -> pb::JobStatus {
         },
         pass_one_done: p.pass_one_done,
         priority: p.priority,
+        // Not part of a job's progress: the service fills them in.
+        owner: String::new(),
+        workers: 0,
     }
 }
 

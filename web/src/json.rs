@@ -87,9 +87,9 @@ impl From<pb::JobStatus> for Job {
             elapsed_seconds: j.elapsed_seconds,
             eta_seconds,
             priority: j.priority,
-            workers: 0,
+            workers: j.workers,
             error: nonempty(j.error),
-            owner: String::new(),
+            owner: j.owner,
         }
     }
 }
@@ -102,8 +102,8 @@ impl From<pb::WorkerStatus> for Worker {
             threads: w.threads,
             batches_in_flight: w.batches_in_flight,
             batches_done: w.batches_done,
-            samples_per_second: 0.0,
-            last_heard_seconds: 0.0,
+            samples_per_second: w.samples_per_second,
+            last_heard_seconds: w.last_heard_seconds,
             strikes: w.strikes,
             quarantined: w.quarantined,
             quarantine_reason: nonempty(w.quarantine_reason),

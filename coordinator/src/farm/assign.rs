@@ -285,11 +285,13 @@ impl Farm {
                 }
                 job.after_merge(r.nonfinite, now);
                 self.delivered(worker, &identity, job_id, &spec, lease.attempt, r);
+                self.book_rate(worker, spec.sample_count(), now);
             }
             Held::Repair(lease) => {
                 job.fence.repairs.finish(batch);
                 job.framebuffer.merge(&spec.quads, samples, r.sums, r.even).expect("sums were checked above");
                 self.delivered(worker, &identity, job_id, &spec, lease.attempt, r);
+                self.book_rate(worker, spec.sample_count(), now);
             }
             Held::Audit(k, _) => {
                 let answer = Answer::new(&identity, r.sums, r.even, &job.framebuffer);
@@ -326,6 +328,13 @@ impl Farm {
         }
         self.settle(now);
         Ok(())
+    }
+
+    /// Books `samples` merged from `worker` at `now`, for its rate.
+    fn book_rate(&mut self, worker: WorkerId, samples: u64, now: Instant) {
+        if let Some(w) = self.workers.get_mut(&worker) {
+            w.book(samples, now);
+        }
     }
 
     /// Books a merged delivery: the identity's pixels, its count, and perhaps an audit of

@@ -17,7 +17,7 @@ use super::fence::JobFence;
 use super::SubmitError;
 
 /// The window over which samples per second are measured.
-const RATE_WINDOW: Duration = Duration::from_secs(5);
+pub(super) const RATE_WINDOW: Duration = Duration::from_secs(5);
 
 /// A job: its scene, its batches and its framebuffer.
 #[derive(Debug)]

@@ -17,7 +17,7 @@ mod strikes;
 #[cfg(test)]
 mod tests;
 
-use std::collections::{BTreeMap, HashSet};
+use std::collections::{BTreeMap, HashSet, VecDeque};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -65,9 +65,42 @@ pub struct WorkerInfo {
     pub batches_done: u64,
     /// Last message received.
     last_seen: Instant,
+    /// (time, samples delivered so far) over the last `RATE_WINDOW`: its rate.
+    delivered: VecDeque<(Instant, u64)>,
     /// Its leases were taken back for silence (until it is heard again): it is not
     /// counted on to render audits.
     silent: bool,
+}
+
+impl WorkerInfo {
+    /// Samples it delivered per second over the last few seconds; 0 once it has delivered
+    /// nothing for that long.
+    pub fn samples_per_second(&self, now: Instant) -> f64 {
+        match (self.delivered.front(), self.delivered.back()) {
+            (Some(&(t0, s0)), Some(&(t1, s1)))
+                if t1 > t0 && now.saturating_duration_since(t1) <= job::RATE_WINDOW =>
+            {
+                (s1 - s0) as f64 / (t1 - t0).as_secs_f64()
+            }
+            _ => 0.0,
+        }
+    }
+
+    /// How long since it was last heard from.
+    pub fn last_heard(&self, now: Instant) -> Duration {
+        now.saturating_duration_since(self.last_seen)
+    }
+
+    /// Books `samples` delivered at `now`.
+    fn book(&mut self, samples: u64, now: Instant) {
+        let total = self.delivered.back().map_or(0, |&(_, s)| s) + samples;
+        self.delivered.push_back((now, total));
+        while self.delivered.len() > 2
+            && now.saturating_duration_since(self.delivered[1].0) > job::RATE_WINDOW
+        {
+            self.delivered.pop_front();
+        }
+    }
 }
 
 /// What a worker is handed: the job's scene first if it lacks it, then a batch.
@@ -365,6 +398,7 @@ impl Farm {
             scenes: HashSet::new(),
             batches_done: 0,
             last_seen: now,
+            delivered: VecDeque::from([(now, 0)]),
             silent: false,
         };
         self.workers.insert(id, info);
@@ -374,6 +408,19 @@ impl Farm {
     /// The connected workers.
     pub fn workers(&self) -> impl Iterator<Item = (WorkerId, &WorkerInfo)> {
         self.workers.iter().map(|(id, w)| (*id, w))
+    }
+
+    /// Connected workers holding at least one lease of `job` now.
+    pub fn workers_on(&self, job: JobId) -> u32 {
+        let Some(j) = self.jobs.get(&job) else { return 0 };
+        self.workers.keys().filter(|&&w| j.queue_leases_of(w) > 0).count() as u32
+    }
+
+    /// Sets a job's priority; `false` if there is no such job.
+    pub fn set_priority(&mut self, job_id: JobId, priority: i32) -> bool {
+        let Some(job) = self.jobs.get_mut(&job_id) else { return false };
+        job.priority = priority;
+        true
     }
 
     /// Batches leased to `worker` now.

@@ -81,6 +81,7 @@ pub(super) enum Action {
     Watch,
     Pause,
     Cancel,
+    Prioritize,
     Work,
 }
 
@@ -93,6 +94,7 @@ impl Action {
             Action::Watch => "watch jobs",
             Action::Pause => "pause or resume jobs",
             Action::Cancel => "cancel jobs",
+            Action::Prioritize => "change priorities",
             Action::Work => "work",
         }
     }
@@ -100,7 +102,9 @@ impl Action {
     /// The roles allowed to do it.
     fn roles(self) -> &'static [Role] {
         match self {
-            Action::Submit | Action::Pause | Action::Cancel => &[Role::Admin, Role::Submitter],
+            Action::Submit | Action::Pause | Action::Cancel | Action::Prioritize => {
+                &[Role::Admin, Role::Submitter]
+            }
             Action::Status | Action::FetchImage | Action::Watch => {
                 &[Role::Admin, Role::Submitter, Role::Viewer]
             }

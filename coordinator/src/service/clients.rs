@@ -67,7 +67,11 @@ impl CoordinatorService {
         let jobs = farm
             .jobs()
             .filter(|j| (want == 0 || j.id.0 == want) && Self::sees_jobs_of(&who, &j.owner))
-            .map(|j| convert::status_to_wire(&j.progress(now)))
+            .map(|j| pb::JobStatus {
+                owner: j.owner.clone(),
+                workers: farm.workers_on(j.id),
+                ..convert::status_to_wire(&j.progress(now))
+            })
             .collect();
         let workers = farm
             .workers()
@@ -79,6 +83,8 @@ impl CoordinatorService {
                 batches_in_flight: farm.in_flight(id) as u32,
                 batches_done: w.batches_done,
                 strikes: farm.strikes(id),
+                samples_per_second: w.samples_per_second(now),
+                last_heard_seconds: w.last_heard(now).as_secs_f64(),
                 ..Default::default()
             })
             .chain(super::workers::quarantined_to_wire(&farm).map(|mut q| {
@@ -140,6 +146,24 @@ impl CoordinatorService {
         self.notify();
         self.persist_state(id).await?;
         Ok(Response::new(pb::PauseResponse {}))
+    }
+
+    pub(super) async fn rpc_set_priority(
+        &self,
+        request: Request<pb::SetPriorityRequest>,
+    ) -> Result<Response<pb::SetPriorityResponse>, Status> {
+        let who = auth::caller(&request)?;
+        self.check_owner(&who, JobId(request.get_ref().job_id))?;
+        let req = request.into_inner();
+        self.check_priority(&who, req.priority)?;
+        let id = JobId(req.job_id);
+        if !self.farm().set_priority(id, req.priority) {
+            return Err(Status::not_found(format!("no {id} on this coordinator")));
+        }
+        info!(%id, priority = req.priority, "job priority changed");
+        self.notify();
+        self.persist_priority(id, req.priority).await?;
+        Ok(Response::new(pb::SetPriorityResponse {}))
     }
 
     pub(super) async fn rpc_cancel(

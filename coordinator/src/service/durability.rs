@@ -262,6 +262,15 @@ impl CoordinatorService {
         .map_err(|e| Status::unavailable(format!("the change is made but not on disk: {e}")))
     }
 
+    /// Records a job's new priority in the store, if there is one.
+    pub(super) async fn persist_priority(&self, id: JobId, priority: i32) -> Result<(), Status> {
+        let Some(durable) = self.durable.clone() else { return Ok(()) };
+        tokio::task::spawn_blocking(move || lock(&durable.store).set_priority(id, priority))
+            .await
+            .map_err(|e| Status::internal(format!("writing the priority failed: {e}")))?
+            .map_err(|e| Status::unavailable(format!("the change is made but not on disk: {e}")))
+    }
+
     /// Writes a checkpoint of every job that has new samples and is due: its interval has
     /// passed, it finished pass one, or it ended; with `all`, of every job with anything
     /// new (at shutdown). Returns how many were written.
@@ -476,6 +485,9 @@ mod tests {
         }
         fn set_state(&mut self, job: JobId, state: &JobState) -> Result<(), StoreError> {
             lock(&self.0).set_state(job, state)
+        }
+        fn set_priority(&mut self, job: JobId, priority: i32) -> Result<(), StoreError> {
+            lock(&self.0).set_priority(job, priority)
         }
         fn save(&mut self, c: &Checkpoint, state: &JobState) -> Result<i64, StoreError> {
             lock(&self.0).save(c, state)

@@ -47,6 +47,34 @@ pub(super) fn transient_bytes(message: u64) -> u64 {
     2 * message + 7 * message.min(MAX_SCENE_BYTES)
 }
 
+/// A submission admitted outside gRPC (the web API's uploads): its turn among
+/// `SUBMITS_AT_ONCE` and its memory reservation, held until it is dropped.
+#[derive(Debug)]
+pub struct Admission {
+    _permit: tokio::sync::OwnedSemaphorePermit,
+    _reservation: super::budget::Reservation,
+}
+
+impl super::CoordinatorService {
+    /// Admits a submission of `bytes` (its whole upload) from `who` as the gate admits a
+    /// gRPC Submit: Submit's role first (`PERMISSION_DENIED`), then a turn, then a
+    /// reservation of what holding and validating it can take (`RESOURCE_EXHAUSTED` when
+    /// it does not fit). Ask it before reading the upload; hold it until Submit returns.
+    pub async fn admit_submission(
+        &self,
+        who: &super::auth::Principal,
+        bytes: u64,
+    ) -> Result<Admission, Status> {
+        super::auth::require_of(Some(who), super::auth::Action::Submit)?;
+        let permit = self.submits.clone().acquire_owned().await.expect("the permits are never closed");
+        let reservation = self
+            .budget
+            .admit_submission(bytes, transient_bytes(bytes))
+            .map_err(|e| Status::resource_exhausted(e.to_string()))?;
+        Ok(Admission { _permit: permit, _reservation: reservation })
+    }
+}
+
 /// `inner` with its `Submit` calls admitted as above.
 #[derive(Clone)]
 pub(super) struct SubmitGate<S> {

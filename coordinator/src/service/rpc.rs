@@ -104,6 +104,14 @@ impl Coordinator for CoordinatorService {
         self.rpc_pause(request).await
     }
 
+    async fn set_priority(
+        &self,
+        request: Request<pb::SetPriorityRequest>,
+    ) -> Result<Response<pb::SetPriorityResponse>, Status> {
+        auth::require(&request, Action::Prioritize)?;
+        self.rpc_set_priority(request).await
+    }
+
     async fn cancel(
         &self,
         request: Request<pb::CancelRequest>,

@@ -503,6 +503,13 @@ impl JobStore for Store {
         Ok(())
     }
 
+    fn set_priority(&mut self, job: JobId, priority: i32) -> Result<(), StoreError> {
+        self.conn
+            .execute("UPDATE jobs SET priority = ?2 WHERE id = ?1", params![job.0 as i64, priority])
+            .map_err(|source| StoreError::Write { path: self.path.clone(), source: Box::new(source) })?;
+        Ok(())
+    }
+
     fn remove(&mut self, job: JobId) -> Result<(), StoreError> {
         let path = self.path.clone();
         let err =

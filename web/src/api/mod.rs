@@ -2,6 +2,7 @@
 
 pub(crate) mod auth;
 mod jobs;
+mod submit;
 
 pub(crate) use jobs::job_id;
 
@@ -24,6 +25,15 @@ pub(crate) fn routes() -> Router<AppState> {
         .route("/api/login", post(auth::login))
         .route("/api/logout", post(auth::logout))
         .route("/api/whoami", get(auth::whoami))
-        .route("/api/jobs", get(jobs::list))
+        .route(
+            "/api/jobs",
+            get(jobs::list)
+                .post(submit::submit)
+                .layer(axum::extract::DefaultBodyLimit::max(submit::MAX_UPLOAD_BYTES as usize)),
+        )
         .route("/api/jobs/{id}", get(jobs::one))
+        .route("/api/jobs/{id}/pause", post(jobs::pause))
+        .route("/api/jobs/{id}/resume", post(jobs::resume))
+        .route("/api/jobs/{id}/cancel", post(jobs::cancel))
+        .route("/api/jobs/{id}/priority", post(jobs::priority))
 }
