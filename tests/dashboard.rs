@@ -12,6 +12,8 @@ mod common;
 
 use base64::Engine as _;
 use common::*;
+use headless_chrome::browser::tab::point::Point;
+use headless_chrome::protocol::cdp::Input;
 use headless_chrome::protocol::cdp::Page::CaptureScreenshotFormatOption;
 use headless_chrome::{Browser, LaunchOptions, Tab};
 use std::path::{Path, PathBuf};
@@ -75,17 +77,29 @@ impl Page {
         }
     }
 
+    /// Clicks the middle of the element `selector` with the mouse, as a user would.
     fn click(&self, selector: &str) {
-        self.tab.wait_for_element(selector).unwrap_or_else(|e| panic!("{selector}: {e}")).click().unwrap();
+        // headless_chrome's Element::click polls the layout and takes about a second a
+        // click on a busy machine; the point from the page itself, then three events.
+        let at = self.js(&format!(
+            "(() => {{ const e = document.querySelector({selector:?}); if (!e) return null;
+               e.scrollIntoView({{ block: 'center' }}); const r = e.getBoundingClientRect();
+               return [r.x + r.width / 2, r.y + r.height / 2]; }})()"
+        ));
+        assert!(at.is_array(), "no {selector} to click");
+        let point = Point { x: at[0].as_f64().unwrap(), y: at[1].as_f64().unwrap() };
+        self.tab.click_point(point).unwrap();
     }
 
-    /// Types `text` into the input `selector` as a user would, after clearing it.
+    /// Types `text` into the input `selector` (focused and emptied first), as one input.
     fn fill(&self, selector: &str, text: &str) {
-        self.js(&format!("document.querySelector({selector:?}).value = ''"));
-        let input = self.tab.wait_for_element(selector).unwrap();
-        input.click().unwrap();
+        let found = self.js(&format!(
+            "(() => {{ const e = document.querySelector({selector:?}); if (!e) return false;
+               e.focus(); e.value = ''; return true; }})()"
+        ));
+        assert_eq!(found, true, "no {selector} to type into");
         if !text.is_empty() {
-            input.type_into(text).unwrap();
+            self.tab.call_method(Input::InsertText { text: text.to_string() }).unwrap();
         }
     }
 
@@ -243,6 +257,7 @@ fn the_dashboard_in_a_real_browser() {
     let page = Page { tab, base: http.clone() };
     let long = Duration::from_secs(30);
 
+    eprintln!("{:5.1} s: browser up", started.elapsed().as_secs_f64());
     // Not logged in: the login form, and a wrong token is refused with a message.
     page.open("/");
     page.wait(
@@ -264,6 +279,7 @@ fn the_dashboard_in_a_real_browser() {
     page.wait("document.body.dataset.session === 'in'", long, "logged in", "document.getElementById('login-error').textContent");
     assert_eq!(page.js("document.getElementById('who').textContent"), "alice · admin");
 
+    eprintln!("{:5.1} s: logged in", started.elapsed().as_secs_f64());
     // Submit the mesh scene with its two assets picked as files (no folder: the page maps
     // them to the paths the scene names by file name), then a second, lower-priority job.
     let scenes = root().join("scenes");
@@ -299,6 +315,7 @@ fn the_dashboard_in_a_real_browser() {
         "document.getElementById('jobs-body').innerText",
     );
 
+    eprintln!("{:5.1} s: submitted", started.elapsed().as_secs_f64());
     // Job 1's page, joined before any worker: record each update of the canvas as it is
     // drawn, to find the mosaic of pass one among them.
     page.open("/jobs/1");
@@ -328,6 +345,7 @@ fn the_dashboard_in_a_real_browser() {
     );
     let w2 = worker(&grpc, &token_file);
 
+    eprintln!("{:5.1} s: workers up", started.elapsed().as_secs_f64());
     // The mosaic: an update in pass one, fewer than all pixels computed, where every pixel
     // is painted (opaque) in no more colours than pixels computed so far: blocks.
     let captures = page.js("captures");
@@ -386,6 +404,7 @@ fn the_dashboard_in_a_real_browser() {
         "document.getElementById('error').innerText",
     );
 
+    eprintln!("{:5.1} s: paused and resumed", started.elapsed().as_secs_f64());
     // The end: the final flag, and the canvas is the coordinator's image exactly.
     page.wait(
         "document.getElementById('live').dataset.final === 'true' && document.getElementById('job-state').dataset.state === 'done'",
@@ -399,6 +418,7 @@ fn the_dashboard_in_a_real_browser() {
     assert_eq!((served.0, served.1), (400, 300));
     assert_eq!(differing(&shown.2, &served.2), 0, "the final canvas differs from image.png");
 
+    eprintln!("{:5.1} s: job 1 done", started.elapsed().as_secs_f64());
     // The jobs page: job 2 runs now; a screenshot, then cancel it from its row.
     page.open("/");
     page.wait(
@@ -422,6 +442,7 @@ fn the_dashboard_in_a_real_browser() {
         "document.getElementById('error').innerText",
     );
 
+    eprintln!("{:5.1} s: job 2 cancelled", started.elapsed().as_secs_f64());
     // A viewer sees the jobs but is offered no control, and no submit form.
     page.click("#logout");
     page.wait("document.body.dataset.session === 'out'", long, "logged out", "document.body.dataset.session");
