@@ -57,11 +57,13 @@ impl Page {
 
     /// The same, or why it could not be evaluated (e.g. the page is being replaced).
     fn try_js(&self, expr: &str) -> Result<serde_json::Value, String> {
-        let wrapped = format!("Promise.resolve({expr}).then((v) => JSON.stringify(v === undefined ? null : v))");
+        let wrapped =
+            format!("Promise.resolve({expr}).then((v) => JSON.stringify(v === undefined ? null : v))");
         let r = self.tab.evaluate(&wrapped, true).map_err(|e| e.to_string())?;
-        let text = r.value.and_then(|v| v.as_str().map(str::to_string)).ok_or_else(|| {
-            format!("no value: {:?}", r.description.or(r.unserializable_value))
-        })?;
+        let text = r
+            .value
+            .and_then(|v| v.as_str().map(str::to_string))
+            .ok_or_else(|| format!("no value: {:?}", r.description.or(r.unserializable_value)))?;
         serde_json::from_str(&text).map_err(|e| e.to_string())
     }
 
@@ -132,7 +134,9 @@ impl Page {
         let text = v.as_str().unwrap();
         assert!(!text.starts_with("HTTP "), "GET {path}: {text}");
         let png = base64::engine::general_purpose::STANDARD.decode(text).unwrap();
-        let img = image::load_from_memory(&png).unwrap_or_else(|e| panic!("GET {path}: not an image: {e}")).to_rgba8();
+        let img = image::load_from_memory(&png)
+            .unwrap_or_else(|e| panic!("GET {path}: not an image: {e}"))
+            .to_rgba8();
         (img.width(), img.height(), img.into_raw())
     }
 
@@ -151,10 +155,8 @@ impl Page {
         let start = Instant::now();
         // The previous submission's link is removed when the button is pressed.
         loop {
-            let v = self.js(
-                "[document.querySelector('[data-submitted]')?.dataset.submitted ?? null,
-                  document.getElementById('submit-error').textContent]",
-            );
+            let v = self.js("[document.querySelector('[data-submitted]')?.dataset.submitted ?? null,
+                  document.getElementById('submit-error').textContent]");
             if let Some(id) = v[0].as_str() {
                 return id.parse().unwrap();
             }
@@ -276,7 +278,12 @@ fn the_dashboard_in_a_real_browser() {
     );
     page.fill("#login-token", ADMIN_TOKEN);
     page.click("#login-form button[type=submit]");
-    page.wait("document.body.dataset.session === 'in'", long, "logged in", "document.getElementById('login-error').textContent");
+    page.wait(
+        "document.body.dataset.session === 'in'",
+        long,
+        "logged in",
+        "document.getElementById('login-error').textContent",
+    );
     assert_eq!(page.js("document.getElementById('who').textContent"), "alice · admin");
 
     eprintln!("{:5.1} s: logged in", started.elapsed().as_secs_f64());
@@ -353,14 +360,19 @@ fn the_dashboard_in_a_real_browser() {
     let early = captures
         .iter()
         .enumerate()
-        .find(|(_, c)| c["pass"] == 1 && c["colours"].as_u64().unwrap() > 1 && c["samples"].as_u64().unwrap() < w * h)
+        .find(|(_, c)| {
+            c["pass"] == 1 && c["colours"].as_u64().unwrap() > 1 && c["samples"].as_u64().unwrap() < w * h
+        })
         .unwrap_or_else(|| panic!("no update of pass one with a partial image among {captures:?}"));
     let (i, c) = early;
     assert_eq!(c["opaque"].as_u64().unwrap(), w * h, "the early canvas has unpainted pixels: {c}");
     // Samples only grow, and the status that follows an update is at least as new as it.
     let bound = captures.get(i + 1).map_or(w * h, |n| n["samples"].as_u64().unwrap());
     let colours = c["colours"].as_u64().unwrap();
-    assert!(colours <= bound.max(c["samples"].as_u64().unwrap()), "{colours} colours from {bound} samples: {c}");
+    assert!(
+        colours <= bound.max(c["samples"].as_u64().unwrap()),
+        "{colours} colours from {bound} samples: {c}"
+    );
     assert!(colours < w * h / 4, "not a mosaic: {colours} colours in {w}x{h}");
 
     // Mid-render: a screenshot, then pause. Once the batches in flight are merged the
