@@ -8,7 +8,10 @@
 
 mod api;
 mod errors;
+mod events;
+mod images;
 mod json;
+mod live;
 mod pages;
 mod serve;
 mod sessions;

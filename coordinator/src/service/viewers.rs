@@ -226,7 +226,11 @@ impl CoordinatorService {
         let j = farm.job(job)?;
         Some(ViewSnapshot {
             fb: j.framebuffer().clone(),
-            status: convert::status_to_wire(&j.progress(Instant::now())),
+            status: pb::JobStatus {
+                owner: j.owner.clone(),
+                workers: farm.workers_on(job),
+                ..convert::status_to_wire(&j.progress(Instant::now()))
+            },
             workers: farm.workers().count() as u32,
             over: j.is_over(),
         })

@@ -52,7 +52,7 @@ pub(crate) async fn one(
 }
 
 /// The one job `id` as `caller` may see it, or why not (401, 403, 404, as Status says).
-async fn the_job(state: &AppState, caller: &Caller, id: u64) -> Result<pb::JobStatus, ApiError> {
+pub(crate) async fn the_job(state: &AppState, caller: &Caller, id: u64) -> Result<pb::JobStatus, ApiError> {
     let s = status(state, caller, id).await?;
     s.jobs.into_iter().next().ok_or_else(|| ApiError::not_found(format!("no job {id}")))
 }

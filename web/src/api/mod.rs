@@ -4,7 +4,8 @@ pub(crate) mod auth;
 mod jobs;
 mod submit;
 
-pub(crate) use jobs::job_id;
+pub(crate) use crate::json::listing as listing_of;
+pub(crate) use jobs::{job_id, status as status_of, the_job};
 
 use axum::routing::{get, post};
 use axum::Router;
@@ -36,4 +37,8 @@ pub(crate) fn routes() -> Router<AppState> {
         .route("/api/jobs/{id}/resume", post(jobs::resume))
         .route("/api/jobs/{id}/cancel", post(jobs::cancel))
         .route("/api/jobs/{id}/priority", post(jobs::priority))
+        .route("/api/jobs/{id}/image.png", get(crate::images::png))
+        .route("/api/jobs/{id}/image.exr", get(crate::images::exr))
+        .route("/api/jobs/{id}/live", get(crate::live::live))
+        .route("/api/events", get(crate::events::events))
 }
