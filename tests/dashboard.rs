@@ -374,6 +374,7 @@ fn the_dashboard_in_a_real_browser() {
         "{colours} colours from {bound} samples: {c}"
     );
     assert!(colours < w * h / 4, "not a mosaic: {colours} colours in {w}x{h}");
+    eprintln!("the mosaic: update {i} of {} recorded: {c}", captures.len());
 
     // Mid-render: a screenshot, then pause. Once the batches in flight are merged the
     // canvas is exactly the coordinator's current image.
