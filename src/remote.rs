@@ -241,29 +241,51 @@ pub async fn serve_coordinator(
     if let Some(tls) = &tls {
         server = server.tls_config(tls.config()).context("the TLS certificate or key cannot be used")?;
     }
-    let stopping = service.clone();
-    tokio::spawn(async move {
-        crate::shutdown_signal().await;
-        // Health turns NOT_SERVING, and the worker and viewer streams end, so that the
-        // graceful shutdown does not wait for them (a service manager's stop timeout).
-        stopping.shutdown();
-        stop.send_replace(true);
-    });
+    let stop = std::sync::Arc::new(stop);
+    let stop_all = {
+        let (service, stop) = (service.clone(), stop.clone());
+        move || {
+            // Health turns NOT_SERVING, and the worker and viewer streams end, so that the
+            // graceful shutdown does not wait for them (a service manager's stop timeout).
+            service.shutdown();
+            stop.send_replace(true);
+        }
+    };
+    {
+        let stop_all = stop_all.clone();
+        tokio::spawn(async move {
+            crate::shutdown_signal().await;
+            stop_all();
+        });
+    }
     let grpc = server.add_routes(service.clone().into_server()).serve_with_incoming_shutdown(
         tessera_coordinator::service::incoming(listener),
         until_stopped(stopped.clone()),
     );
-    match web {
-        Some(mut web) => tokio::select! {
-            r = grpc => r.context("coordinator server failed")?,
-            r = &mut web => r.context("the web server panicked")??,
-        },
-        None => grpc.await.context("coordinator server failed")?,
-    }
+    // Both servers are awaited to the end: the web side drops its connections at once,
+    // and returning then would cut gRPC's graceful drain (a submission acknowledged in it
+    // lost) short. A web server that fails stops the coordinator too, rather than leave it
+    // running without the dashboard it was asked for.
+    let (grpc, web) = match web {
+        Some(web) => {
+            let web = async move {
+                let r = web.await;
+                stop_all();
+                r
+            };
+            let (g, w) = tokio::join!(grpc, web);
+            (g, Some(w))
+        }
+        None => (grpc.await, None),
+    };
     tracing::info!("shutting down");
     let n = service.checkpoint(true).await.context("writing the last checkpoints")?;
     if n > 0 {
         tracing::info!(jobs = n, "checkpointed");
+    }
+    grpc.context("coordinator server failed")?;
+    if let Some(web) = web {
+        web.context("the web server panicked")??;
     }
     Ok(())
 }

@@ -83,10 +83,26 @@ pub(crate) async fn submit(
         Ok(a) => a,
         Err(e) => return Err(drained(e.into(), http, length).await),
     };
-    let mut multipart = Multipart::from_request(http, &state).await.map_err(|e: MultipartRejection| {
-        ApiError::bad_request(format!("POST /api/jobs: {}", e.body_text()))
-    })?;
-    let form = read_form(&mut multipart).await?;
+    // The turn and the reservation are held while the body arrives: a sender that
+    // trickles it must not hold them (and every other submission) for ever.
+    let deadline = upload_deadline(length);
+    let form = tokio::time::timeout(deadline, async {
+        let mut multipart =
+            Multipart::from_request(http, &state).await.map_err(|e: MultipartRejection| {
+                ApiError::bad_request(format!("POST /api/jobs: {}", e.body_text()))
+            })?;
+        read_form(&mut multipart).await
+    })
+    .await
+    .map_err(|_| {
+        ApiError::new(
+            StatusCode::REQUEST_TIMEOUT,
+            format!(
+                "POST /api/jobs: the upload of {length} bytes did not arrive within {} s",
+                deadline.as_secs()
+            ),
+        )
+    })??;
     let (name, text) = form.scene.ok_or_else(|| ApiError::bad_request("POST /api/jobs: no `scene` part"))?;
     let message = pb::SubmitRequest {
         protocol_version: pb::ProtocolVersion::Current as i32,
@@ -96,6 +112,12 @@ pub(crate) async fn submit(
     };
     let r = Coordinator::submit(&state.service, request(&who, message)).await?.into_inner();
     Ok((StatusCode::CREATED, Json(Submitted { id: r.job_id, width: r.width, height: r.height, spp: r.spp })))
+}
+
+/// How long an upload of `length` bytes may take to arrive: half a minute, plus a second
+/// a megabyte (a slow link, not a stalled one).
+fn upload_deadline(length: u64) -> std::time::Duration {
+    std::time::Duration::from_secs(30 + length / 1_000_000)
 }
 
 fn bad(what: String) -> ApiError {
@@ -205,4 +227,51 @@ async fn setting(mut field: Field<'_>, name: &str) -> Result<String, ApiError> {
         }
     }
     String::from_utf8(value).map_err(|_| bad(format!("`{name}` is not UTF-8")))
+}
+
+#[cfg(test)]
+mod tests {
+    use axum::body::Body;
+    use axum::http::{Request, StatusCode};
+    use tessera_coordinator::{CoordinatorService, Timing};
+    use tokio_stream::StreamExt;
+    use tower::ServiceExt;
+
+    use crate::{router, WebConfig};
+
+    /// A sender that declares a small upload, sends its first bytes and then nothing more
+    /// is answered 408 once its time is up, and gives its submit turn back: the next
+    /// submission is served (time is paused, so the wait costs the test nothing).
+    #[tokio::test(start_paused = true)]
+    async fn a_trickled_upload_times_out_and_frees_its_turn() {
+        let app = router(CoordinatorService::new(Timing::default()), WebConfig::default());
+        let stalled = |app: axum::Router| async move {
+            let first = tokio_stream::once(Ok::<_, std::io::Error>(bytes::Bytes::from_static(
+                b"--x\r\ncontent-disposition: form-data; name=\"scene\"; filename=\"a.toml\"\r\n\r\n",
+            )));
+            let body = Body::from_stream(first.chain(tokio_stream::pending()));
+            let request = Request::builder()
+                .method("POST")
+                .uri("/api/jobs")
+                .header("host", "127.0.0.1")
+                .header("content-type", "multipart/form-data; boundary=x")
+                .header("content-length", "1000")
+                .body(body)
+                .unwrap();
+            let response = app.oneshot(request).await.unwrap();
+            let status = response.status();
+            let body = axum::body::to_bytes(response.into_body(), 1 << 20).await.unwrap();
+            (status, String::from_utf8(body.to_vec()).unwrap())
+        };
+        // More stalled senders than there are submit turns: each must give its turn back.
+        for _ in 0..tessera_coordinator::service::SUBMITS_AT_ONCE + 1 {
+            // Without a deadline the request would never end: bound the test itself.
+            let (status, body) =
+                tokio::time::timeout(std::time::Duration::from_secs(3600), stalled(app.clone()))
+                    .await
+                    .expect("a stalled upload was never answered");
+            assert_eq!(status, StatusCode::REQUEST_TIMEOUT, "{body}");
+            assert!(body.contains("did not arrive within 30 s"), "{body}");
+        }
+    }
 }
