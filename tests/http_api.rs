@@ -261,6 +261,58 @@ fn the_live_socket_sends_a_snapshot_then_deltas_that_end_in_the_final_image() {
     assert_eq!(canvas.rgba, image.into_raw(), "the canvas ends as the final image");
 }
 
+#[test]
+fn two_live_sockets_of_one_job_share_one_viewer_slot_and_both_end_in_the_final_image() {
+    let web = Web::start(&[]);
+    let id = submit_ok(&web, None, small_form(40, 30, 300));
+    let url = web.url(&format!("/api/jobs/{id}/live")).replace("http://", "ws://");
+    let mut sockets: Vec<_> = (0..2)
+        .map(|_| {
+            let (mut s, _) = tungstenite::connect(url.as_str()).expect("the live socket opens");
+            let hello: Value = serde_json::from_str(s.read().unwrap().to_text().unwrap()).unwrap();
+            assert_eq!(hello["type"], "hello");
+            s
+        })
+        .collect();
+    let viewers = || -> f64 {
+        let text = client().get(web.url("/metrics")).send().unwrap().text().unwrap();
+        text.lines()
+            .find_map(|l| l.strip_prefix("tessera_viewers ").map(|v| v.trim().parse().unwrap()))
+            .unwrap_or_else(|| panic!("no tessera_viewers in {text}"))
+    };
+    assert_eq!(viewers(), 1.0, "two sockets of one job hold one Watch viewer slot");
+    let _worker = web.coord.worker(1);
+    let start = Instant::now();
+    let mut canvases = Vec::new();
+    for socket in &mut sockets {
+        let mut canvas = Canvas { rgba: vec![0; 40 * 30 * 4], resets: 0, deltas: 0, final_seen: false };
+        while !canvas.final_seen {
+            assert!(start.elapsed() < Duration::from_secs(60), "no final update");
+            match socket.read().expect("the socket stays open until the final update") {
+                tungstenite::Message::Binary(m) => canvas.apply(&m),
+                tungstenite::Message::Text(t) => {
+                    assert_eq!(serde_json::from_str::<Value>(&t).unwrap()["type"], "status");
+                }
+                other => panic!("unexpected message {other:?}"),
+            }
+        }
+        assert_eq!(canvas.resets, 1, "one snapshot at the start");
+        canvases.push(canvas.rgba);
+    }
+    let png = client().get(web.url(&format!("/api/jobs/{id}/image.png"))).send().unwrap().bytes().unwrap();
+    let image = image::load_from_memory(&png).unwrap().to_rgba8().into_raw();
+    for (i, c) in canvases.iter().enumerate() {
+        assert!(c == &image, "socket {i}'s canvas differs from the final image");
+    }
+    // Both gone and the job over: the shared task has left its slot.
+    drop(sockets);
+    let gone = Instant::now();
+    while viewers() != 0.0 {
+        assert!(gone.elapsed() < Duration::from_secs(10), "the viewer slot is still held");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
 fn write_tokens(dir: &Path) -> String {
     let path = dir.join("tokens");
     std::fs::write(
