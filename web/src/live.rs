@@ -431,6 +431,53 @@ async fn close(socket: &mut WebSocket, code: u16, reason: &str) {
 mod tests {
     use super::*;
 
+    fn update(version: u64, chunk_end: bool, index: u32, sum: u64) -> pb::FramebufferUpdate {
+        let p = tessera_film::PixelState { index, sums: [sum; 3], count: 1 };
+        pb::FramebufferUpdate {
+            width: 4,
+            height: 2,
+            version,
+            chunk_end,
+            pixels: tessera_proto::convert::pixels_to_wire(&[p]),
+            ..Default::default()
+        }
+    }
+
+    #[test]
+    fn a_frame_is_due_only_once_an_update_has_arrived_whole() {
+        let mut r = Replica::default();
+        assert!(!r.ready());
+        r.apply(&update(1, true, 0, 1 << 30)).unwrap();
+        assert!(r.ready());
+        let f = r.frame();
+        assert_eq!((f.version, f.rgba.len()), (1, 8));
+        // Version 2 in two chunks: after the first, nothing is due (it would carry half of
+        // version 2 stamped 1).
+        r.apply(&update(2, false, 1, 0)).unwrap();
+        assert!(!r.ready());
+        r.apply(&update(2, true, 2, 0)).unwrap();
+        assert!(r.ready());
+        let g = r.frame();
+        assert_eq!(g.version, 2);
+        let m = message(Some(&f), &g).unwrap();
+        // Drawn over what was sent (the mosaic may change unrendered pixels too), the
+        // delta gives the new image; it is not a reset.
+        let at = |i: usize| u32::from_le_bytes(m[i..i + 4].try_into().unwrap()) as usize;
+        assert_eq!(at(12), 0, "flags");
+        let mut canvas = f.rgba.as_ref().clone();
+        let mut i = 20;
+        for _ in 0..at(16) {
+            let (start, len) = (at(i), at(i + 4));
+            for (k, px) in m[i + 8..i + 8 + 4 * len].chunks_exact(4).enumerate() {
+                canvas[start + k] = px.try_into().unwrap();
+            }
+            i += 8 + 4 * len;
+        }
+        assert_eq!(i, m.len());
+        assert!(canvas != *f.rgba && canvas == *g.rgba);
+        assert!(message(Some(&g), &g).is_none(), "nothing new, not the last: no message");
+    }
+
     #[test]
     fn runs_cover_exactly_the_changes_with_small_gaps_joined() {
         let a = vec![[0u8; 4]; 20];
