@@ -313,6 +313,36 @@ fn two_live_sockets_of_one_job_share_one_viewer_slot_and_both_end_in_the_final_i
     }
 }
 
+#[test]
+fn a_job_takes_at_most_32_live_sockets_and_a_closed_one_frees_its_place() {
+    // No worker: the job stays queued, so the sockets stay open.
+    let web = Web::start(&[]);
+    let id = submit_ok(&web, None, small_form(8, 8, 1));
+    let url = web.url(&format!("/api/jobs/{id}/live")).replace("http://", "ws://");
+    let open = || tungstenite::connect(url.as_str());
+    let mut sockets: Vec<_> = (0..32).map(|_| open().expect("the live socket opens").0).collect();
+    match open() {
+        Err(tungstenite::Error::Http(r)) => {
+            assert_eq!(r.status(), 503);
+            let body = String::from_utf8_lossy(r.body().as_deref().unwrap_or_default()).to_string();
+            assert!(body.contains("already has 32 live sockets"), "{body}");
+        }
+        other => panic!("expected a 503 for the 33rd socket, got {:?}", other.map(|_| ())),
+    }
+    sockets.pop().unwrap().close(None).unwrap();
+    let start = Instant::now();
+    loop {
+        match open() {
+            Ok((s, _)) => break sockets.push(s),
+            Err(tungstenite::Error::Http(r)) if r.status() == 503 => {
+                assert!(start.elapsed() < Duration::from_secs(10), "the closed socket's place stays taken");
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            Err(e) => panic!("{e}"),
+        }
+    }
+}
+
 fn write_tokens(dir: &Path) -> String {
     let path = dir.join("tokens");
     std::fs::write(
