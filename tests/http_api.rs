@@ -261,6 +261,88 @@ fn the_live_socket_sends_a_snapshot_then_deltas_that_end_in_the_final_image() {
     assert_eq!(canvas.rgba, image.into_raw(), "the canvas ends as the final image");
 }
 
+#[test]
+fn two_live_sockets_of_one_job_share_one_viewer_slot_and_both_end_in_the_final_image() {
+    let web = Web::start(&[]);
+    let id = submit_ok(&web, None, small_form(40, 30, 300));
+    let url = web.url(&format!("/api/jobs/{id}/live")).replace("http://", "ws://");
+    let mut sockets: Vec<_> = (0..2)
+        .map(|_| {
+            let (mut s, _) = tungstenite::connect(url.as_str()).expect("the live socket opens");
+            let hello: Value = serde_json::from_str(s.read().unwrap().to_text().unwrap()).unwrap();
+            assert_eq!(hello["type"], "hello");
+            s
+        })
+        .collect();
+    let viewers = || -> f64 {
+        let text = client().get(web.url("/metrics")).send().unwrap().text().unwrap();
+        text.lines()
+            .find_map(|l| l.strip_prefix("tessera_viewers ").map(|v| v.trim().parse().unwrap()))
+            .unwrap_or_else(|| panic!("no tessera_viewers in {text}"))
+    };
+    assert_eq!(viewers(), 1.0, "two sockets of one job hold one Watch viewer slot");
+    let _worker = web.coord.worker(1);
+    let start = Instant::now();
+    let mut canvases = Vec::new();
+    for socket in &mut sockets {
+        let mut canvas = Canvas { rgba: vec![0; 40 * 30 * 4], resets: 0, deltas: 0, final_seen: false };
+        while !canvas.final_seen {
+            assert!(start.elapsed() < Duration::from_secs(60), "no final update");
+            match socket.read().expect("the socket stays open until the final update") {
+                tungstenite::Message::Binary(m) => canvas.apply(&m),
+                tungstenite::Message::Text(t) => {
+                    assert_eq!(serde_json::from_str::<Value>(&t).unwrap()["type"], "status");
+                }
+                other => panic!("unexpected message {other:?}"),
+            }
+        }
+        assert_eq!(canvas.resets, 1, "one snapshot at the start");
+        canvases.push(canvas.rgba);
+    }
+    let png = client().get(web.url(&format!("/api/jobs/{id}/image.png"))).send().unwrap().bytes().unwrap();
+    let image = image::load_from_memory(&png).unwrap().to_rgba8().into_raw();
+    for (i, c) in canvases.iter().enumerate() {
+        assert!(c == &image, "socket {i}'s canvas differs from the final image");
+    }
+    // Both gone and the job over: the shared task has left its slot.
+    drop(sockets);
+    let gone = Instant::now();
+    while viewers() != 0.0 {
+        assert!(gone.elapsed() < Duration::from_secs(10), "the viewer slot is still held");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+}
+
+#[test]
+fn a_job_takes_at_most_32_live_sockets_and_a_closed_one_frees_its_place() {
+    // No worker: the job stays queued, so the sockets stay open.
+    let web = Web::start(&[]);
+    let id = submit_ok(&web, None, small_form(8, 8, 1));
+    let url = web.url(&format!("/api/jobs/{id}/live")).replace("http://", "ws://");
+    let open = || tungstenite::connect(url.as_str());
+    let mut sockets: Vec<_> = (0..32).map(|_| open().expect("the live socket opens").0).collect();
+    match open() {
+        Err(tungstenite::Error::Http(r)) => {
+            assert_eq!(r.status(), 503);
+            let body = String::from_utf8_lossy(r.body().as_deref().unwrap_or_default()).to_string();
+            assert!(body.contains("already has 32 live sockets"), "{body}");
+        }
+        other => panic!("expected a 503 for the 33rd socket, got {:?}", other.map(|_| ())),
+    }
+    sockets.pop().unwrap().close(None).unwrap();
+    let start = Instant::now();
+    loop {
+        match open() {
+            Ok((s, _)) => break sockets.push(s),
+            Err(tungstenite::Error::Http(r)) if r.status() == 503 => {
+                assert!(start.elapsed() < Duration::from_secs(10), "the closed socket's place stays taken");
+                std::thread::sleep(Duration::from_millis(50));
+            }
+            Err(e) => panic!("{e}"),
+        }
+    }
+}
+
 fn write_tokens(dir: &Path) -> String {
     let path = dir.join("tokens");
     std::fs::write(
