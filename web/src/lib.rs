@@ -38,12 +38,14 @@ pub(crate) struct AppState {
     pub(crate) service: CoordinatorService,
     pub(crate) sessions: Arc<sessions::Sessions>,
     pub(crate) config: WebConfig,
+    /// The jobs whose live image is being shared among sockets (`live.rs`).
+    pub(crate) hubs: live::Hubs,
 }
 
 /// The whole web face of `service`: the API under `/api`, `/healthz`, the pages; unknown
 /// routes are 404 with a JSON error.
 pub fn router(service: CoordinatorService, config: WebConfig) -> Router {
-    let state = AppState { service, sessions: Arc::default(), config };
+    let state = AppState { service, sessions: Arc::default(), config, hubs: live::Hubs::default() };
     Router::new()
         .merge(api::routes())
         .merge(pages::routes())

@@ -18,7 +18,7 @@
 //! watched jobs, itself bounded by the coordinator's viewer limit.
 
 use std::collections::HashMap;
-use std::sync::{Arc, LazyLock, Mutex};
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, WebSocketUpgrade};
@@ -58,7 +58,7 @@ const MAX_INCOMING: usize = 4096;
 /// One resolved image of a job as its shared task published it (cloned cheaply: the
 /// pixels are shared).
 #[derive(Clone, Default)]
-struct Frame {
+pub(crate) struct Frame {
     /// The update version the pixels are complete for.
     version: u64,
     /// Bumped when the image restarts (a reset): a socket then sends it whole.
@@ -72,12 +72,11 @@ struct Frame {
     end: Option<(u16, String)>,
 }
 
-/// The jobs watched now: (the app's identity, job id) -> the channel of its shared task.
-type Hubs = HashMap<(usize, u64), watch::Sender<Arc<Frame>>>;
-static HUBS: LazyLock<Mutex<Hubs>> = LazyLock::new(Mutex::default);
+/// The jobs watched now through one router: job id -> the channel of its shared task.
+pub(crate) type Hubs = Arc<Mutex<HashMap<u64, watch::Sender<Arc<Frame>>>>>;
 
-fn hubs() -> std::sync::MutexGuard<'static, Hubs> {
-    HUBS.lock().unwrap_or_else(|e| e.into_inner())
+fn lock(hubs: &Hubs) -> std::sync::MutexGuard<'_, HashMap<u64, watch::Sender<Arc<Frame>>>> {
+    hubs.lock().unwrap_or_else(|e| e.into_inner())
 }
 
 /// `GET /api/jobs/{id}/live`.
@@ -107,10 +106,8 @@ async fn subscribe(
     caller: &Caller,
     id: u64,
 ) -> Result<watch::Receiver<Arc<Frame>>, ApiError> {
-    // The sessions' `Arc` is one per router and outlives every task of it (each holds a
-    // clone), so its address tells two apps in one process apart.
-    let key = (Arc::as_ptr(&state.sessions) as usize, id);
-    let joined = |hubs: &Hubs| -> Option<Result<watch::Receiver<Arc<Frame>>, ApiError>> {
+    let key = id;
+    let joined = |hubs: &HashMap<u64, watch::Sender<Arc<Frame>>>| -> Option<Result<watch::Receiver<Arc<Frame>>, ApiError>> {
         let tx = hubs.get(&key)?;
         if tx.receiver_count() >= MAX_SOCKETS_PER_JOB {
             return Some(Err(ApiError::new(
@@ -120,7 +117,7 @@ async fn subscribe(
         }
         Some(Ok(tx.subscribe()))
     };
-    if let Some(r) = joined(&hubs()) {
+    if let Some(r) = joined(&lock(&state.hubs)) {
         return r;
     }
     let watch_req = pb::WatchRequest {
@@ -129,7 +126,7 @@ async fn subscribe(
         protocol_version: pb::ProtocolVersion::Current as i32,
     };
     let updates = Coordinator::watch(&state.service, request(&caller.0, watch_req)).await?.into_inner();
-    let mut all = hubs();
+    let mut all = lock(&state.hubs);
     // Another socket may have started the job's task meanwhile: ours is then dropped.
     if let Some(r) = joined(&all) {
         return r;
@@ -137,11 +134,8 @@ async fn subscribe(
     let (tx, rx) = watch::channel(Arc::new(Frame::default()));
     all.insert(key, tx.clone());
     drop(all);
-    let sessions = state.sessions.clone();
-    tokio::spawn(async move {
-        replicate(updates, &tx, key).await;
-        drop(sessions);
-    });
+    let hubs = state.hubs.clone();
+    tokio::spawn(async move { replicate(updates, &tx, &hubs, key).await });
     Ok(rx)
 }
 
@@ -150,10 +144,11 @@ async fn subscribe(
 async fn replicate(
     mut updates: impl Stream<Item = Result<pb::FramebufferUpdate, tonic::Status>> + Unpin,
     tx: &watch::Sender<Arc<Frame>>,
-    key: (usize, u64),
+    hubs: &Hubs,
+    key: u64,
 ) {
     let leave = || {
-        let mut all = hubs();
+        let mut all = lock(hubs);
         if all.get(&key).is_some_and(|t| t.same_channel(tx)) {
             all.remove(&key);
         }
@@ -203,7 +198,7 @@ async fn replicate(
             }
             _ = tx.closed() => {
                 // Under the lock no socket can subscribe between the count and the removal.
-                let mut all = hubs();
+                let mut all = lock(hubs);
                 if tx.receiver_count() == 0 {
                     if all.get(&key).is_some_and(|t| t.same_channel(tx)) {
                         all.remove(&key);
