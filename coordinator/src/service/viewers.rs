@@ -42,7 +42,10 @@ pub const VIEWER_BYTES_PER_SECOND: f64 = 32e6;
 /// The most viewers of one job at once; a further `Watch` is `RESOURCE_EXHAUSTED`.
 pub const MAX_VIEWERS_PER_JOB: usize = 32;
 /// The most viewers at once in all. A viewer holds at most a chunk or two of its own
-/// (catching up) and the HTTP/2 buffers of its stream: a few MB at worst.
+/// (catching up) and the HTTP/2 buffers of its stream: a few MB at worst here. The web
+/// dashboard's live image is one such viewer per watched job, whatever its number of
+/// sockets, with a replica of the job's framebuffer in the web crate (`web/src/live.rs`:
+/// about 52 bytes a pixel per watched job).
 pub const MAX_VIEWERS: usize = 128;
 /// A publisher with nothing new still sends the status this often (samples/s, workers).
 const STATUS_REFRESH: Duration = Duration::from_secs(1);
