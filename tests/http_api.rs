@@ -434,8 +434,12 @@ fn roles_and_owners_are_checked_as_over_grpc() {
     }
 
     // The browser's way: a login sets the session cookie.
-    let login =
-        client().post(web.url("/api/login")).body(format!(r#"{{"token":"{ALICE}"}}"#)).send().unwrap();
+    let login = client()
+        .post(web.url("/api/login"))
+        .header("content-type", "application/json")
+        .body(format!(r#"{{"token":"{ALICE}"}}"#))
+        .send()
+        .unwrap();
     assert_eq!(login.status(), 204);
     let cookie = login.headers()["set-cookie"].to_str().unwrap().to_string();
     for attribute in ["tessera_session=", "HttpOnly", "SameSite=Strict", "Max-Age=43200", "Path=/"] {
@@ -457,11 +461,25 @@ fn roles_and_owners_are_checked_as_over_grpc() {
         "log in again",
     );
     assert_error(
-        client().post(web.url("/api/login")).body(r#"{"token":"wrong-wrong-wrong-wrong"}"#).send().unwrap(),
+        client()
+            .post(web.url("/api/login"))
+            .header("content-type", "application/json")
+            .body(r#"{"token":"wrong-wrong-wrong-wrong"}"#)
+            .send()
+            .unwrap(),
         401,
         "unknown token",
     );
-    assert_error(client().post(web.url("/api/login")).body("{token").send().unwrap(), 400, "bad JSON");
+    assert_error(
+        client()
+            .post(web.url("/api/login"))
+            .header("content-type", "application/json")
+            .body("{token")
+            .send()
+            .unwrap(),
+        400,
+        "bad JSON",
+    );
 }
 
 /// Sends raw bytes to `addr` and returns the response head and body read within 10 s.
@@ -490,14 +508,14 @@ fn bad_input_gets_a_clear_4xx_json_error() {
     // An upload declared too large is refused from its headers, before any of it is sent.
     let response = raw_request(
         &addr,
-        b"POST /api/jobs HTTP/1.1\r\nhost: x\r\ncontent-type: multipart/form-data; boundary=b\r\ncontent-length: 300000000\r\n\r\n",
+        b"POST /api/jobs HTTP/1.1\r\nhost: 127.0.0.1\r\ncontent-type: multipart/form-data; boundary=b\r\ncontent-length: 300000000\r\n\r\n",
     );
     assert!(response.starts_with("HTTP/1.1 413"), "{response}");
     assert!(response.contains(r#"{"error":"POST /api/jobs: an upload of 300000000 bytes"#), "{response}");
     // No declared length (chunked): refused, not read without bound.
     let response = raw_request(
         &addr,
-        b"POST /api/jobs HTTP/1.1\r\nhost: x\r\ncontent-type: multipart/form-data; boundary=b\r\ntransfer-encoding: chunked\r\n\r\n",
+        b"POST /api/jobs HTTP/1.1\r\nhost: 127.0.0.1\r\ncontent-type: multipart/form-data; boundary=b\r\ntransfer-encoding: chunked\r\n\r\n",
     );
     assert!(response.starts_with("HTTP/1.1 411"), "{response}");
     let c = client();
@@ -608,7 +626,12 @@ fn https_serves_with_the_grpc_certificate_and_secure_cookies() {
     let ca = reqwest::Certificate::from_pem(&read(&dir.path().join("ca.pem"))).unwrap();
     let c = Client::builder().add_root_certificate(ca).tls_built_in_root_certs(false).build().unwrap();
     assert_eq!(c.get(web.url("/healthz")).send().unwrap().text().unwrap(), "ok");
-    let login = c.post(web.url("/api/login")).body(format!(r#"{{"token":"{ADMIN}"}}"#)).send().unwrap();
+    let login = c
+        .post(web.url("/api/login"))
+        .header("content-type", "application/json")
+        .body(format!(r#"{{"token":"{ADMIN}"}}"#))
+        .send()
+        .unwrap();
     assert_eq!(login.status(), 204);
     assert!(login.headers()["set-cookie"].to_str().unwrap().contains("; Secure"));
     // Plain HTTP to the HTTPS port is not served.

@@ -29,7 +29,7 @@ mod tests {
     const WORKER: &str = "worker-token-0123456789abcdef";
 
     async fn get(service: &CoordinatorService, token: Option<&str>) -> (StatusCode, Option<String>, String) {
-        let mut request = Request::get("/metrics");
+        let mut request = Request::get("/metrics").header("host", "127.0.0.1:8080");
         if let Some(t) = token {
             request = request.header("authorization", format!("Bearer {t}"));
         }

@@ -9,7 +9,7 @@ use axum::response::{IntoResponse, Response};
 use axum::Json;
 use bytes::Bytes;
 use serde::Deserialize;
-use tessera_coordinator::Principal;
+use tessera_coordinator::{Principal, Role};
 
 use crate::errors::ApiError;
 use crate::sessions::{self, COOKIE as SESSION_COOKIE, LIFETIME};
@@ -64,15 +64,23 @@ pub(crate) fn parse_json<T: serde::de::DeserializeOwned>(body: &[u8], what: &str
     serde_json::from_slice(body).map_err(|e| ApiError::bad_request(format!("{what}: bad JSON body: {e}")))
 }
 
-/// `POST /api/login {"token": ...}`: 204 and the session cookie.
+/// `POST /api/login {"token": ...}`: 204 and the session cookie; 403 for a worker's token.
 pub(crate) async fn login(State(state): State<AppState>, body: Bytes) -> Result<Response, ApiError> {
     let login: Login = parse_json(&body, "POST /api/login")?;
     let who = state.service.auth().authenticate_token(Some(login.token.as_bytes()))?;
+    // A worker's token does nothing a browser could use; refusing it also keeps the many
+    // hosts holding worker tokens from filling the session map.
+    if who.role == Role::Worker {
+        return Err(ApiError::new(
+            StatusCode::FORBIDDEN,
+            format!("POST /api/login: {} holds a worker token; workers have nothing to do here", who.name),
+        ));
+    }
     tracing::info!(principal = %who.name, role = %who.role, "web login");
     let id = state
         .sessions
         .open(who)
-        .map_err(|e| ApiError::new(StatusCode::SERVICE_UNAVAILABLE, e.to_string()))?;
+        .map_err(|e| ApiError::new(StatusCode::INTERNAL_SERVER_ERROR, e.to_string()))?;
     let cookie = format!(
         "{SESSION_COOKIE}={id}; Path=/; HttpOnly; SameSite=Strict; Max-Age={}{}",
         LIFETIME.as_secs(),
