@@ -182,12 +182,10 @@ fn differing(a: &[u8], b: &[u8]) -> usize {
 /// A coordinator serving the dashboard on a free loopback port: (gRPC URL, HTTP base URL).
 fn coordinator(dir: &Path) -> (Proc, String, String) {
     let tokens = dir.join("tokens");
-    std::fs::write(
+    write_secret(
         &tokens,
-        format!("admin alice {ADMIN_TOKEN}\nviewer wall {VIEWER_TOKEN}\nworker farm {WORKER_TOKEN}\n"),
-    )
-    .unwrap();
-    set_private(&tokens);
+        &format!("admin alice {ADMIN_TOKEN}\nviewer wall {VIEWER_TOKEN}\nworker farm {WORKER_TOKEN}\n"),
+    );
     let proc = Proc::spawn(&[
         "coordinator",
         "--listen",
@@ -202,11 +200,6 @@ fn coordinator(dir: &Path) -> (Proc, String, String) {
     let line = proc.wait_for("dashboard on ", Duration::from_secs(30));
     let http = line.rsplit("dashboard on ").next().unwrap().trim().trim_end_matches('/').to_string();
     (proc, grpc, http)
-}
-
-fn set_private(path: &Path) {
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o600)).unwrap();
 }
 
 fn worker(grpc: &str, token_file: &Path) -> Proc {
@@ -241,8 +234,7 @@ fn the_dashboard_in_a_real_browser() {
     let dir = tempfile::tempdir().unwrap();
     let (coord, grpc, http) = coordinator(dir.path());
     let token_file = dir.path().join("worker.token");
-    std::fs::write(&token_file, WORKER_TOKEN).unwrap();
-    set_private(&token_file);
+    write_secret(&token_file, WORKER_TOKEN);
 
     let browser = Browser::new(LaunchOptions {
         path: Some(browser_path),

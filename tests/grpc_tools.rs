@@ -8,16 +8,10 @@ mod common;
 use std::process::Command;
 use std::time::Duration;
 
-use common::{python_venv, root, run, Proc};
+use common::{python_venv, root, run, write_secret, Proc};
 
 const ADMIN: &str = "a-very-secret-admin-token-0123";
 const WORKER: &str = "a-very-secret-worker-token-456";
-
-fn write_secret(path: &std::path::Path, text: &str) {
-    std::fs::write(path, text).unwrap();
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o600)).unwrap();
-}
 
 /// The address a `... listening on ADDR` line names.
 fn address(line: &str) -> String {

@@ -7,7 +7,7 @@ use std::io::{Read, Write};
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use common::{read, render_local, run, small_scene, Coordinator, Proc};
+use common::{read, render_local, run, small_scene, write_secret, Coordinator, Proc};
 use reqwest::blocking::{multipart, Client, Response};
 use serde_json::Value;
 
@@ -345,16 +345,10 @@ fn a_job_takes_at_most_32_live_sockets_and_a_closed_one_frees_its_place() {
 
 fn write_tokens(dir: &Path) -> String {
     let path = dir.join("tokens");
-    std::fs::write(
+    write_secret(
         &path,
-        format!("admin root {ADMIN}\nsubmitter alice {ALICE}\nsubmitter bob {BOB}\nviewer wall {VIEWER}\n"),
-    )
-    .unwrap();
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        std::fs::set_permissions(&path, std::fs::Permissions::from_mode(0o600)).unwrap();
-    }
+        &format!("admin root {ADMIN}\nsubmitter alice {ALICE}\nsubmitter bob {BOB}\nviewer wall {VIEWER}\n"),
+    );
     path.to_str().unwrap().to_string()
 }
 

@@ -8,11 +8,11 @@ mod common;
 
 use std::io::{Read, Write};
 use std::net::TcpStream;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use common::{free_loopback_addr, small_scene, tessera, Proc};
+use common::{free_loopback_addr, small_scene, tessera, write_secret, Proc};
 
 const ADMIN: &str = "admin-token-0123456789abcdef";
 const WORKER: &str = "worker-token-0123456789abcdef";
@@ -54,12 +54,6 @@ fn tools() -> Result<PathBuf, String> {
         return Err(String::from_utf8_lossy(&out.stderr).trim().to_string());
     }
     Ok(PathBuf::from(String::from_utf8_lossy(&out.stdout).trim()))
-}
-
-fn write_secret(path: &Path, text: &str) {
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::write(path, text).unwrap();
-    std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o600)).unwrap();
 }
 
 /// The value of the sample `name` (with its labels as written) in `text`.

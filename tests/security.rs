@@ -24,12 +24,6 @@ const VIEWER: &str = "viewer-token-0123456789abcdef";
 const SIZE: &str = "16x12";
 const SPP: &str = "2";
 
-fn write_secret(path: &Path, text: &str) {
-    use std::os::unix::fs::PermissionsExt;
-    std::fs::write(path, text).unwrap();
-    std::fs::set_permissions(path, std::fs::Permissions::from_mode(0o600)).unwrap();
-}
-
 /// `tessera certs …`, which must succeed.
 fn certs(args: &[&str]) {
     let mut all = vec!["certs"];

@@ -18,7 +18,6 @@ mod common;
 use cluster::{missing_prerequisite, run_cmd, wait_for, Cluster};
 use common::*;
 use std::fs;
-use std::os::unix::fs::PermissionsExt;
 use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, Instant};
@@ -43,11 +42,6 @@ fn secret() -> String {
     use std::io::Read;
     fs::File::open("/dev/urandom").unwrap().read_exact(&mut bytes).unwrap();
     bytes.iter().map(|b| format!("{b:02x}")).collect()
-}
-
-fn write_private(path: &Path, text: &str) {
-    fs::write(path, text).unwrap();
-    fs::set_permissions(path, fs::Permissions::from_mode(0o600)).unwrap();
 }
 
 #[test]
@@ -94,16 +88,16 @@ fn slurm_workers_render_the_same_image_when_one_is_cancelled() {
     }
     let (submitter, node_tokens) = (secret(), [secret(), secret()]);
     let tokens = dir.join("tokens/all");
-    write_private(
+    write_secret(
         &tokens,
         &format!(
             "admin tester {submitter}\nworker node1 {}\nworker node2 {}\n",
             node_tokens[0], node_tokens[1]
         ),
     );
-    write_private(&dir.join("tokens/tester.token"), &submitter);
+    write_secret(&dir.join("tokens/tester.token"), &submitter);
     for (i, t) in node_tokens.iter().enumerate() {
-        write_private(&dir.join(format!("tokens/node{}.token", i + 1)), t);
+        write_secret(&dir.join(format!("tokens/node{}.token", i + 1)), t);
     }
     let pki_s = pki.display().to_string();
     let timeout = WORKER_TIMEOUT_S.to_string();
