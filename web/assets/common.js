@@ -213,6 +213,37 @@ const Tessera = (() => {
   function setPriority(id, priority) {
     return api("POST", `/api/jobs/${id}/priority`, { priority });
   }
+  /** A control button pressed: acts, shows the answer's error if any, then `after()`. */
+  async function control(id, action, button, after) {
+    button.dataset.busy = "1";
+    button.disabled = true;
+    try {
+      await act(id, action);
+      clearError();
+    } catch (e) {
+      showError(e.message);
+    } finally {
+      delete button.dataset.busy;
+      after();
+    }
+  }
+  /** A priority input changed: sets it (a whole number), or puts the old value back. */
+  async function changePriority(id, input, after) {
+    const value = Number(input.value);
+    if (input.value === "" || !Number.isInteger(value)) {
+      showError(`job ${id}: the priority must be a whole number`);
+      input.value = input.dataset.current;
+      return;
+    }
+    try {
+      await setPriority(id, value);
+      clearError();
+    } catch (e) {
+      showError(e.message);
+      input.value = input.dataset.current;
+    }
+    after();
+  }
   /** Which of pause/resume/cancel make sense in `state`. */
   function actionsFor(state) {
     return {
@@ -307,6 +338,8 @@ const Tessera = (() => {
     events,
     act,
     setPriority,
+    control,
+    changePriority,
     actionsFor,
     FINISHED,
     duration,

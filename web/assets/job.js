@@ -216,37 +216,10 @@
     for (const action of ["pause", "resume", "cancel"]) {
       const button = document.getElementById(`job-${action}`);
       button.setAttribute("aria-label", `${button.textContent} job ${jobId}`);
-      button.addEventListener("click", async () => {
-        button.dataset.busy = "1";
-        button.disabled = true;
-        try {
-          await T.act(jobId, action);
-          T.clearError();
-        } catch (e) {
-          T.showError(e.message);
-        } finally {
-          delete button.dataset.busy;
-          refresh();
-        }
-      });
+      button.addEventListener("click", () => T.control(jobId, action, button, refresh));
     }
     const input = document.getElementById("job-priority");
-    input.addEventListener("change", async () => {
-      const value = Number(input.value);
-      if (input.value === "" || !Number.isInteger(value)) {
-        T.showError("the priority must be a whole number");
-        input.value = input.dataset.current;
-        return;
-      }
-      try {
-        await T.setPriority(jobId, value);
-        T.clearError();
-      } catch (e) {
-        T.showError(e.message);
-        input.value = input.dataset.current;
-      }
-      refresh();
-    });
+    input.addEventListener("change", () => T.changePriority(jobId, input, refresh));
     const png = document.getElementById("download-png");
     png.href = `/api/jobs/${jobId}/image.png`;
     png.download = `job-${jobId}.png`;

@@ -78,7 +78,7 @@
             class: cls,
             dataset: { action },
             "aria-label": `${label} job ${job.id}`,
-            onclick: (ev) => control(job.id, action, ev.currentTarget),
+            onclick: (ev) => T.control(job.id, action, ev.currentTarget, refresh),
           },
           label,
         ),
@@ -93,7 +93,7 @@
       dataset: { action: "priority" },
       "aria-label": `Priority of job ${job.id}`,
     });
-    priority.addEventListener("change", () => changePriority(job.id, priority));
+    priority.addEventListener("change", () => T.changePriority(job.id, priority, refresh));
     priority.addEventListener("keydown", (ev) => {
       if (ev.key === "Escape") {
         priority.value = priority.dataset.current;
@@ -166,37 +166,6 @@
     text.hidden = editable;
     text.textContent = String(job.priority);
     if (document.activeElement !== input) input.value = String(job.priority);
-  }
-
-  async function control(id, action, button) {
-    button.dataset.busy = "1";
-    button.disabled = true;
-    try {
-      await T.act(id, action);
-      T.clearError();
-    } catch (e) {
-      T.showError(e.message);
-    } finally {
-      delete button.dataset.busy;
-      refresh();
-    }
-  }
-
-  async function changePriority(id, input) {
-    const value = Number(input.value);
-    if (input.value === "" || !Number.isInteger(value)) {
-      T.showError(`job ${id}: the priority must be a whole number`);
-      input.value = input.dataset.current;
-      return;
-    }
-    try {
-      await T.setPriority(id, value);
-      T.clearError();
-    } catch (e) {
-      T.showError(e.message);
-      input.value = input.dataset.current;
-    }
-    refresh();
   }
 
   // ---- The workers table ----
