@@ -291,6 +291,17 @@ impl FrameTime {
     }
 }
 
+/// An animated scene's frames, and the frame a description stands at.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Sequence {
+    /// Frames per second.
+    pub fps: f32,
+    /// First and last frame, inclusive.
+    pub frames: (u32, u32),
+    /// The frame this description was evaluated at, with its shutter window.
+    pub time: FrameTime,
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

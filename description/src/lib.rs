@@ -17,6 +17,7 @@ pub mod bundle;
 pub mod error;
 pub mod ids;
 pub mod job;
+mod keyframes;
 pub mod limits;
 pub mod machine;
 mod materials;
