@@ -115,10 +115,32 @@ pub enum LoadError {
     },
 }
 
+/// Validates and builds a bundle's scene as it stands during `frame`: its animation
+/// evaluated over that frame's shutter (a still scene is the same at every frame).
+pub fn parse_bundle_frame(bundle: &Bundle, frame: u32) -> Result<Scene, SceneError> {
+    build(&Description::parse_frame(bundle, frame)?, bundle)
+}
+
 /// Validates a bundle's scene and builds it if its estimated memory fits in `memory`
 /// bytes; checked before any geometry is built or image decoded.
 pub fn parse_bundle_within(bundle: &Bundle, memory: u64) -> Result<Scene, LoadError> {
-    let desc = Description::parse(bundle)?;
+    build_within(Description::parse(bundle)?, bundle, memory)
+}
+
+/// [`parse_bundle_within`] for frame `frame` of an animated scene (`None`: its first).
+pub fn parse_bundle_frame_within(
+    bundle: &Bundle,
+    frame: Option<u32>,
+    memory: u64,
+) -> Result<Scene, LoadError> {
+    let desc = match frame {
+        Some(f) => Description::parse_frame(bundle, f)?,
+        None => Description::parse(bundle)?,
+    };
+    build_within(desc, bundle, memory)
+}
+
+fn build_within(desc: Description, bundle: &Bundle, memory: u64) -> Result<Scene, LoadError> {
     let summary = desc.summary(false);
     if summary.worker_bytes > memory {
         return Err(LoadError::TooLarge {

@@ -188,3 +188,26 @@ fn a_small_png_declaring_a_huge_image_is_refused_before_decoding() {
         .unwrap();
     assert_eq!(super::materials::decode_image(&good).unwrap().width(), 2);
 }
+
+#[test]
+fn each_frame_of_an_animated_scene_builds_with_its_blur() {
+    use crate::batch::{render_batch, Sums};
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/bouncing_ball.toml");
+    let bundle = Bundle::read(&path).unwrap();
+    let render = |mut scene: Scene| {
+        scene.apply(Some(2), Some((16, 10)));
+        let pixels: Vec<glam::UVec2> = (0..160).map(|i| glam::UVec2::new(i % 16, i / 16)).collect();
+        render_batch(&scene, &pixels, 0..2, Sums::Radiance).sums
+    };
+    // The scene without a frame is its first frame, to the bit.
+    let first = render(parse_bundle(&bundle).unwrap());
+    assert_eq!(first, render(parse_bundle_frame(&bundle, 1).unwrap()));
+    // The ball moves during a frame's shutter; the camera dollies between frames.
+    let frame7 = parse_bundle_frame_within(&bundle, Some(7), u64::MAX).unwrap();
+    assert!(frame7.has_motion_blur());
+    let origin = |s: &Scene| s.camera.generate_ray(glam::Vec2::ZERO, glam::Vec2::ZERO).origin;
+    assert!(origin(&frame7).z < origin(&parse_bundle(&bundle).unwrap()).z);
+    assert_ne!(first, render(frame7));
+    let e = parse_bundle_frame(&bundle, 9).unwrap_err();
+    assert!(e.to_string().contains("frame 9 is outside the animation's frames [1, 8]"), "{e}");
+}
