@@ -892,4 +892,21 @@ color = [1, 0, 0]
         assert!(e.message.contains("camera: at frame 1"), "{e}");
         assert_eq!(e.line, 6, "{e}");
     }
+
+    #[test]
+    fn a_key_error_points_at_its_key() {
+        let text = format!(
+            "{BASE}\n[animation]\nframes = [1, 10]\n\n[[sphere]]\nradius = 1\nmaterial = \"red\"\n\
+             [[sphere.keys]]\nframe = 5\ntranslate = [0, 1, 0]\n\
+             [[sphere.keys]]\nframe = 2.5\ntranslate = [0, 2, 0]\n"
+        );
+        let e = err(&text, 1);
+        let line = text.lines().position(|l| l == "frame = 2.5").unwrap();
+        assert_eq!(e.line, line, "{e}");
+        assert!(e.message.contains("frame 2.5 must come after the previous key's frame 5"), "{e}");
+        // Fractional frames are keys between frames.
+        let ok = text.replace("frame = 2.5", "frame = 7.5");
+        let d = frame(&ok.replace("shutter = [0, 0.5]", "shutter = [0, 0]"), 10);
+        assert_eq!(d.objects[0].transform.translate, Vec3::new(0.0, 2.0, 0.0));
+    }
 }
