@@ -16,6 +16,7 @@ pub mod bundle;
 pub mod error;
 pub mod ids;
 pub mod job;
+mod lights;
 pub mod limits;
 pub mod machine;
 mod materials;

@@ -52,6 +52,13 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
             tessera_description::model::Light::Directional { direction, irradiance } => {
                 Light::Directional { direction, irradiance }
             }
+            tessera_description::model::Light::Spot {
+                position,
+                direction,
+                intensity,
+                inner_cone,
+                outer_cone,
+            } => Light::spot(position, direction, intensity, inner_cone, outer_cone),
         });
     }
     let bounds: Vec<_> = {

@@ -26,6 +26,21 @@ pub enum Light {
         /// Irradiance on a surface facing the light.
         irradiance: Vec3,
     },
+    /// A spot light (glTF `KHR_lights_punctual`): a point light whose intensity falls off
+    /// smoothly between two cones around its axis, as the extension's recommended
+    /// implementation does: t = clamp((cos θ − cos outer) / (cos inner − cos outer)), × t².
+    Spot {
+        /// Position.
+        position: Vec3,
+        /// Unit axis, the way the light travels.
+        direction: Vec3,
+        /// Radiant intensity per channel on the axis.
+        intensity: Vec3,
+        /// 1 / (cos inner − cos outer), the falloff's scale (at most 1000, as glTF's).
+        scale: f32,
+        /// −cos outer × scale.
+        offset: f32,
+    },
     /// An emitting parallelogram, front side only.
     Rect {
         /// The shape.
@@ -59,7 +74,14 @@ pub struct LightSample {
 impl Light {
     /// Whether the light is a Dirac light (no area to sample, no MIS).
     pub fn is_delta(&self) -> bool {
-        matches!(self, Light::Point { .. } | Light::Directional { .. })
+        matches!(self, Light::Point { .. } | Light::Directional { .. } | Light::Spot { .. })
+    }
+
+    /// A spot light from its cones' half-angles in radians (inner < outer).
+    pub fn spot(position: Vec3, direction: Vec3, intensity: Vec3, inner_cone: f32, outer_cone: f32) -> Light {
+        let (ci, co) = (inner_cone.cos(), outer_cone.cos());
+        let scale = 1.0 / (ci - co).max(1e-3);
+        Light::Spot { position, direction, intensity, scale, offset: -co * scale }
     }
 
     /// Samples light arriving at `p`.
@@ -72,6 +94,17 @@ impl Light {
                     let dist = dist2.sqrt();
                     LightSample { wi: d / dist, dist, weighted: *intensity / dist2, pdf: 0.0 }
                 })
+            }
+            Light::Spot { position, direction, intensity, scale, offset } => {
+                let d = *position - p;
+                let dist2 = d.length_squared();
+                if dist2 <= 0.0 {
+                    return None;
+                }
+                let dist = dist2.sqrt();
+                let wi = d / dist;
+                let t = ((-wi).dot(*direction) * scale + offset).clamp(0.0, 1.0);
+                (t > 0.0).then(|| LightSample { wi, dist, weighted: *intensity * (t * t) / dist2, pdf: 0.0 })
             }
             Light::Directional { direction, irradiance } => {
                 Some(LightSample { wi: -*direction, dist: f32::INFINITY, weighted: *irradiance, pdf: 0.0 })
@@ -101,7 +134,7 @@ impl Light {
     /// that the ray hits this light at distance `dist` (for MIS).
     pub fn pdf(&self, p: Vec3, wi: Vec3, dist: f32) -> f32 {
         match self {
-            Light::Point { .. } | Light::Directional { .. } => 0.0,
+            Light::Point { .. } | Light::Directional { .. } | Light::Spot { .. } => 0.0,
             Light::Rect { rect, .. } => {
                 let cos_l = -wi.dot(rect.normal());
                 if cos_l <= 0.0 {
