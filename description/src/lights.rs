@@ -87,3 +87,110 @@ impl Validator<'_> {
         Ok(Environment { kind, strength, rotation: rotation.to_radians() })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use crate::bundle::Assets;
+    use crate::model::{EnvironmentKind, Light};
+    use crate::Description;
+
+    const BASE: &str =
+        "[render]\nwidth = 8\nheight = 6\n\n[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\n";
+
+    struct One(&'static str, Vec<u8>);
+    impl Assets for One {
+        fn get(&self, path: &str) -> Option<&[u8]> {
+            (path == self.0).then_some(self.1.as_slice())
+        }
+    }
+
+    fn parse(extra: &str, assets: &dyn Assets) -> Result<Description, String> {
+        Description::parse_text("t.toml", &format!("{BASE}{extra}"), assets).map_err(|e| e.to_string())
+    }
+
+    fn hdr(w: u32, h: u32) -> Vec<u8> {
+        let img = image::Rgb32FImage::from_pixel(w, h, image::Rgb([1.0; 3]));
+        let mut out = std::io::Cursor::new(Vec::new());
+        image::DynamicImage::ImageRgb32F(img).write_to(&mut out, image::ImageFormat::Hdr).unwrap();
+        out.into_inner()
+    }
+
+    #[test]
+    fn a_spot_light_is_read_in_degrees_and_checked() {
+        let spot = "\n[[spot_light]]\nposition = [0, 2, 0]\ndirection = [0, -2, 0]\nintensity = 3\ncolor = [1, 0.5, 0]\ninner_cone = 10\nouter_cone = 20\n";
+        let d = parse(spot, &crate::NoAssets).unwrap();
+        let Light::Spot { direction, intensity, inner_cone, outer_cone, .. } = d.lights[0] else { panic!() };
+        assert_eq!((direction, intensity), (glam::Vec3::NEG_Y, glam::Vec3::new(3.0, 1.5, 0.0)));
+        assert!(
+            (inner_cone - 10f32.to_radians()).abs() < 1e-7 && (outer_cone - 20f32.to_radians()).abs() < 1e-7
+        );
+        // glTF's defaults: 0 and 45°.
+        let d = parse(
+            "\n[[spot_light]]\nposition = [0, 2, 0]\ndirection = [0, -1, 0]\nintensity = 1\n",
+            &crate::NoAssets,
+        )
+        .unwrap();
+        assert!(
+            matches!(d.lights[0], Light::Spot { inner_cone, outer_cone, .. } if inner_cone == 0.0 && outer_cone == 45f32.to_radians())
+        );
+        let e = parse(&spot.replace("inner_cone = 10", "inner_cone = 20"), &crate::NoAssets).unwrap_err();
+        assert_eq!(e, "t.toml:9:1: spot_light: inner_cone (20) must be smaller than outer_cone (20)");
+        let e = parse(&spot.replace("outer_cone = 20", "outer_cone = 100"), &crate::NoAssets).unwrap_err();
+        assert_eq!(e, "t.toml:9:1: spot_light.outer_cone (degrees) must be in [0, 90], got 100");
+        let e = parse(&spot.replace("[0, -2, 0]", "[0, 0, 0]"), &crate::NoAssets).unwrap_err();
+        assert_eq!(e, "t.toml:9:1: spot_light.direction must not be the zero vector");
+        let e =
+            parse(&spot.replace("intensity = 3", "intensity = 3\nangle = 4"), &crate::NoAssets).unwrap_err();
+        assert!(e.starts_with("t.toml:13:") && e.contains("unknown field `angle`"), "{e}");
+    }
+
+    #[test]
+    fn the_environment_is_a_colour_or_an_image_checked_from_its_header() {
+        let d =
+            parse("\n[environment]\ncolor = [0.5, 1, 2]\nstrength = 2\nrotation = 90\n", &crate::NoAssets)
+                .unwrap();
+        let env = d.environment.unwrap();
+        assert_eq!(env.kind, EnvironmentKind::Uniform(glam::Vec3::new(0.5, 1.0, 2.0)));
+        assert!((env.strength, (env.rotation - std::f32::consts::FRAC_PI_2).abs()) == (2.0, 0.0));
+        let sky = One("sky.hdr", hdr(16, 8));
+        let d = parse("\n[environment]\nfile = \"sky.hdr\"\n", &sky).unwrap();
+        let env = d.environment.unwrap();
+        assert_eq!(env.kind, EnvironmentKind::Map { file: "sky.hdr".into(), width: 16, height: 8 });
+        assert_eq!((env.strength, env.rotation), (1.0, 0.0));
+        assert!(parse("", &crate::NoAssets).unwrap().environment.is_none());
+
+        let e = parse("\n[environment]\nfile = \"sky.hdr\"\ncolor = 1\n", &sky).unwrap_err();
+        assert_eq!(e, "t.toml:9:1: environment: give `file` (an image) or `color`, not both");
+        let e = parse("\n[environment]\nstrength = 1\n", &sky).unwrap_err();
+        assert_eq!(e, "t.toml:9:1: environment needs `file` (an equirectangular image) or `color`");
+        let e = parse("\n[environment]\nfile = \"sky.png\"\n", &sky).unwrap_err();
+        assert_eq!(
+            e,
+            "t.toml:9:1: environment.file: \"sky.png\" must be a Radiance .hdr or an OpenEXR .exr image"
+        );
+        let e = parse("\n[environment]\nfile = \"other.hdr\"\n", &sky).unwrap_err();
+        assert!(e.starts_with("t.toml:9:1: environment.file: cannot read \"other.hdr\""), "{e}");
+        let e =
+            parse("\n[environment]\nfile = \"sky.hdr\"\n", &One("sky.hdr", b"#?RADIANCE\nnonsense".to_vec()))
+                .unwrap_err();
+        assert!(e.starts_with("t.toml:9:1: environment.file: \"sky.hdr\" is not a readable image"), "{e}");
+        let e = parse("\n[environment]\nfile = \"../sky.hdr\"\n", &sky).unwrap_err();
+        assert!(e.starts_with("t.toml:9:1: environment.file: "), "{e}");
+        let e = parse("\n[environment]\ncolor = -1\n", &sky).unwrap_err();
+        assert!(e.starts_with("t.toml:9:1: environment.color must not be negative"), "{e}");
+    }
+
+    #[test]
+    fn triangles_and_meshes_may_emit_but_not_move() {
+        let tri = "\n[[triangle]]\nvertices = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]\nemission = [1, 2, 3]\n";
+        let d = parse(tri, &crate::NoAssets).unwrap();
+        assert_eq!(d.objects[0].emission, Some(glam::Vec3::new(1.0, 2.0, 3.0)));
+        let e = parse(&format!("{tri}motion = {{ translate = [1, 0, 0] }}\n"), &crate::NoAssets).unwrap_err();
+        assert_eq!(e, "t.toml:9:1: triangle: lights cannot move (give `emission` or `motion`, not both)");
+        let quad = One("q.obj", b"v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\n".to_vec());
+        let d = parse("\n[[mesh]]\nfile = \"q.obj\"\nemission = 2\n", &quad).unwrap();
+        assert_eq!(d.objects[0].emission, Some(glam::Vec3::splat(2.0)));
+        let e = parse("\n[[mesh]]\nfile = \"q.obj\"\n", &quad).unwrap_err();
+        assert_eq!(e, "t.toml:9:1: mesh needs a `material` (or an `emission`, for a light)");
+    }
+}
