@@ -18,6 +18,7 @@ pub mod error;
 pub mod ids;
 pub mod job;
 mod keyframes;
+mod lights;
 pub mod limits;
 pub mod machine;
 mod materials;

@@ -242,7 +242,7 @@ impl Validator<'_> {
         for (i, (slot, v)) in vertices.iter_mut().zip(&d.vertices).enumerate() {
             *slot = self.ctx.finite(span, &format!("triangle.vertices[{i}]"), v.0)?;
         }
-        let material = self.material_of(span, &d.material)?;
+        let surface = self.surface(span, "triangle", d.material.as_ref(), d.emission)?;
         let place = self.placement(
             span,
             "triangle",
@@ -250,10 +250,17 @@ impl Validator<'_> {
             &d.motion,
             KeysDef { keys: &d.keys, interpolation: &d.interpolation },
         )?;
+        // An emitting mesh is one light built in world space: it cannot move.
+        if surface.1.is_some() && (place.1.is_some() || self.pending.is_some()) {
+            return Err(self.ctx.err(
+                span,
+                "triangle: lights cannot move (give `emission` or `motion`/`keys`, not both)",
+            ));
+        }
         let extent = vertices.iter().fold(Vec3::ZERO, |e, v| e.max(v.abs()));
         self.check_reach(span, "triangle", extent, 0.0, &place)?;
         self.count_triangles(span, 1)?;
-        self.push(span, Shape::Triangle { vertices }, (material, None), place);
+        self.push(span, Shape::Triangle { vertices }, surface, place);
         Ok(())
     }
 
@@ -278,7 +285,7 @@ impl Validator<'_> {
                 .ctx
                 .err(span, format!("mesh {:?} has no faces (`f`): it would draw nothing", d.file)));
         }
-        let material = self.material_of(span, &d.material)?;
+        let surface = self.surface(span, "mesh", d.material.as_ref(), d.emission)?;
         let place = self.placement(
             span,
             "mesh",
@@ -286,9 +293,16 @@ impl Validator<'_> {
             &d.motion,
             KeysDef { keys: &d.keys, interpolation: &d.interpolation },
         )?;
+        // An emitting mesh is one light built in world space: it cannot move.
+        if surface.1.is_some() && (place.1.is_some() || self.pending.is_some()) {
+            return Err(self.ctx.err(
+                span,
+                "mesh: lights cannot move (give `emission` or `motion`/`keys`, not both)",
+            ));
+        }
         self.check_reach(span, "mesh", extent, 0.0, &place)?;
         self.count_triangles(span, counts.triangles)?;
-        self.push(span, Shape::Mesh { file: path, counts }, (material, None), place);
+        self.push(span, Shape::Mesh { file: path, counts }, surface, place);
         Ok(())
     }
 

@@ -255,6 +255,10 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets, frame: Optio
         )?;
         light_tracks_all.extend(t);
     }
+    for l in &raw.spot_light {
+        lights.push(v.spot_light(&l.span(), l.get_ref())?);
+    }
+    let environment = raw.environment.as_ref().map(|e| v.environment(&e.span(), e.get_ref())).transpose()?;
     let mut d = Description {
         file: file.to_string(),
         render,
@@ -264,6 +268,7 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets, frame: Optio
         objects: v.objects,
         planes,
         lights,
+        environment,
         bundle_bytes: 0,
         sequence: None,
     };
