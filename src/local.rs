@@ -65,6 +65,9 @@ pub struct RenderArgs {
     /// Seconds between checkpoints [default: 30]; also at the end of pass one and at Ctrl-C.
     #[arg(long, default_value_t = 30.0)]
     pub checkpoint_interval: f64,
+    /// AOV layers to accumulate and write beside the image (an .exr output).
+    #[command(flatten)]
+    pub layers: crate::layers::AovArgs,
 }
 
 /// How a local render ended.
@@ -106,6 +109,8 @@ pub struct LocalOptions {
     pub time_limit: Option<Duration>,
     /// Noise target.
     pub noise: Option<f32>,
+    /// AOV layers to accumulate and write.
+    pub aovs: tessera_description::job::Aovs,
     /// Show a progress bar.
     pub progress_bar: bool,
     /// Open the viewer window.
@@ -287,6 +292,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         size: opts.size,
         time_limit: opts.time_limit,
         noise: opts.noise,
+        aovs: opts.aovs,
         ..JobSettings::default()
     };
     let (service, job) = start_job(bundle, settings, opts.checkpoints.as_ref()).await?;
@@ -359,7 +365,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
     }
     let progress = progress(&service, job);
     let image = service.image(job).expect("job exists");
-    let (width, height, rgb) = (image.width, image.height, image.rgb);
+    let (width, height, rgb, layers) = (image.width, image.height, image.rgb, image.layers);
     workers.shutdown().await;
     if let Some(c) = checkpointer {
         c.abort();
@@ -368,7 +374,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         service.checkpoint(true).await.context("writing the checkpoint")?;
     }
     if let Some(out) = &opts.output {
-        tessera_film::output::write_image(out, width, height, &rgb)?;
+        crate::layers::write(out, width, height, &rgb, layers, opts.aovs)?;
     }
     if let (Ending::Done, Some(c)) = (&ending, &opts.checkpoints) {
         // The image is written: the checkpoint has served its purpose.
@@ -410,6 +416,7 @@ fn update_bar(bar: &ProgressBar, p: &JobProgress) {
 /// `tessera render`.
 pub async fn render(args: RenderArgs) -> Result<ExitCode> {
     crate::check_output(&args.output)?;
+    args.layers.check(Some(&args.output))?;
     let cores = crate::cores();
     let workers = args.workers.unwrap_or(cores);
     if workers == 0 || workers > 256 {
@@ -436,6 +443,7 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
         size: args.size,
         time_limit: args.time,
         noise: args.noise,
+        aovs: args.layers.aovs(),
         progress_bar: true,
         view: args.view,
         output: Some(args.output.clone()),
