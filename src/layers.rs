@@ -1,7 +1,7 @@
 //! `--aov`: the AOV layers a render, a submission or a fetch writes beside the image, in
 //! one multi-layer OpenEXR file (`tessera_film::exr_layers`).
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
 use anyhow::{anyhow, bail, Result};
 use tessera_description::ids::JobId;
@@ -17,17 +17,63 @@ pub struct AovArgs {
     /// hit; the output must be .exr: one multi-layer OpenEXR file, see docs/aov.md).
     #[arg(long, value_name = "LAYERS", value_parser = parse_aovs)]
     pub aov: Option<Aovs>,
+    /// Denoise the finished image once with Intel Open Image Denoise, guided by the albedo
+    /// and normal layers (accumulated for it, written only if --aov names them).
+    #[arg(long)]
+    pub denoise: bool,
+    /// The libOpenImageDenoise for --denoise, a file or a directory holding it [default:
+    /// the pyoidn wheel's, in the project's venv target/python/oidn].
+    #[arg(long, value_name = "PATH", env = "TESSERA_OIDN")]
+    pub oidn_lib: Option<PathBuf>,
 }
 
 impl AovArgs {
-    /// The layers asked for (none without `--aov`).
+    /// The layers to accumulate: those `--aov` names, and albedo and normal for `--denoise`.
     pub fn aovs(&self) -> Aovs {
+        let mut a = self.written();
+        a.albedo |= self.denoise;
+        a.normal |= self.denoise;
+        a
+    }
+
+    /// The layers to write (none without `--aov`).
+    pub fn written(&self) -> Aovs {
         self.aov.unwrap_or_default()
     }
 
-    /// Refuses `--aov` with an output that is not OpenEXR, before anything is done.
+    /// The Open Image Denoise library `--denoise` loads: `--oidn-lib`/`TESSERA_OIDN` (a
+    /// file, or a directory searched), else the pyoidn wheel in the project's venv
+    /// (`scripts/python-venv.sh oidn tests/tools/oidn-requirements.txt`, beside this
+    /// executable's target directory).
+    pub fn oidn_library(&self) -> Result<PathBuf> {
+        if let Some(p) = &self.oidn_lib {
+            if p.is_file() {
+                return Ok(p.clone());
+            }
+            return tessera_denoise::find_in(p).ok_or_else(|| {
+                anyhow!("--denoise: no libOpenImageDenoise at {} (--oidn-lib / TESSERA_OIDN)", p.display())
+            });
+        }
+        let venv = std::env::current_exe()
+            .ok()
+            .and_then(|exe| exe.parent()?.parent().map(|t| t.join("python/oidn/lib")));
+        venv.as_deref().and_then(tessera_denoise::find_in).ok_or_else(|| {
+            anyhow!(
+                "--denoise: Open Image Denoise not found: give --oidn-lib PATH (or TESSERA_OIDN), or install the pyoidn wheel with scripts/python-venv.sh oidn tests/tools/oidn-requirements.txt"
+            )
+        })
+    }
+
+    /// Refuses `--aov` with an output that is not OpenEXR, and `--denoise` without its
+    /// library, before anything is done.
     pub fn check(&self, output: Option<&Path>) -> Result<()> {
-        if self.aovs() == Aovs::default() {
+        if self.denoise {
+            self.oidn_library()?;
+            if output.is_none() {
+                bail!("--denoise needs an output image (-o FILE) to write the denoised image to");
+            }
+        }
+        if self.written() == Aovs::default() {
             return Ok(());
         }
         match output {
@@ -69,9 +115,31 @@ pub fn select(mut layers: Resolved, want: Aovs) -> Resolved {
     layers
 }
 
-/// Writes the image, with the layers of `want` when there are any (an OpenEXR file), or as
-/// before without.
-pub fn write(out: &Path, width: u32, height: u32, rgb: &[f32], layers: Resolved, want: Aovs) -> Result<()> {
+/// Writes the image (denoised first with `--denoise`), with the layers `--aov` names when
+/// there are any (an OpenEXR file), or as before without.
+pub fn write(
+    out: &Path,
+    width: u32,
+    height: u32,
+    rgb: &[f32],
+    layers: Resolved,
+    args: &AovArgs,
+) -> Result<()> {
+    let want = args.written();
+    let denoised;
+    let rgb = if args.denoise {
+        if layers.albedo.is_empty() || layers.normal.is_empty() {
+            bail!("--denoise: the job keeps no albedo and normal layers (submit it with --denoise or --aov albedo,normal)");
+        }
+        let lib = args.oidn_library()?;
+        let mut color = rgb.to_vec();
+        tessera_denoise::denoise(&lib, width, height, &mut color, &layers.albedo, &layers.normal)
+            .map_err(|e| anyhow!("--denoise: {e}"))?;
+        denoised = color;
+        &denoised[..]
+    } else {
+        rgb
+    };
     if want == Aovs::default() {
         tessera_film::output::write_image(out, width, height, rgb)?;
         return Ok(());
@@ -145,7 +213,7 @@ mod tests {
 
     #[test]
     fn png_outputs_are_refused() {
-        let args = AovArgs { aov: Some(Aovs { albedo: true, ..Aovs::default() }) };
+        let args = AovArgs { aov: Some(Aovs { albedo: true, ..Aovs::default() }), ..AovArgs::default() };
         let e = args.check(Some(Path::new("out.png"))).unwrap_err().to_string();
         assert!(e.contains("need an OpenEXR output (.exr), not PNG"), "{e}");
         assert!(args.check(Some(Path::new("out.exr"))).is_ok());

@@ -109,8 +109,8 @@ pub struct LocalOptions {
     pub time_limit: Option<Duration>,
     /// Noise target.
     pub noise: Option<f32>,
-    /// AOV layers to accumulate and write.
-    pub aovs: tessera_description::job::Aovs,
+    /// AOV layers to accumulate and write, and denoising.
+    pub layers: crate::layers::AovArgs,
     /// Show a progress bar.
     pub progress_bar: bool,
     /// Open the viewer window.
@@ -292,7 +292,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         size: opts.size,
         time_limit: opts.time_limit,
         noise: opts.noise,
-        aovs: opts.aovs,
+        aovs: opts.layers.aovs(),
         ..JobSettings::default()
     };
     let (service, job) = start_job(bundle, settings, opts.checkpoints.as_ref()).await?;
@@ -374,7 +374,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         service.checkpoint(true).await.context("writing the checkpoint")?;
     }
     if let Some(out) = &opts.output {
-        crate::layers::write(out, width, height, &rgb, layers, opts.aovs)?;
+        crate::layers::write(out, width, height, &rgb, layers, &opts.layers)?;
     }
     if let (Ending::Done, Some(c)) = (&ending, &opts.checkpoints) {
         // The image is written: the checkpoint has served its purpose.
@@ -443,7 +443,7 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
         size: args.size,
         time_limit: args.time,
         noise: args.noise,
-        aovs: args.layers.aovs(),
+        layers: args.layers.clone(),
         progress_bar: true,
         view: args.view,
         output: Some(args.output.clone()),

@@ -359,7 +359,7 @@ async fn run(command: Command) -> Result<ExitCode> {
             layers.check(Some(&output))?;
             let mut client = remote::connect(&conn).await?;
             let (w, h, rgb, aov) = layers::fetch(&mut client, JobId(job)).await?;
-            layers::write(&output, w, h, &rgb, aov, layers.aovs())?;
+            layers::write(&output, w, h, &rgb, aov, &layers)?;
             eprintln!("wrote {} ({w}x{h}) of job {job}", output.display());
             Ok(ExitCode::SUCCESS)
         }

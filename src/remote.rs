@@ -368,7 +368,7 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
     }
     if let Some(out) = &args.output {
         let (w, h, rgb, layers) = crate::layers::fetch(&mut client, job).await?;
-        crate::layers::write(out, w, h, &rgb, layers, args.layers.aovs())?;
+        crate::layers::write(out, w, h, &rgb, layers, &args.layers)?;
         eprintln!("wrote {} ({w}x{h}), {job} {}", out.display(), state.name());
     }
     Ok(if state == JobState::Done { ExitCode::SUCCESS } else { ExitCode::FAILURE })

@@ -54,12 +54,14 @@ fn layers_are_plausible_and_the_same_bytes_for_one_and_two_workers() {
     assert!(channel(&c, "normal.X").iter().chain(channel(&c, "normal.Y")).all(|v| v.abs() < 1e-6));
     assert!(channel(&c, "normal.Z").iter().all(|&v| (v - 1.0).abs() < 1e-6));
     // The distance along each camera ray to the wall: 3 / cos θ, θ at most the half
-    // diagonal of a 30° × 20° view (about 18°).
+    // diagonal of a 30° (vertical) × 44° view, about 26° (cos 0.90); 3 at the centre.
     let z = channel(&c, "Z");
     assert_eq!(z.len(), 24 * 16);
-    assert!(z.iter().all(|&d| (3.0..3.0 / 0.95).contains(&d)), "{z:?}");
-    let centre = z[8 * 24 + 12];
-    assert!((centre - 3.0).abs() < 0.01, "{centre}");
+    assert!(z.iter().all(|&d| (3.0..3.0 / 0.89).contains(&d)), "{z:?}");
+    let nearest = z.iter().copied().fold(f32::INFINITY, f32::min);
+    assert!((nearest - 3.0).abs() < 0.01, "{nearest}");
+    let corner = z[0];
+    assert!((corner - 3.0 / 0.9).abs() < 0.05, "{corner}");
     // The radiance keeps its bits: the same render without layers has the same RGB.
     let plain = dir.path().join("plain.exr");
     render_local(&wall(), &plain, 1, &[]);
@@ -145,4 +147,57 @@ fn a_png_output_with_layers_is_refused_before_rendering() {
     assert!(!png.exists());
     let o = run(&["render", wall().to_str().unwrap(), "-o", "x.exr", "--aov", "albedo,shadow"]);
     assert!(String::from_utf8_lossy(&o.stderr).contains("unknown AOV layer \"shadow\""));
+}
+
+#[test]
+fn denoise_runs_where_open_image_denoise_is_found_and_says_why_not_otherwise() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("denoised.exr");
+    let o = run(&[
+        "render",
+        wall().to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--denoise",
+        "--oidn-lib",
+        "/nonexistent",
+    ]);
+    assert!(!o.status.success());
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(err.contains("--denoise: no libOpenImageDenoise at /nonexistent"), "{err}");
+    assert!(!out.exists());
+
+    let Some(python) = python_venv("oidn", "tests/tools/oidn-requirements.txt") else { return };
+    let lib = python.parent().and_then(Path::parent).unwrap().join("lib");
+    let noisy = dir.path().join("noisy.exr");
+    render_local(&small_scene(), &noisy, 1, &["--spp", "2", "--aov", "albedo,normal"]);
+    let o = run(&[
+        "render",
+        small_scene().to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--workers",
+        "1",
+        "--spp",
+        "2",
+        "--aov",
+        "albedo,normal",
+        "--denoise",
+        "--oidn-lib",
+        lib.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&o.stderr);
+    if err.contains("cannot load Open Image Denoise") {
+        eprintln!("SKIPPED: the pyoidn wheel's library does not load here: {}", err.trim());
+        return;
+    }
+    assert!(o.status.success(), "{err}");
+    let (n, d) = (channels(&noisy), channels(&out));
+    // The guides are the same; the image is changed, and stays finite and near the original.
+    assert_eq!(channel(&n, "albedo.R"), channel(&d, "albedo.R"));
+    let (nr, dr) = (channel(&n, "R"), channel(&d, "R"));
+    assert_ne!(nr, dr);
+    assert!(dr.iter().all(|v| v.is_finite()));
+    let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
+    assert!((mean(nr) - mean(dr)).abs() < 0.1 * mean(nr).max(0.05), "{} vs {}", mean(nr), mean(dr));
 }
