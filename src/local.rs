@@ -293,7 +293,6 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         time_limit: opts.time_limit,
         noise: opts.noise,
         aovs: opts.layers.aovs(),
-        ..JobSettings::default()
     };
     let (service, job) = start_job(bundle, settings, opts.checkpoints.as_ref()).await?;
     let secrets = Secrets::new()?;

@@ -349,7 +349,6 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
                 time_limit: args.time,
                 noise: args.noise,
                 aovs: args.layers.aovs(),
-                ..JobSettings::default()
             })),
             priority: args.priority,
         })

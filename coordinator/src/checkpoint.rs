@@ -128,7 +128,7 @@ impl Checkpoint {
             h.extend_from_slice(&v.to_le_bytes());
         }
         h.extend_from_slice(&(pixel_parts as u64).to_le_bytes());
-        let flags = u64::from(!self.even.is_empty()) * EVEN_FLAG | u64::from(self.aov_layout) << 1;
+        let flags = (u64::from(!self.even.is_empty()) * EVEN_FLAG) | (u64::from(self.aov_layout) << 1);
         h.extend_from_slice(&flags.to_le_bytes());
         h.extend_from_slice(&(self.spent.as_millis() as u64).to_le_bytes());
         h.extend_from_slice(&(self.completed.above.len() as u64).to_le_bytes());

@@ -161,14 +161,7 @@ pub fn settings_from_wire(s: pb::RenderSettings) -> Result<JobSettings, WireErro
     let Some(aovs) = aovs_from_wire(s.aovs) else {
         return bad(format!("aovs: unknown layer bits in {:#x} (1 albedo, 2 normal, 4 depth)", s.aovs));
     };
-    Ok(JobSettings {
-        spp: (s.spp != 0).then_some(s.spp),
-        size,
-        time_limit,
-        noise,
-        aovs,
-        ..JobSettings::default()
-    })
+    Ok(JobSettings { spp: (s.spp != 0).then_some(s.spp), size, time_limit, noise, aovs })
 }
 
 /// A job state as it travels (a failure's reason travels apart, in `JobStatus::error`).
@@ -301,7 +294,6 @@ mod tests {
                 time_limit: Some(Duration::from_secs(90)),
                 noise: Some(0.01),
                 aovs: Aovs { albedo: true, normal: false, depth: true },
-                ..JobSettings::default()
             },
         ] {
             assert_eq!(settings_from_wire(settings_to_wire(&s)), Ok(s));

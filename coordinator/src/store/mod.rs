@@ -415,7 +415,7 @@ impl Store {
         let record = JobRecord {
             id: JobId(id as u64),
             bundle: std::sync::Arc::new(bundle),
-            settings: JobSettings { spp, size, time_limit, noise, aovs, ..JobSettings::default() },
+            settings: JobSettings { spp, size, time_limit, noise, aovs },
             priority,
             state,
             owner,

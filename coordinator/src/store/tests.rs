@@ -19,7 +19,6 @@ fn record(id: u64) -> JobRecord {
             time_limit: Some(std::time::Duration::from_millis(1500)),
             noise: Some(0.02),
             aovs: tessera_description::job::Aovs { albedo: true, normal: false, depth: true },
-            ..JobSettings::default()
         },
         priority: -2,
         state: JobState::Running,
