@@ -65,6 +65,9 @@ pub struct RenderArgs {
     /// Seconds between checkpoints [default: 30]; also at the end of pass one and at Ctrl-C.
     #[arg(long, default_value_t = 30.0)]
     pub checkpoint_interval: f64,
+    /// AOV layers to accumulate and write beside the image (an .exr output).
+    #[command(flatten)]
+    pub layers: crate::layers::AovArgs,
 }
 
 /// How a local render ended.
@@ -106,6 +109,8 @@ pub struct LocalOptions {
     pub time_limit: Option<Duration>,
     /// Noise target.
     pub noise: Option<f32>,
+    /// AOV layers to accumulate and write, and denoising.
+    pub layers: crate::layers::AovArgs,
     /// Show a progress bar.
     pub progress_bar: bool,
     /// Open the viewer window.
@@ -282,8 +287,13 @@ impl Workers {
 pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRender> {
     let start = Instant::now();
     let bundle = Bundle::read(scene)?;
-    let settings =
-        JobSettings { spp: opts.spp, size: opts.size, time_limit: opts.time_limit, noise: opts.noise };
+    let settings = JobSettings {
+        spp: opts.spp,
+        size: opts.size,
+        time_limit: opts.time_limit,
+        noise: opts.noise,
+        aovs: opts.layers.aovs(),
+    };
     let (service, job) = start_job(bundle, settings, opts.checkpoints.as_ref()).await?;
     let secrets = Secrets::new()?;
     let service = service.with_auth(secrets.auth());
@@ -354,7 +364,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
     }
     let progress = progress(&service, job);
     let image = service.image(job).expect("job exists");
-    let (width, height, rgb) = (image.width, image.height, image.rgb);
+    let (width, height, rgb, layers) = (image.width, image.height, image.rgb, image.layers);
     workers.shutdown().await;
     if let Some(c) = checkpointer {
         c.abort();
@@ -363,7 +373,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         service.checkpoint(true).await.context("writing the checkpoint")?;
     }
     if let Some(out) = &opts.output {
-        tessera_film::output::write_image(out, width, height, &rgb)?;
+        crate::layers::write(out, width, height, &rgb, layers, &opts.layers)?;
     }
     if let (Ending::Done, Some(c)) = (&ending, &opts.checkpoints) {
         // The image is written: the checkpoint has served its purpose.
@@ -405,6 +415,7 @@ fn update_bar(bar: &ProgressBar, p: &JobProgress) {
 /// `tessera render`.
 pub async fn render(args: RenderArgs) -> Result<ExitCode> {
     crate::check_output(&args.output)?;
+    args.layers.check(Some(&args.output))?;
     let cores = crate::cores();
     let workers = args.workers.unwrap_or(cores);
     if workers == 0 || workers > 256 {
@@ -431,6 +442,7 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
         size: args.size,
         time_limit: args.time,
         noise: args.noise,
+        layers: args.layers.clone(),
         progress_bar: true,
         view: args.view,
         output: Some(args.output.clone()),

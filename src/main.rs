@@ -4,6 +4,7 @@
 mod bench;
 mod certs;
 mod compare;
+mod layers;
 mod local;
 mod remote;
 mod report;
@@ -111,6 +112,9 @@ enum Command {
         /// The image to write (.png or .exr).
         #[arg(short, long)]
         output: PathBuf,
+        /// AOV layers of the job to write too (it must have been submitted with them).
+        #[command(flatten)]
+        layers: layers::AovArgs,
         /// Where the coordinator is and how to reach it.
         #[command(flatten)]
         conn: remote::ClientArgs,
@@ -350,11 +354,12 @@ async fn run(command: Command) -> Result<ExitCode> {
         Command::Submit(args) => remote::submit(args).await,
         Command::Status { conn } => remote::status(&conn).await,
         Command::Cancel { job, conn } => remote::cancel(&conn, JobId(job)).await,
-        Command::Fetch { job, output, conn } => {
+        Command::Fetch { job, output, layers, conn } => {
             check_output(&output)?;
+            layers.check(Some(&output))?;
             let mut client = remote::connect(&conn).await?;
-            let (w, h, rgb) = remote::fetch_image(&mut client, JobId(job)).await?;
-            tessera_film::output::write_image(&output, w, h, &rgb)?;
+            let (w, h, rgb, aov) = layers::fetch(&mut client, JobId(job)).await?;
+            layers::write(&output, w, h, &rgb, aov, &layers)?;
             eprintln!("wrote {} ({w}x{h}) of job {job}", output.display());
             Ok(ExitCode::SUCCESS)
         }

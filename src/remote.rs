@@ -172,6 +172,9 @@ pub struct SubmitArgs {
     /// submitter may ask at most the coordinator's --max-priority).
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
     pub priority: i32,
+    /// AOV layers to accumulate and write beside the image (with -o FILE.exr).
+    #[command(flatten)]
+    pub layers: crate::layers::AovArgs,
 }
 
 /// Runs a coordinator until Ctrl-C or SIGTERM; with a data directory, its jobs survive.
@@ -321,7 +324,7 @@ pub async fn connect(conn: &ClientArgs) -> Result<Client> {
     Ok(tessera_proto::connect::client(&conn.endpoint()?).await?)
 }
 
-fn status_error(s: tonic::Status) -> anyhow::Error {
+pub(crate) fn status_error(s: tonic::Status) -> anyhow::Error {
     anyhow!("{}", s.message())
 }
 
@@ -329,6 +332,7 @@ fn status_error(s: tonic::Status) -> anyhow::Error {
 pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
     if let Some(out) = &args.output {
         crate::check_output(out)?;
+        args.layers.check(Some(out))?;
     }
     let bundle = Bundle::read(&args.scene)?;
     // Refuse a bad scene here, with its location, before any network traffic; nothing is
@@ -344,6 +348,7 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
                 size: args.size,
                 time_limit: args.time,
                 noise: args.noise,
+                aovs: args.layers.aovs(),
             })),
             priority: args.priority,
         })
@@ -361,8 +366,8 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
         bail!("{job} failed: {e}");
     }
     if let Some(out) = &args.output {
-        let (w, h, rgb) = fetch_image(&mut client, job).await?;
-        tessera_film::output::write_image(out, w, h, &rgb)?;
+        let (w, h, rgb, layers) = crate::layers::fetch(&mut client, job).await?;
+        crate::layers::write(out, w, h, &rgb, layers, &args.layers)?;
         eprintln!("wrote {} ({w}x{h}), {job} {}", out.display(), state.name());
     }
     Ok(if state == JobState::Done { ExitCode::SUCCESS } else { ExitCode::FAILURE })
@@ -433,29 +438,6 @@ async fn wait(client: &mut Client, job: JobId) -> Result<JobProgress> {
         }
         tokio::time::sleep(Duration::from_millis(250)).await;
     }
-}
-
-/// A job's current image: width, height, linear RGB top row first.
-pub async fn fetch_image(client: &mut Client, job: JobId) -> Result<(u32, u32, Vec<f32>)> {
-    let mut stream =
-        client.fetch_image(pb::FetchImageRequest { job_id: job.0 }).await.map_err(status_error)?.into_inner();
-    let mut size = None;
-    let mut rgb = Vec::new();
-    while let Some(chunk) = stream.message().await.map_err(status_error)? {
-        let (w, h) = *size.get_or_insert((chunk.width, chunk.height));
-        if (chunk.width, chunk.height) != (w, h) || chunk.rgb.len() % 4 != 0 {
-            bail!("the coordinator sent an inconsistent image chunk");
-        }
-        if u64::from(chunk.row_start) * u64::from(w) * 3 != (rgb.len() as u64) {
-            bail!("the coordinator sent image rows out of order");
-        }
-        rgb.extend(chunk.rgb.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])));
-    }
-    let (w, h) = size.ok_or_else(|| anyhow!("the coordinator sent no image"))?;
-    if rgb.len() != w as usize * h as usize * 3 {
-        bail!("the coordinator sent {} values for a {w}x{h} image", rgb.len());
-    }
-    Ok((w, h, rgb))
 }
 
 /// `tessera status`.

@@ -19,6 +19,11 @@ pub const PART_PIXELS: usize = 1 << 19;
 const PIXEL_BYTES: usize = 28;
 /// Words of the header after the magic, before the merged-batch ids.
 const HEADER_WORDS: usize = 11;
+/// In header word 8: bit 0 says the pixel parts hold even-sample sums; bits 1..=3 are the
+/// job's AOV layers (`tessera_film::aov::Layout::bits`), whose sums follow the pixel parts
+/// in parts of their own, `PART_PIXELS` pixels each. A checkpoint written before AOV layers
+/// existed has 0 or 1 there, and reads back as one without layers.
+const EVEN_FLAG: u64 = 1;
 
 /// A job's state at one moment.
 #[derive(Debug, Clone, PartialEq, Eq)]
@@ -45,6 +50,10 @@ pub struct Checkpoint {
     pub even: Vec<u64>,
     /// Rendering time so far (counted against a time budget).
     pub spent: std::time::Duration,
+    /// The AOV layers kept (`tessera_film::aov::Layout::bits`), 0 for none.
+    pub aov_layout: u32,
+    /// Their sums, pixel-major, `per_pixel()` a pixel (`AovLayers::sums`); empty for none.
+    pub aov: Vec<u64>,
 }
 
 /// One stored part: its bytes and their checksum.
@@ -93,6 +102,9 @@ pub enum DecodeError {
         /// Bytes found.
         got: usize,
     },
+    /// The header names AOV layers that do not exist.
+    #[error("the header names unknown AOV layers {0:#x}")]
+    AovLayout(u32),
     /// The counts do not add up to the samples the header claims.
     #[error("the pixels hold {counted} samples, the header says {claimed}")]
     Samples {
@@ -116,7 +128,8 @@ impl Checkpoint {
             h.extend_from_slice(&v.to_le_bytes());
         }
         h.extend_from_slice(&(pixel_parts as u64).to_le_bytes());
-        h.extend_from_slice(&u64::from(!self.even.is_empty()).to_le_bytes());
+        let flags = (u64::from(!self.even.is_empty()) * EVEN_FLAG) | (u64::from(self.aov_layout) << 1);
+        h.extend_from_slice(&flags.to_le_bytes());
         h.extend_from_slice(&(self.spent.as_millis() as u64).to_le_bytes());
         h.extend_from_slice(&(self.completed.above.len() as u64).to_le_bytes());
         for id in &self.completed.above {
@@ -137,7 +150,18 @@ impl Checkpoint {
             }
             parts.push(Part::new(d));
         }
+        let per = self.aov_per_pixel();
+        if per > 0 {
+            for chunk in self.aov.chunks(PART_PIXELS * per) {
+                parts.push(Part::new(chunk.iter().flat_map(|v| v.to_le_bytes()).collect()));
+            }
+        }
         parts
+    }
+
+    /// The AOV values a pixel holds (0 for an unknown layout, refused on decoding).
+    fn aov_per_pixel(&self) -> usize {
+        tessera_film::aov::Layout::from_bits(self.aov_layout).map_or(0, |l| l.per_pixel())
     }
 
     /// Reads parts back, checking every checksum, length and count before trusting any of it.
@@ -157,17 +181,22 @@ impl Checkpoint {
         let (width, height, spp, job) =
             (narrow(word(0))?, narrow(word(1))?, narrow(word(2))?, JobId(word(3)));
         let (nonfinite_samples, samples_done, below) = (word(4), word(5), word(6));
-        let (pixel_parts, has_even, spent_ms, n_above) =
-            (word(7) as usize, word(8) != 0, word(9), word(10) as usize);
+        let (pixel_parts, flags, spent_ms, n_above) = (word(7) as usize, word(8), word(9), word(10) as usize);
+        let has_even = flags & EVEN_FLAG != 0;
+        let aov_layout = u32::try_from(flags >> 1).map_err(|_| DecodeError::Magic)?;
+        let aov_per_pixel = tessera_film::aov::Layout::from_bits(aov_layout)
+            .ok_or(DecodeError::AovLayout(aov_layout))?
+            .per_pixel();
         let expected_len = (8 + HEADER_WORDS * 8).saturating_add(n_above.saturating_mul(8));
         if h.len() != expected_len {
             return Err(DecodeError::PartLength { part: 0, expected: expected_len, got: h.len() });
         }
         let above = (0..n_above).map(|i| word(HEADER_WORDS + i)).collect();
         let pixels = width as usize * height as usize;
-        if pixel_parts != pixels.div_ceil(PART_PIXELS) || parts.len() != pixel_parts + 1 {
+        let aov_parts = if aov_per_pixel > 0 { pixel_parts } else { 0 };
+        if pixel_parts != pixels.div_ceil(PART_PIXELS) || parts.len() != pixel_parts + aov_parts + 1 {
             return Err(DecodeError::PartCount {
-                expected: pixels.div_ceil(PART_PIXELS) + 1,
+                expected: pixels.div_ceil(PART_PIXELS) * (1 + usize::from(aov_per_pixel > 0)) + 1,
                 found: parts.len(),
             });
         }
@@ -178,7 +207,7 @@ impl Checkpoint {
         let u64s = |b: &[u8]| -> Vec<u64> {
             b.chunks_exact(8).map(|b| u64::from_le_bytes(b.try_into().expect("8"))).collect()
         };
-        for (i, p) in parts[1..].iter().enumerate() {
+        for (i, p) in parts[1..=pixel_parts].iter().enumerate() {
             let n = (pixels - i * PART_PIXELS).min(PART_PIXELS);
             if p.data.len() != n * pixel_bytes {
                 return Err(DecodeError::PartLength {
@@ -192,6 +221,18 @@ impl Checkpoint {
             sums.extend(u64s(s).chunks_exact(3).map(|t| [t[0], t[1], t[2]]));
             counts.extend(c.chunks_exact(4).map(|b| u32::from_le_bytes(b.try_into().expect("4"))));
             even.extend(u64s(e));
+        }
+        let mut aov = Vec::with_capacity(pixels * aov_per_pixel);
+        for (i, p) in parts[pixel_parts + 1..].iter().enumerate() {
+            let n = (pixels - i * PART_PIXELS).min(PART_PIXELS) * aov_per_pixel * 8;
+            if p.data.len() != n {
+                return Err(DecodeError::PartLength {
+                    part: pixel_parts + 1 + i,
+                    expected: n,
+                    got: p.data.len(),
+                });
+            }
+            aov.extend(u64s(&p.data));
         }
         let counted: u64 = counts.iter().map(|&c| u64::from(c)).sum();
         if counted != samples_done {
@@ -209,6 +250,8 @@ impl Checkpoint {
             counts,
             even,
             spent: std::time::Duration::from_millis(spent_ms),
+            aov_layout,
+            aov,
         })
     }
 }
@@ -232,15 +275,18 @@ mod tests {
             even: if width % 2 == 1 { (0..n as u64).map(|i| i * 7).collect() } else { Vec::new() },
             counts,
             spent: std::time::Duration::from_millis(4321),
+            aov_layout: if height % 2 == 1 { 5 } else { 0 },
+            aov: if height % 2 == 1 { (0..5 * n as u64).map(|i| i * 11).collect() } else { Vec::new() },
         }
     }
 
     #[test]
     fn round_trips_across_several_parts() {
-        for (w, h) in [(1, 1), (7, 3), (1024, 1025)] {
+        for (w, h) in [(1, 1), (7, 3), (8, 2), (1024, 1025)] {
             let c = sample(w, h);
             let parts = c.encode();
-            assert_eq!(parts.len(), 1 + ((w * h) as usize).div_ceil(PART_PIXELS));
+            let aov_parts = if h % 2 == 1 { ((w * h) as usize).div_ceil(PART_PIXELS) } else { 0 };
+            assert_eq!(parts.len(), 1 + ((w * h) as usize).div_ceil(PART_PIXELS) + aov_parts);
             assert_eq!(Checkpoint::decode(&parts).unwrap(), c);
         }
     }

@@ -18,6 +18,20 @@ pub struct JobSettings {
     pub time_limit: Option<Duration>,
     /// Stop sampling each pixel once its estimated relative error is below this.
     pub noise: Option<f32>,
+    /// First-hit layers to accumulate beside radiance.
+    pub aovs: Aovs,
+}
+
+/// Which first-hit layers (arbitrary output variables) a job accumulates beside radiance:
+/// what a compositor or a denoiser needs from the camera ray's first hit.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq)]
+pub struct Aovs {
+    /// The surface's reflectance at the first hit.
+    pub albedo: bool,
+    /// The world-space shading normal at the first hit.
+    pub normal: bool,
+    /// The distance along the camera ray to the first hit.
+    pub depth: bool,
 }
 
 impl JobSettings {

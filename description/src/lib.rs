@@ -41,6 +41,6 @@ pub const RENDERER_VERSION: &str = env!("CARGO_PKG_VERSION");
 pub use bundle::{AssetRefusal, Assets, Bundle, NoAssets};
 pub use error::SceneError;
 pub use ids::{BatchId, JobId, WorkerId};
-pub use job::{JobSettings, JobState};
+pub use job::{Aovs, JobSettings, JobState};
 pub use model::Description;
 pub use summary::Summary;

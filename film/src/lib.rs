@@ -5,6 +5,8 @@
 #![forbid(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod aov;
+pub mod exr_layers;
 pub mod fixed;
 pub mod framebuffer;
 pub mod output;

@@ -216,7 +216,10 @@ pub async fn wait_for(
 
 /// A job's current image.
 pub async fn fetch_image(channel: &Channel, id: JobId) -> Result<Image> {
-    let mut stream = client(channel).fetch_image(pb::FetchImageRequest { job_id: id.0 }).await?.into_inner();
+    let mut stream = client(channel)
+        .fetch_image(pb::FetchImageRequest { job_id: id.0, ..Default::default() })
+        .await?
+        .into_inner();
     let mut image = Image { width: 0, height: 0, bytes: Vec::new() };
     while let Some(chunk) = stream.message().await? {
         image.width = chunk.width;

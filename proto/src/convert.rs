@@ -10,7 +10,7 @@ use std::time::Duration;
 use bytes::Bytes;
 use prost::Message;
 use tessera_description::ids::{BatchId, JobId, WorkerId};
-use tessera_description::job::{JobProgress, JobSettings, JobState};
+use tessera_description::job::{Aovs, JobProgress, JobSettings, JobState};
 use tessera_description::Bundle;
 use tessera_film::PixelState;
 
@@ -117,7 +117,27 @@ pub fn settings_to_wire(s: &JobSettings) -> pb::RenderSettings {
         height,
         time_limit_seconds: s.time_limit.map_or(0.0, |t| t.as_secs_f64()),
         noise: s.noise.map_or(0.0, f64::from),
+        aovs: aovs_to_wire(s.aovs),
     }
+}
+
+/// AOV layers as wire bits (`Batch.aovs`, `RenderSettings.aovs`).
+pub fn aovs_to_wire(a: Aovs) -> u32 {
+    layout_of(a).bits()
+}
+
+/// AOV layers from wire bits; `None` if a bit names no layer.
+pub fn aovs_from_wire(bits: u32) -> Option<Aovs> {
+    tessera_film::aov::Layout::from_bits(bits).map(|l| Aovs {
+        albedo: l.albedo,
+        normal: l.normal,
+        depth: l.depth,
+    })
+}
+
+/// The film's layout of a job's AOV layers.
+pub fn layout_of(a: Aovs) -> tessera_film::aov::Layout {
+    tessera_film::aov::Layout { albedo: a.albedo, normal: a.normal, depth: a.depth }
 }
 
 /// Job settings from the wire, checked; 0 means "keep the scene's".
@@ -138,7 +158,10 @@ pub fn settings_from_wire(s: pb::RenderSettings) -> Result<JobSettings, WireErro
         n if n.is_finite() && n > 0.0 && n < 1.0 => Some(n as f32),
         n => return bad(format!("noise must be a relative error in (0, 1), got {n}")),
     };
-    Ok(JobSettings { spp: (s.spp != 0).then_some(s.spp), size, time_limit, noise })
+    let Some(aovs) = aovs_from_wire(s.aovs) else {
+        return bad(format!("aovs: unknown layer bits in {:#x} (1 albedo, 2 normal, 4 depth)", s.aovs));
+    };
+    Ok(JobSettings { spp: (s.spp != 0).then_some(s.spp), size, time_limit, noise, aovs })
 }
 
 /// A job state as it travels (a failure's reason travels apart, in `JobStatus::error`).
@@ -270,6 +293,7 @@ mod tests {
                 size: None,
                 time_limit: Some(Duration::from_secs(90)),
                 noise: Some(0.01),
+                aovs: Aovs { albedo: true, normal: false, depth: true },
             },
         ] {
             assert_eq!(settings_from_wire(settings_to_wire(&s)), Ok(s));
@@ -287,6 +311,7 @@ mod tests {
         assert!(wire(|s| s.time_limit_seconds = -1.0).contains("time_limit_seconds"));
         assert!(wire(|s| s.time_limit_seconds = f64::NAN).contains("time_limit_seconds"));
         assert!(wire(|s| s.noise = 1.0).contains("noise"));
+        assert!(wire(|s| s.aovs = 8).contains("aovs: unknown layer bits"));
     }
 
     #[test]

@@ -18,7 +18,7 @@ use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tracing::{debug, info, warn};
 
-use crate::batch::{render_batch, Sums};
+use crate::batch::{render_batch_layers, Sums};
 use crate::build::LoadError;
 use crate::render::Scene;
 
@@ -102,11 +102,16 @@ impl Pool {
                         let start = Instant::now();
                         let b = &task.batch;
                         let range = b.sample_start..b.sample_end;
-                        let sums = render_batch(
+                        // Unknown layer bits come from a newer coordinator: the layers this
+                        // worker knows are rendered, and the coordinator's check refuses the
+                        // result's length rather than this worker guessing.
+                        let layout = tessera_film::aov::Layout::from_bits(b.aovs & 7).unwrap_or_default();
+                        let sums = render_batch_layers(
                             &task.scene,
                             &task.pixels,
                             range,
                             if b.even_sums { Sums::WithEven } else { Sums::Radiance },
+                            layout,
                         );
                         let _ = task.reply.send(pb::BatchResult {
                             job_id: b.job_id,
@@ -117,6 +122,7 @@ impl Pool {
                             render_micros: start.elapsed().as_micros() as u64,
                             even_sums: sums.even,
                             lease: b.lease.clone(),
+                            aov_sums: sums.aov,
                         });
                     }
                 })

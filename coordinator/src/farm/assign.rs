@@ -180,6 +180,7 @@ impl Farm {
             .insert(job.id)
             .then(|| (job.bundle.clone(), job.scene_hash.clone(), job.settings.clone()));
         let even_sums = job.framebuffer.has_even();
+        let aovs = job.aov.layout().bits();
         Some(Assignment {
             job: job.id,
             scene,
@@ -188,6 +189,7 @@ impl Farm {
             attempt,
             speculative,
             even_sums,
+            aovs,
             token,
         })
     }
@@ -256,6 +258,9 @@ impl Farm {
         } else {
             None
         };
+        // AOV sums are checked like the radiance sums: a lying worker's layers never merge.
+        let invalid =
+            invalid.or_else(|| job.aov.check(&spec.quads, samples, r.aov).err().map(|e| e.to_string()));
         let error = match invalid {
             Some(why) => Some(ResultError::Invalid { job: job_id, batch, why }),
             None => job
@@ -276,6 +281,7 @@ impl Farm {
                 job.fence.release_all(others.collect::<Vec<_>>());
                 job.queue.complete(batch, now)?;
                 job.framebuffer.merge(&spec.quads, samples, r.sums, r.even).expect("sums were checked above");
+                job.aov.merge(&spec.quads, samples, r.aov).expect("AOV sums were checked above");
                 if let Some((round, tile)) = job.queue.round_of(batch) {
                     // The tile's next round: every pixel, or those still above the noise
                     // target (decided on merged samples only, so the same whatever the
@@ -297,12 +303,13 @@ impl Farm {
             Held::Repair(lease) => {
                 job.fence.repairs.finish(batch);
                 job.framebuffer.merge(&spec.quads, samples, r.sums, r.even).expect("sums were checked above");
+                job.aov.merge(&spec.quads, samples, r.aov).expect("AOV sums were checked above");
                 self.lease_counters.samples_merged += spec.sample_count();
                 self.delivered(worker, &identity, job_id, &spec, lease.attempt, r);
                 self.book_rate(worker, spec.sample_count(), now);
             }
             Held::Audit(k, _) => {
-                let answer = Answer::new(&identity, r.sums, r.even, &job.framebuffer);
+                let answer = Answer::new(&identity, r.sums, r.even, &job.framebuffer).with_aov(r.aov);
                 let audit = &mut job.fence.audits[k];
                 audit.lease = None;
                 let first_check = audit.answers.len() == 1;
@@ -381,7 +388,7 @@ impl Farm {
             set.insert(u64::from(q.y) * width + u64::from(q.x));
         }
         if audit && !job.is_over() {
-            let answer = Answer::new(identity, r.sums, r.even, &job.framebuffer);
+            let answer = Answer::new(identity, r.sums, r.even, &job.framebuffer).with_aov(r.aov);
             job.fence.audits.push(Audit {
                 spec: spec.clone(),
                 attempt,
@@ -413,6 +420,10 @@ impl Farm {
             job.fence.release_all(released);
             if let Some(set) = job.fence.delivered.remove(identity) {
                 let (n, recalled) = job.fence.repairs.reset(&set, &mut job.framebuffer, &job.queue);
+                let width = u64::from(job.framebuffer.width());
+                for i in set.iter() {
+                    job.aov.reset((i % width) as u32, (i / width) as u32);
+                }
                 job.fence.release_all(recalled);
                 pixels += n;
             }

@@ -76,17 +76,26 @@ pub(super) struct Answer {
     pub(super) identity: String,
     pub(super) sums: Vec<u64>,
     pub(super) even: Option<Vec<u64>>,
+    /// The AOV layers' sums (empty for a job without layers): compared too, so that a
+    /// worker lying only in its layers is caught like one lying in its radiance.
+    pub(super) aov: Vec<u64>,
 }
 
 impl Answer {
     pub(super) fn new(identity: &str, sums: &[u64], even: Option<&[u64]>, fb: &Framebuffer) -> Answer {
         // Even sums are part of the answer only where the job keeps them.
         let even = even.filter(|_| fb.has_even()).map(<[u64]>::to_vec);
-        Answer { identity: identity.to_owned(), sums: sums.to_vec(), even }
+        Answer { identity: identity.to_owned(), sums: sums.to_vec(), even, aov: Vec::new() }
+    }
+
+    /// The answer with the AOV sums it delivered (checked against the job's layers).
+    pub(super) fn with_aov(mut self, aov: &[u64]) -> Answer {
+        self.aov = aov.to_vec();
+        self
     }
 
     fn same(&self, other: &Answer) -> bool {
-        self.sums == other.sums && self.even == other.even
+        self.sums == other.sums && self.even == other.even && self.aov == other.aov
     }
 }
 
@@ -151,7 +160,7 @@ mod tests {
     use super::*;
 
     fn ans(who: &str, s: u64) -> Answer {
-        Answer { identity: who.into(), sums: vec![s, s, s], even: None }
+        Answer { identity: who.into(), sums: vec![s, s, s], even: None, aov: Vec::new() }
     }
 
     #[test]

@@ -2,6 +2,7 @@
 //! `Job::prepare_within` hands it to an admission check between validating the scene and
 //! allocating the framebuffer.
 
+use tessera_film::aov::{AovLayers, Layout};
 use tessera_film::Framebuffer;
 
 /// A job's memory in the coordinator.
@@ -15,12 +16,16 @@ pub struct Footprint {
     pub even_sums: bool,
     /// The bundle held with the job (scene text and assets).
     pub bundle_bytes: u64,
+    /// The AOV layers kept beside the framebuffer.
+    pub aovs: Layout,
 }
 
 impl Footprint {
-    /// The framebuffer's bytes (`Framebuffer::bytes_for`).
+    /// The framebuffer's bytes (`Framebuffer::bytes_for`), with its AOV layers'
+    /// (`AovLayers::bytes_for`).
     pub fn framebuffer_bytes(&self) -> u64 {
         Framebuffer::bytes_for(self.width, self.height, self.even_sums)
+            + AovLayers::bytes_for(self.aovs, self.width, self.height)
     }
 
     /// Everything the job holds while it is kept: framebuffer and bundle.

@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 use tessera_description::bundle::Bundle;
 use tessera_description::ids::{JobId, WorkerId};
 use tessera_description::job::{JobProgress, JobSettings, JobState};
+use tessera_film::aov::AovLayers;
 use tessera_film::Framebuffer;
 
 use crate::checkpoint::Checkpoint;
@@ -41,6 +42,8 @@ pub struct Job {
     pub owner: String,
     pub(super) queue: PassQueue,
     pub(super) framebuffer: Framebuffer,
+    /// The AOV layers, beside the framebuffer (empty when the job keeps none).
+    pub(super) aov: AovLayers,
     pub(super) started: Option<Instant>,
     pub(super) finished: Option<Instant>,
     /// (time, samples done) points for the recent rate.
@@ -60,6 +63,11 @@ impl Job {
     /// The framebuffer.
     pub fn framebuffer(&self) -> &Framebuffer {
         &self.framebuffer
+    }
+
+    /// The AOV layers (their sample counts are the framebuffer's).
+    pub fn aov(&self) -> &AovLayers {
+        &self.aov
     }
 
     /// Whether the job will hand out no more batches.
@@ -131,6 +139,7 @@ impl Job {
             nonfinite_samples: self.nonfinite_samples,
             samples_done: self.queue.samples_done(),
             framebuffer: self.framebuffer.clone(),
+            aov: self.aov.clone(),
         }
     }
 
@@ -201,6 +210,7 @@ impl Job {
             height: scene.height,
             even_sums: settings.in_rounds() && settings.noise.is_some(),
             bundle_bytes: desc.bundle_bytes,
+            aovs: layout_of(settings.aovs),
         })?;
         let (queue, framebuffer) = match (settings.in_rounds(), settings.noise.is_some()) {
             (false, _) => {
@@ -215,6 +225,7 @@ impl Job {
                 },
             ),
         };
+        let aov = AovLayers::new(layout_of(settings.aovs), scene.width, scene.height);
         Ok(Job {
             id,
             scene_hash: bundle.hash(),
@@ -225,6 +236,7 @@ impl Job {
             state: JobState::Queued,
             owner: String::new(),
             queue,
+            aov,
             framebuffer,
             started: None,
             finished: None,
@@ -293,6 +305,8 @@ pub struct Snapshot {
     pub samples_done: u64,
     /// The framebuffer as it was (a copy-on-write clone).
     pub framebuffer: Framebuffer,
+    /// The AOV layers as they were (a copy-on-write clone).
+    pub aov: AovLayers,
 }
 
 impl Snapshot {
@@ -313,6 +327,13 @@ impl Snapshot {
             samples_done: self.samples_done,
             sums,
             counts,
+            aov_layout: self.aov.layout().bits(),
+            aov: self.aov.sums(),
         }
     }
+}
+
+/// The film's layout of a job's AOV settings.
+pub(crate) fn layout_of(a: tessera_description::job::Aovs) -> tessera_film::aov::Layout {
+    tessera_film::aov::Layout { albedo: a.albedo, normal: a.normal, depth: a.depth }
 }

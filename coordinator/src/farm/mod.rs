@@ -122,6 +122,8 @@ pub struct Assignment {
     pub speculative: bool,
     /// The job wants even-sample sums back (it has a noise target).
     pub even_sums: bool,
+    /// The AOV layers the job wants back (`tessera_film::aov::Layout::bits`).
+    pub aovs: u32,
     /// The lease's token, which the worker must send back.
     pub token: LeaseToken,
 }
@@ -135,6 +137,7 @@ impl Assignment {
             batch: self.batch.id,
             sums,
             even,
+            aov: &[],
             nonfinite: 0,
             attempt: self.attempt,
             lease: &self.token.0,
@@ -153,6 +156,8 @@ pub struct BatchResult<'a> {
     pub sums: &'a [u64],
     /// One even-sample luminance sum per pixel, for jobs with a noise target.
     pub even: Option<&'a [u64]>,
+    /// The AOV layers' sums per pixel, for jobs that keep layers (`tessera_film::aov`).
+    pub aov: &'a [u64],
     /// Samples that came back NaN or infinite (counted as black).
     pub nonfinite: u64,
     /// The attempt number the worker names; must be its lease's.

@@ -4,6 +4,7 @@
 use std::time::Instant;
 
 use tessera_description::job::JobState;
+use tessera_film::aov::AovLayers;
 use tessera_film::{Framebuffer, Quad};
 
 use super::adaptive::converged;
@@ -75,6 +76,13 @@ impl Job {
                     got: format!("{} samples", c.samples_done),
                 });
             }
+            let layout = job.aov.layout();
+            job.aov = AovLayers::from_sums(layout, w, h, c.aov)
+                .filter(|_| c.aov_layout == layout.bits())
+                .ok_or_else(|| RestoreJobError::Mismatch {
+                    expected: format!("AOV layers {:?}", job.settings.aovs),
+                    got: "a checkpoint with other AOV layers".into(),
+                })?;
             job.framebuffer = fb;
             job.nonfinite_samples = c.nonfinite_samples;
             job.spent_before = c.spent;

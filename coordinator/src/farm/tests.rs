@@ -231,3 +231,72 @@ fn a_spent_time_budget_ends_the_job() {
     let job = farm.job(id).unwrap();
     assert_eq!((job.state.clone(), job.progress(t0).halted), (JobState::Done, Some("time budget")));
 }
+
+/// Fake AOV sums: per pixel, within the bounds of its samples, depending on pixel and
+/// samples only.
+fn fake_aov(spec: &BatchSpec, per_pixel: usize) -> Vec<u64> {
+    let n = u64::from(spec.samples.end - spec.samples.start);
+    spec.quads
+        .iter()
+        .flat_map(|q| {
+            (0..per_pixel as u64).map(move |k| if k == 6 { n } else { u64::from(q.x + q.y + k as u32) * n })
+        })
+        .collect()
+}
+
+/// A job with AOV layers: its batches carry their sums, a result with impossible or
+/// missing ones is refused (and merges nothing), and a checkpointed, restored job ends
+/// with exactly the layers of one never interrupted.
+#[test]
+fn aov_layers_are_checked_merged_and_restored_bit_for_bit() {
+    use tessera_description::job::Aovs;
+    let (w, h, spp) = (19, 13, 3);
+    let all = JobSettings { aovs: Aovs { albedo: true, normal: true, depth: true }, ..settings(w, h, spp) };
+    let run = |farm: &mut Farm, worker: WorkerId, limit: usize| {
+        let now = Instant::now();
+        for _ in 0..limit {
+            let Some(a) = farm.assign(worker, now) else { break };
+            assert_eq!(a.aovs, 7);
+            let (sums, aov) = (fake_sums(&a.batch), fake_aov(&a.batch, 8));
+            farm.complete(worker, &BatchResult { aov: &aov, ..result(&a, &sums, None) }, now).unwrap();
+        }
+    };
+    let mut clean = Farm::new();
+    let id = clean.submit(bundle(), all.clone(), 0).unwrap();
+    let cw = clean.add_worker("clean".into(), 1, Instant::now());
+    run(&mut clean, cw, usize::MAX);
+    let done = clean.job(id).unwrap();
+    assert_eq!(done.state, JobState::Done);
+    assert!(done.aov().sums().iter().any(|&v| v > 0));
+
+    let mut farm = Farm::new();
+    let id = farm.submit(bundle(), all, 0).unwrap();
+    let a = farm.add_worker("a".into(), 1, Instant::now());
+    run(&mut farm, a, 4);
+    // A liar's layers: missing, then out of range; neither merges.
+    let before = farm.job(id).unwrap().aov().clone();
+    let l = farm.assign(a, Instant::now()).unwrap();
+    let sums = fake_sums(&l.batch);
+    assert!(farm.complete(a, &result(&l, &sums, None), Instant::now()).is_err());
+    let b = farm.add_worker("b".into(), 1, Instant::now());
+    let l = farm.assign(b, Instant::now()).unwrap();
+    let (sums, mut aov) = (fake_sums(&l.batch), fake_aov(&l.batch, 8));
+    aov[0] = u64::MAX;
+    assert!(farm.complete(b, &BatchResult { aov: &aov, ..result(&l, &sums, None) }, Instant::now()).is_err());
+    assert_eq!(farm.job(id).unwrap().aov(), &before);
+
+    let now = Instant::now();
+    let job = farm.job(id).unwrap();
+    let checkpoint = job.snapshot(now).checkpoint();
+    let parts = checkpoint.encode();
+    let stored = LoadedJob {
+        record: job.record(),
+        checkpoint: Some(crate::checkpoint::Checkpoint::decode(&parts).unwrap()),
+    };
+    let mut restarted = Farm::new();
+    restarted.restore(stored, now).unwrap();
+    let c = restarted.add_worker("c".into(), 1, Instant::now());
+    run(&mut restarted, c, usize::MAX);
+    assert_eq!(restarted.job(id).unwrap().aov(), clean.job(id).unwrap().aov());
+    assert_eq!(restarted.job(id).unwrap().framebuffer(), clean.job(id).unwrap().framebuffer());
+}

@@ -148,7 +148,7 @@ mod tests {
     use super::*;
 
     fn job(width: u32, height: u32) -> Footprint {
-        Footprint { width, height, even_sums: false, bundle_bytes: 1000 }
+        Footprint { width, height, even_sums: false, bundle_bytes: 1000, aovs: Default::default() }
     }
 
     #[test]

@@ -104,7 +104,8 @@ impl CoordinatorService {
         request: Request<pb::FetchImageRequest>,
     ) -> Result<Response<BoxStream<pb::ImageChunk>>, Status> {
         self.check_owner(&auth::caller(&request)?, JobId(request.get_ref().job_id))?;
-        let id = JobId(request.into_inner().job_id);
+        let request = request.into_inner();
+        let (id, with_layers) = (JobId(request.job_id), request.aovs);
         // A snapshot under the lock; the image is resolved outside it.
         let this = self.clone();
         let image = tokio::task::spawn_blocking(move || this.image(id))
@@ -113,6 +114,12 @@ impl CoordinatorService {
             .ok_or_else(|| Status::not_found(format!("no {id} on this coordinator")))?;
         let (width, height, rgb, state) =
             (image.width, image.height, image.rgb, convert::state_to_wire(&image.state));
+        let layers = if with_layers { image.layers } else { Default::default() };
+        // The same rows of a layer with `per` floats a pixel (empty if the job lacks it).
+        let rows_of = |layer: &[f32], i: usize, rows: usize, per: usize| -> Vec<u8> {
+            let (start, len) = (i * rows * width as usize * per, rows * width as usize * per);
+            layer.iter().skip(start).take(len).flat_map(|v| v.to_le_bytes()).collect()
+        };
         let rows_per_chunk = (ROWS_PER_CHUNK_PIXELS / width.max(1) as usize).max(1);
         let row_floats = width as usize * 3;
         let chunks: Vec<Result<pb::ImageChunk, Status>> = rgb
@@ -120,6 +127,9 @@ impl CoordinatorService {
             .enumerate()
             .map(|(i, rows)| {
                 Ok(pb::ImageChunk {
+                    albedo: rows_of(&layers.albedo, i, rows_per_chunk, 3),
+                    normal: rows_of(&layers.normal, i, rows_per_chunk, 3),
+                    depth: rows_of(&layers.depth, i, rows_per_chunk, 1),
                     width,
                     height,
                     row_start: (i * rows_per_chunk) as u32,

@@ -428,6 +428,8 @@ mod tests {
                 samples_done: 16,
                 sums: vec![[0; 3]; 64],
                 counts: [vec![1; 16], vec![0; 48]].concat(),
+                aov_layout: 0,
+                aov: Vec::new(),
                 even: vec![],
                 spent: Duration::ZERO,
             };

@@ -26,13 +26,18 @@ const VARINT: usize = 10;
 const LEN: usize = 5;
 /// A field's tag (field numbers below 16).
 const TAG: usize = 1;
+/// A field's tag (field numbers 16 to 2047).
+const TAG2: usize = 2;
+/// The most AOV sums a pixel returns (albedo 3, normal 3, depth 2).
+const AOV_PER_PIXEL: usize = 8;
 
 /// The largest legal encoded `BatchResult`: every id, count and sum at its longest varint.
 const MAX_RESULT_BYTES: usize = 3 * (TAG + VARINT)   // job_id, batch_id, attempt
     + TAG + LEN + 3 * MAX_BATCH_PIXELS * VARINT      // sums
     + 2 * (TAG + VARINT)                             // nonfinite_samples, render_micros
     + TAG + LEN + MAX_BATCH_PIXELS * VARINT          // even_sums
-    + TAG + LEN + MAX_LEASE_TOKEN_BYTES; // lease
+    + TAG + LEN + MAX_LEASE_TOKEN_BYTES              // lease
+    + TAG2 + LEN + AOV_PER_PIXEL * MAX_BATCH_PIXELS * VARINT; // aov_sums
 
 /// The largest legal `WorkerMessage`: a `Results` returning `MAX_RESULTS_PER_MESSAGE` of
 /// the largest batches at once (a `Hello` or a `BatchFailed` is far smaller). The
@@ -101,6 +106,7 @@ mod tests {
             render_micros: u64::MAX,
             even_sums: vec![u64::MAX; MAX_BATCH_PIXELS],
             lease: vec![0xff; MAX_LEASE_TOKEN_BYTES],
+            aov_sums: vec![u64::MAX; AOV_PER_PIXEL * MAX_BATCH_PIXELS],
         }
     }
 

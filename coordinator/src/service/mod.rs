@@ -113,6 +113,8 @@ pub struct Image {
     pub rgb: Vec<f32>,
     /// The job's state when the snapshot was taken.
     pub state: JobState,
+    /// The job's AOV layers, resolved like `rgb` (empty layers for a job without them).
+    pub layers: tessera_film::aov::Resolved,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -213,12 +215,13 @@ impl CoordinatorService {
 
     /// A job's image now: a snapshot under the lock, resolved outside it.
     pub fn image(&self, job: JobId) -> Option<Image> {
-        let (fb, state) = {
+        let (fb, aov, state) = {
             let farm = self.farm();
             let j = farm.job(job)?;
-            (j.framebuffer().clone(), j.state.clone())
+            (j.framebuffer().clone(), j.aov().clone(), j.state.clone())
         };
-        Some(Image { width: fb.width(), height: fb.height(), rgb: fb.resolve(), state })
+        let layers = aov.resolve(|x, y| fb.count(x, y));
+        Some(Image { width: fb.width(), height: fb.height(), rgb: fb.resolve(), state, layers })
     }
 
     /// The tonic services of this coordinator, each with its message limits: `Coordinator`

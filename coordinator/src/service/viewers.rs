@@ -464,6 +464,7 @@ mod tests {
             batch: lease.batch.id,
             sums: &sums,
             even: None,
+            aov: &[],
             nonfinite: 0,
             attempt: lease.attempt,
             lease: &lease.token.0,

@@ -139,6 +139,7 @@ impl CoordinatorService {
                     pixels,
                     even_sums: a.even_sums,
                     lease: a.token.0.to_vec(),
+                    aovs: a.aovs,
                 };
                 if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Batch(batch)) })).await.is_err() {
                     break;
@@ -217,6 +218,7 @@ impl CoordinatorService {
                         batch,
                         sums: &res.sums,
                         even: Some(&res.even_sums),
+                        aov: &res.aov_sums,
                         nonfinite: res.nonfinite_samples,
                         attempt: res.attempt,
                         lease: &res.lease,

@@ -280,6 +280,17 @@ impl Store {
                 found: version,
             });
         }
+        // The jobs' AOV layers: a column added where it is missing, whatever the layout
+        // version (older files, and older Tessera versions, which name their columns and
+        // so ignore it; a job without it keeps no layers).
+        let has_aovs = conn
+            .prepare("SELECT 1 FROM pragma_table_info('jobs') WHERE name = 'aovs'")
+            .and_then(|mut q| q.exists([]))
+            .map_err(write_err)?;
+        if !has_aovs {
+            conn.execute_batch("ALTER TABLE jobs ADD COLUMN aovs INTEGER NOT NULL DEFAULT 0")
+                .map_err(write_err)?;
+        }
         let mut store = Store { conn, path: path.to_owned(), stall: None };
         match store.read_jobs(problems) {
             Ok(jobs) => Ok(Some((store, jobs))),
@@ -384,6 +395,13 @@ impl Store {
         let time_limit =
             time_limit.filter(|t| t.is_finite() && *t > 0.0).map(std::time::Duration::from_secs_f64);
         let noise = noise.map(|n| n as f32);
+        let aov_bits: u32 = self.conn.query_row("SELECT aovs FROM jobs WHERE id = ?1", [id], |r| r.get(0))?;
+        let Some(aovs) = tessera_proto::convert::aovs_from_wire(aov_bits) else {
+            problems.push(format!(
+                "job {id}: its stored AOV layers {aov_bits:#x} name no known layer; it is lost"
+            ));
+            return Ok(None);
+        };
         let (bundle, sum): (Vec<u8>, Vec<u8>) =
             self.conn.query_row("SELECT bundle, bundle_sum FROM scenes WHERE job = ?1", [id], |r| {
                 Ok((r.get(0)?, r.get(1)?))
@@ -397,7 +415,7 @@ impl Store {
         let record = JobRecord {
             id: JobId(id as u64),
             bundle: std::sync::Arc::new(bundle),
-            settings: JobSettings { spp, size, time_limit, noise },
+            settings: JobSettings { spp, size, time_limit, noise, aovs },
             priority,
             state,
             owner,
@@ -471,8 +489,8 @@ impl JobStore for Store {
         )
         .map_err(err)?;
         tx.execute(
-            "INSERT INTO jobs (id, priority, spp, width, height, time_limit, noise, state, error, owner)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10)",
+            "INSERT INTO jobs (id, priority, spp, width, height, time_limit, noise, state, error, owner, aovs)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
             params![
                 job.id.0 as i64,
                 job.priority,
@@ -483,7 +501,8 @@ impl JobStore for Store {
                 job.settings.noise.map(f64::from),
                 state,
                 error,
-                job.owner
+                job.owner,
+                tessera_proto::convert::aovs_to_wire(job.settings.aovs)
             ],
         )
         .map_err(err)?;

@@ -18,6 +18,7 @@ fn record(id: u64) -> JobRecord {
             size: Some((40, 30)),
             time_limit: Some(std::time::Duration::from_millis(1500)),
             noise: Some(0.02),
+            aovs: tessera_description::job::Aovs { albedo: true, normal: false, depth: true },
         },
         priority: -2,
         state: JobState::Running,
@@ -39,6 +40,8 @@ fn checkpoint(id: u64, pixels: u32, below: u64) -> Checkpoint {
         counts: vec![1; n],
         even: vec![below; n],
         spent: std::time::Duration::from_millis(1234),
+        aov_layout: 4,
+        aov: (0..pixels as u64 * 3 * 2).collect(),
     }
 }
 
@@ -129,7 +132,10 @@ fn a_layout_1_database_is_migrated_and_keeps_its_jobs() {
         let (mut store, loaded) = Store::open(dir.path()).unwrap();
         assert!(loaded.problems.is_empty(), "{:?}", loaded.problems);
         assert_eq!(loaded.jobs.len(), 1);
-        assert_eq!(loaded.jobs[0].record, JobRecord { owner: String::new(), ..record(1) });
+        // A layout-1 job has neither an owner nor AOV layers.
+        let mut expected = JobRecord { owner: String::new(), ..record(1) };
+        expected.settings.aovs = Default::default();
+        assert_eq!(loaded.jobs[0].record, expected);
         let version: i64 = store.conn.query_row("PRAGMA user_version", [], |r| r.get(0)).unwrap();
         assert_eq!(version, SCHEMA_VERSION);
         store.add_job(&record(2)).unwrap();

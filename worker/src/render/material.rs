@@ -119,6 +119,26 @@ impl Material {
         }
     }
 
+    /// The material's reflectance at a point, in [0, 1]: what the albedo AOV layer holds
+    /// (`crate::aov`), as Open Image Denoise asks for it: the diffuse colour of matte
+    /// surfaces, the reflectivity at normal incidence of metals, 1 for glass.
+    pub fn albedo(&self, textures: &[Texture], p: Vec3, uv: Vec2) -> Vec3 {
+        let a = match self {
+            Material::Classic(c) => c.color.eval(textures, p, uv),
+            Material::Lambert { albedo } => albedo.eval(textures, p, uv),
+            Material::Mirror { reflectance } => *reflectance,
+            Material::Dielectric { .. } | Material::RoughDielectric { .. } => Vec3::ONE,
+            // The conductor Fresnel reflectance at normal incidence: ((η−1)² + k²) / ((η+1)² + k²).
+            Material::Conductor { eta, k, .. } => {
+                let k2 = *k * *k;
+                ((*eta - 1.0) * (*eta - 1.0) + k2) / ((*eta + 1.0) * (*eta + 1.0) + k2)
+            }
+            Material::Plastic { diffuse, .. } => diffuse.eval(textures, p, uv),
+            // New materials add their arm here (glTF metallic-roughness: base colour).
+        };
+        a.clamp(Vec3::ZERO, Vec3::ONE)
+    }
+
     /// Whether the material looks anything up in a texture (and so needs UVs).
     pub fn is_textured(&self) -> bool {
         match self {

@@ -214,6 +214,14 @@ impl Scene {
     /// its radiance. Dimensions are drawn only for what the scene uses: the lens only with
     /// an aperture, time only with motion and an open shutter.
     pub fn render_sample(&self, sampler: &mut Sampler, pixel: UVec2, index: u32) -> Vec3 {
+        let (ray, time) = self.camera_ray(sampler, pixel, index);
+        integrator::radiance(self, sampler, &ray, 0, time)
+    }
+
+    /// Sample `index` of `pixel`'s camera ray and shutter time: its film, lens and time
+    /// dimensions, the first ones the sample draws (the AOV layers trace the same ray with
+    /// a sampler of their own).
+    pub fn camera_ray(&self, sampler: &mut Sampler, pixel: UVec2, index: u32) -> (Ray, f32) {
         sampler.start_pixel_sample(pixel, index);
         let p_film = pixel.as_vec2() + sampler.get_2d();
         let p_lens = if self.camera.has_lens() { sampler.get_2d() } else { Vec2::ZERO };
@@ -223,8 +231,7 @@ impl Scene {
         } else {
             self.camera.shutter.0
         };
-        let ray = self.camera.generate_ray(p_film, p_lens);
-        integrator::radiance(self, sampler, &ray, 0, time)
+        (self.camera.generate_ray(p_film, p_lens), time)
     }
 
     /// A sampler for this scene's pattern.
