@@ -282,8 +282,13 @@ impl Workers {
 pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRender> {
     let start = Instant::now();
     let bundle = Bundle::read(scene)?;
-    let settings =
-        JobSettings { spp: opts.spp, size: opts.size, time_limit: opts.time_limit, noise: opts.noise };
+    let settings = JobSettings {
+        spp: opts.spp,
+        size: opts.size,
+        time_limit: opts.time_limit,
+        noise: opts.noise,
+        frames: None,
+    };
     let (service, job) = start_job(bundle, settings, opts.checkpoints.as_ref()).await?;
     let secrets = Secrets::new()?;
     let service = service.with_auth(secrets.auth());

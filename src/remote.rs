@@ -344,6 +344,7 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
                 size: args.size,
                 time_limit: args.time,
                 noise: args.noise,
+                frames: None,
             })),
             priority: args.priority,
         })

@@ -18,6 +18,8 @@ pub struct JobSettings {
     pub time_limit: Option<Duration>,
     /// Stop sampling each pixel once its estimated relative error is below this.
     pub noise: Option<f32>,
+    /// Frames to render, inclusive; None: one still image.
+    pub frames: Option<(u32, u32)>,
 }
 
 impl JobSettings {

@@ -138,7 +138,7 @@ pub fn settings_from_wire(s: pb::RenderSettings) -> Result<JobSettings, WireErro
         n if n.is_finite() && n > 0.0 && n < 1.0 => Some(n as f32),
         n => return bad(format!("noise must be a relative error in (0, 1), got {n}")),
     };
-    Ok(JobSettings { spp: (s.spp != 0).then_some(s.spp), size, time_limit, noise })
+    Ok(JobSettings { spp: (s.spp != 0).then_some(s.spp), size, time_limit, noise, frames: None })
 }
 
 /// A job state as it travels (a failure's reason travels apart, in `JobStatus::error`).
@@ -270,6 +270,7 @@ mod tests {
                 size: None,
                 time_limit: Some(Duration::from_secs(90)),
                 noise: Some(0.01),
+                frames: None,
             },
         ] {
             assert_eq!(settings_from_wire(settings_to_wire(&s)), Ok(s));

@@ -397,7 +397,7 @@ impl Store {
         let record = JobRecord {
             id: JobId(id as u64),
             bundle: std::sync::Arc::new(bundle),
-            settings: JobSettings { spp, size, time_limit, noise },
+            settings: JobSettings { spp, size, time_limit, noise, frames: None },
             priority,
             state,
             owner,

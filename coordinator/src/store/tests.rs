@@ -18,6 +18,7 @@ fn record(id: u64) -> JobRecord {
             size: Some((40, 30)),
             time_limit: Some(std::time::Duration::from_millis(1500)),
             noise: Some(0.02),
+            frames: None,
         },
         priority: -2,
         state: JobState::Running,
