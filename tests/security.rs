@@ -142,8 +142,11 @@ async fn snapshot(url: &str, ca: &str, data: &Path) -> Snapshot {
     let jobs: Vec<_> = status.jobs.iter().map(|j| (j.job_id, j.state, j.samples_done, j.priority)).collect();
     let mut images = Vec::new();
     for j in &status.jobs {
-        let mut stream =
-            admin.fetch_image(pb::FetchImageRequest { job_id: j.job_id }).await.unwrap().into_inner();
+        let mut stream = admin
+            .fetch_image(pb::FetchImageRequest { job_id: j.job_id, frame: None })
+            .await
+            .unwrap()
+            .into_inner();
         let mut bytes = Vec::new();
         while let Some(chunk) = stream.message().await.unwrap() {
             bytes.extend_from_slice(&chunk.rgb);
@@ -326,7 +329,8 @@ fn refused_calls_are_refused_with_no_side_effect() {
         assert!(msg.contains("belongs to another submitter"), "{msg}");
         let (code, _) = status_code(bob.pause(pb::PauseRequest { job_id: alice_job, paused: true }).await);
         assert_eq!(code, Code::PermissionDenied);
-        let (code, _) = status_code(bob.fetch_image(pb::FetchImageRequest { job_id: alice_job }).await);
+        let (code, _) =
+            status_code(bob.fetch_image(pb::FetchImageRequest { job_id: alice_job, frame: None }).await);
         assert_eq!(code, Code::PermissionDenied);
         let (code, _) = status_code(bob.status(pb::StatusRequest { job_id: alice_job }).await);
         assert_eq!(code, Code::PermissionDenied);
@@ -334,6 +338,7 @@ fn refused_calls_are_refused_with_no_side_effect() {
             job_id: alice_job,
             max_rate: 0.0,
             protocol_version: pb::ProtocolVersion::Current as i32,
+            frame: None,
         };
         let (code, _) = status_code(bob.watch(watch).await);
         assert_eq!(code, Code::PermissionDenied);
@@ -505,6 +510,7 @@ fn a_local_render_takes_only_its_own_secret() {
                     name: "intruder".into(),
                     threads: 1,
                     credit: 2,
+                    frames: true,
                 })),
             };
             let mut w = tessera_proto::connect::worker_client(

@@ -276,6 +276,7 @@ pub async fn halt(
                     size,
                     time_limit: Some(std::time::Duration::from_secs_f64(budget)),
                     noise: adaptive,
+                    frames: None,
                     progress_bar: false,
                     view: false,
                     output: Some(out.clone()),

@@ -320,6 +320,7 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
                         size: None,
                         time_limit: None,
                         noise: None,
+                        frames: None,
                         progress_bar: false,
                         view: false,
                         output: None,

@@ -29,10 +29,12 @@ pub(crate) async fn fetch(
     caller: &Caller,
     id: u64,
 ) -> Result<(u32, u32, Vec<f32>), ApiError> {
-    let mut stream =
-        Coordinator::fetch_image(&state.service, request(&caller.0, pb::FetchImageRequest { job_id: id }))
-            .await?
-            .into_inner();
+    let mut stream = Coordinator::fetch_image(
+        &state.service,
+        request(&caller.0, pb::FetchImageRequest { job_id: id, frame: None }),
+    )
+    .await?
+    .into_inner();
     let mut size = None;
     let mut rgb = Vec::new();
     while let Some(chunk) = stream.next().await {

@@ -124,6 +124,7 @@ async fn subscribe(
         job_id: id,
         max_rate: 10.0,
         protocol_version: pb::ProtocolVersion::Current as i32,
+        frame: None,
     };
     let updates = Coordinator::watch(&state.service, request(&caller.0, watch_req)).await?.into_inner();
     let mut all = lock(&state.hubs);

@@ -18,7 +18,7 @@ fn record(id: u64) -> JobRecord {
             size: Some((40, 30)),
             time_limit: Some(std::time::Duration::from_millis(1500)),
             noise: Some(0.02),
-            frames: None,
+            frames: Some((3, 9)),
         },
         priority: -2,
         state: JobState::Running,
@@ -130,7 +130,8 @@ fn a_layout_1_database_is_migrated_and_keeps_its_jobs() {
         let (mut store, loaded) = Store::open(dir.path()).unwrap();
         assert!(loaded.problems.is_empty(), "{:?}", loaded.problems);
         assert_eq!(loaded.jobs.len(), 1);
-        assert_eq!(loaded.jobs[0].record, JobRecord { owner: String::new(), ..record(1) });
+        let settings = JobSettings { frames: None, ..record(1).settings };
+        assert_eq!(loaded.jobs[0].record, JobRecord { owner: String::new(), settings, ..record(1) });
         let version: i64 = store.conn.query_row("PRAGMA user_version", [], |r| r.get(0)).unwrap();
         assert_eq!(version, SCHEMA_VERSION);
         store.add_job(&record(2)).unwrap();

