@@ -40,3 +40,6 @@ pub const BUNDLE_MESSAGE_SLACK: u64 = 1 << 20;
 /// bounds what decoding a bundle of tiny or empty assets costs (about 50 bytes each in
 /// memory against 2 on the wire), checked on the wire before decoding.
 pub const MAX_ASSETS: usize = 65_536;
+/// The most frames an animated scene may declare: each frame is a job's worth of work,
+/// and the coordinator keeps state per frame.
+pub const MAX_FRAMES: u32 = 100_000;

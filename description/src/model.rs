@@ -39,6 +39,9 @@ pub struct Description {
     pub lights: Vec<Light>,
     /// Bytes of the bundle: the scene text and every asset.
     pub bundle_bytes: u64,
+    /// The frames of an animated scene and the frame this description stands at; `None`
+    /// for a still scene.
+    pub sequence: Option<crate::animation::Sequence>,
 }
 
 /// The `[render]` table.

@@ -8,6 +8,7 @@ use std::ops::Range;
 use glam::Vec3;
 
 use crate::bundle::{check_asset_path, unreadable};
+use crate::keyframes::{object_tracks, KeysDef, TransformKey};
 use crate::limits;
 use crate::model::{box_faces, placed_rect, Color, Location, Material, Object, Shape};
 use crate::obj::scan_obj_extent;
@@ -68,14 +69,18 @@ impl Validator<'_> {
         Ok(trs)
     }
 
-    /// The static transform and the motion (if any) of an object.
+    /// The static transform and the motion (if any) of an object; its keys, if any, are
+    /// checked into the animation of the object pushed next.
     fn placement(
-        &self,
+        &mut self,
         span: &Range<usize>,
-        what: &str,
+        what: &'static str,
         t: &Option<TransformDef>,
         m: &Option<TransformDef>,
+        keys: KeysDef<TransformKey>,
     ) -> R<(Trs, Option<Trs>)> {
+        let next = self.objects.len();
+        self.pending = object_tracks(&self.ctx, self.clock.as_ref(), what, span, &keys, m.is_some(), next)?;
         let start = self.trs(span, &format!("{what}.transform"), &t.unwrap_or_default(), &Trs::default())?;
         let Some(m) = m else { return Ok((start, None)) };
         let end = self.trs(span, &format!("{what}.motion"), m, &start)?;
@@ -103,6 +108,7 @@ impl Validator<'_> {
         let (start, end) = place;
         let reach = |t: &Trs| t.translate.as_dvec3().length() + f64::from(t.scale.abs().max_element()) * r;
         let far = end.as_ref().map_or(reach(start), |e| reach(start).max(reach(e)));
+        let far = self.pending.as_ref().map_or(far, |p| far.max(reach(&p.reach_bound(start))));
         let matrix_finite = start.matrix().is_finite() && end.as_ref().is_none_or(|e| e.matrix().is_finite());
         if !(far <= limits::MAX_COORDINATE) || !matrix_finite {
             return Err(self.ctx.err(
@@ -128,6 +134,7 @@ impl Validator<'_> {
         let (material, emission) = surface;
         let (transform, motion) = place;
         self.objects.push(Object { shape, material, emission, transform, motion, at });
+        self.object_tracks.extend(self.pending.take());
     }
 
     pub(crate) fn sphere(&mut self, span: &Range<usize>, d: &SphereDef) -> R<()> {
@@ -138,7 +145,13 @@ impl Validator<'_> {
                 .err(span, format!("sphere.radius must be a positive number, got {}", d.radius)));
         }
         let (material, emission) = self.surface(span, "sphere", d.material.as_ref(), d.emission)?;
-        let (trs, motion) = self.placement(span, "sphere", &d.transform, &d.motion)?;
+        let (trs, motion) = self.placement(
+            span,
+            "sphere",
+            &d.transform,
+            &d.motion,
+            KeysDef { keys: &d.keys, interpolation: &d.interpolation },
+        )?;
         let uniform = |t: &Trs| {
             (t.scale.abs().max_element() - t.scale.abs().min_element()) <= 1e-6 * t.scale.abs().max_element()
         };
@@ -146,6 +159,9 @@ impl Validator<'_> {
             return Err(self
                 .ctx
                 .err(span, "sphere: scale must be uniform (one number); use a mesh for ellipsoids"));
+        }
+        if self.pending.as_ref().is_some_and(|p| !p.uniform_scale()) {
+            return Err(self.ctx.err(span, "sphere.keys: scale must be uniform (one number)"));
         }
         if emission.is_some() && motion.is_some() {
             return Err(self
@@ -184,7 +200,13 @@ impl Validator<'_> {
         let u = self.ctx.finite(span, "rectangle.u", d.u.0)?;
         let v = self.ctx.finite(span, "rectangle.v", d.v.0)?;
         let (material, emission) = self.surface(span, "rectangle", d.material.as_ref(), d.emission)?;
-        let (trs, motion) = self.placement(span, "rectangle", &d.transform, &d.motion)?;
+        let (trs, motion) = self.placement(
+            span,
+            "rectangle",
+            &d.transform,
+            &d.motion,
+            KeysDef { keys: &d.keys, interpolation: &d.interpolation },
+        )?;
         self.check_reach(span, "rectangle", c.abs() + u.abs() + v.abs(), 0.0, &(trs, motion))?;
         self.check_rect(span, "rectangle", (c, u, v), emission.is_some(), &trs, motion.is_some())?;
         self.push(span, Shape::Rectangle { center: c, u, v }, (material, emission), (trs, motion));
@@ -200,7 +222,13 @@ impl Validator<'_> {
                 .err(span, format!("box.min must be below box.max on every axis, got {lo} and {hi}")));
         }
         let material = self.material_of(span, &d.material)?;
-        let (trs, motion) = self.placement(span, "box", &d.transform, &d.motion)?;
+        let (trs, motion) = self.placement(
+            span,
+            "box",
+            &d.transform,
+            &d.motion,
+            KeysDef { keys: &d.keys, interpolation: &d.interpolation },
+        )?;
         self.check_reach(span, "box", lo.abs().max(hi.abs()), 0.0, &(trs, motion))?;
         for face in box_faces(lo, hi) {
             self.check_rect(span, "box", face, false, &trs, motion.is_some())?;
@@ -215,7 +243,13 @@ impl Validator<'_> {
             *slot = self.ctx.finite(span, &format!("triangle.vertices[{i}]"), v.0)?;
         }
         let material = self.material_of(span, &d.material)?;
-        let place = self.placement(span, "triangle", &d.transform, &d.motion)?;
+        let place = self.placement(
+            span,
+            "triangle",
+            &d.transform,
+            &d.motion,
+            KeysDef { keys: &d.keys, interpolation: &d.interpolation },
+        )?;
         let extent = vertices.iter().fold(Vec3::ZERO, |e, v| e.max(v.abs()));
         self.check_reach(span, "triangle", extent, 0.0, &place)?;
         self.count_triangles(span, 1)?;
@@ -245,7 +279,13 @@ impl Validator<'_> {
                 .err(span, format!("mesh {:?} has no faces (`f`): it would draw nothing", d.file)));
         }
         let material = self.material_of(span, &d.material)?;
-        let place = self.placement(span, "mesh", &d.transform, &d.motion)?;
+        let place = self.placement(
+            span,
+            "mesh",
+            &d.transform,
+            &d.motion,
+            KeysDef { keys: &d.keys, interpolation: &d.interpolation },
+        )?;
         self.check_reach(span, "mesh", extent, 0.0, &place)?;
         self.count_triangles(span, counts.triangles)?;
         self.push(span, Shape::Mesh { file: path, counts }, (material, None), place);

@@ -14,6 +14,8 @@ use serde::de::{self, Deserializer, SeqAccess, Visitor};
 use serde::Deserialize;
 use toml::Spanned;
 
+use crate::keyframes::{AnimationDef, CameraKey, DirectionalLightKey, PointLightKey, TransformKey};
+
 /// A colour given as one number (grey) or as `[r, g, b]`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Rgb(pub Vec3);
@@ -112,6 +114,7 @@ fn read_vec3<'de, A: SeqAccess<'de>>(mut seq: A, exp: &dyn de::Expected) -> Resu
 pub(crate) struct SceneFile {
     pub(crate) render: Spanned<RenderDef>,
     pub(crate) camera: Spanned<CameraDef>,
+    pub(crate) animation: Option<Spanned<AnimationDef>>,
     #[serde(default)]
     pub(crate) textures: BTreeMap<String, Spanned<TextureDef>>,
     #[serde(default)]
@@ -176,6 +179,9 @@ pub(crate) struct CameraDef {
     pub(crate) focal_length: Option<f32>,
     pub(crate) focus_distance: Option<f32>,
     pub(crate) shutter: Option<[f32; 2]>,
+    #[serde(default)]
+    pub(crate) keys: Vec<Spanned<CameraKey>>,
+    pub(crate) interpolation: Option<Spanned<String>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -235,6 +241,9 @@ pub(crate) struct SphereDef {
     pub(crate) emission: Option<Rgb>,
     pub(crate) transform: Option<TransformDef>,
     pub(crate) motion: Option<TransformDef>,
+    #[serde(default)]
+    pub(crate) keys: Vec<Spanned<TransformKey>>,
+    pub(crate) interpolation: Option<Spanned<String>>,
 }
 
 fn origin() -> V3 {
@@ -264,6 +273,9 @@ pub(crate) struct RectangleDef {
     pub(crate) emission: Option<Rgb>,
     pub(crate) transform: Option<TransformDef>,
     pub(crate) motion: Option<TransformDef>,
+    #[serde(default)]
+    pub(crate) keys: Vec<Spanned<TransformKey>>,
+    pub(crate) interpolation: Option<Spanned<String>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -274,6 +286,9 @@ pub(crate) struct BoxDef {
     pub(crate) material: String,
     pub(crate) transform: Option<TransformDef>,
     pub(crate) motion: Option<TransformDef>,
+    #[serde(default)]
+    pub(crate) keys: Vec<Spanned<TransformKey>>,
+    pub(crate) interpolation: Option<Spanned<String>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -283,6 +298,9 @@ pub(crate) struct TriangleDef {
     pub(crate) material: String,
     pub(crate) transform: Option<TransformDef>,
     pub(crate) motion: Option<TransformDef>,
+    #[serde(default)]
+    pub(crate) keys: Vec<Spanned<TransformKey>>,
+    pub(crate) interpolation: Option<Spanned<String>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -292,6 +310,9 @@ pub(crate) struct MeshDef {
     pub(crate) material: String,
     pub(crate) transform: Option<TransformDef>,
     pub(crate) motion: Option<TransformDef>,
+    #[serde(default)]
+    pub(crate) keys: Vec<Spanned<TransformKey>>,
+    pub(crate) interpolation: Option<Spanned<String>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -301,6 +322,9 @@ pub(crate) struct PointLightDef {
     #[serde(default = "white")]
     pub(crate) color: Rgb,
     pub(crate) intensity: f32,
+    #[serde(default)]
+    pub(crate) keys: Vec<Spanned<PointLightKey>>,
+    pub(crate) interpolation: Option<Spanned<String>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -310,6 +334,9 @@ pub(crate) struct DirectionalLightDef {
     #[serde(default = "white")]
     pub(crate) color: Rgb,
     pub(crate) irradiance: f32,
+    #[serde(default)]
+    pub(crate) keys: Vec<Spanned<DirectionalLightKey>>,
+    pub(crate) interpolation: Option<Spanned<String>>,
 }
 
 fn white() -> Rgb {

@@ -9,7 +9,9 @@ use std::ops::Range;
 use glam::Vec3;
 use toml::Spanned;
 
+use crate::animation::FrameTime;
 use crate::bundle::Assets;
+use crate::keyframes::{self, light_tracks, CameraTracks, Clock, KeysDef, ObjectTracks, SceneTracks};
 use crate::limits;
 use crate::model::SamplerKind;
 use crate::model::{Camera, Description, FovAxis, Light, Location, Material, Object, Plane, RenderSettings};
@@ -87,10 +89,19 @@ pub(crate) struct Validator<'a> {
     /// Each mesh file's scan, made once however often the scene uses it: a scene of many
     /// uses of one large file costs one scan, not one per use.
     pub(crate) scans: BTreeMap<String, (crate::obj::ObjCounts, Vec3)>,
+    /// The `[animation]` table, checked.
+    pub(crate) clock: Option<Clock>,
+    /// The frame the scene is read at, with its shutter window (for animated assets).
+    pub(crate) time: Option<FrameTime>,
+    /// The keys of the object being checked, until it is pushed.
+    pub(crate) pending: Option<ObjectTracks>,
+    /// Objects' animations.
+    pub(crate) object_tracks: Vec<ObjectTracks>,
 }
 
-/// Parses and validates a scene whose meshes and images come from `assets`.
-pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Description> {
+/// Parses and validates a scene whose meshes and images come from `assets`, as it stands
+/// at `frame` when it is animated (its first frame for `None`).
+pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets, frame: Option<u32>) -> R<Description> {
     crate::bounds::check_text(file, text)?;
     let ctx = Ctx { file, text };
     let raw: SceneFile = toml::from_str(text).map_err(|e| {
@@ -141,7 +152,10 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
         background,
         ambient,
     };
-    let camera = camera(&ctx, raw.camera)?;
+    let clock = raw.animation.as_ref().map(|a| keyframes::clock(&ctx, a)).transpose()?;
+    let (camera, camera_tracks) = camera(&ctx, clock.as_ref(), raw.camera)?;
+    let frame = clock.as_ref().map(|c| frame.unwrap_or(c.first));
+    let time = clock.as_ref().zip(frame).map(|(c, f)| FrameTime::new(f, c.fps, camera.shutter));
 
     let mut v = Validator {
         ctx,
@@ -154,6 +168,10 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
         objects: Vec::new(),
         triangles: 0,
         scans: BTreeMap::new(),
+        clock,
+        time,
+        pending: None,
+        object_tracks: Vec::new(),
     };
     for (name, t) in &raw.textures {
         v.texture(name, &t.span(), t.get_ref())?;
@@ -189,6 +207,7 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
         v.mesh(&m.span(), m.get_ref())?;
     }
     let mut lights = Vec::new();
+    let mut light_tracks_all = Vec::new();
     for l in &raw.point_light {
         let span = l.span();
         let d = l.get_ref();
@@ -196,6 +215,20 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
         let color = v.ctx.colour(&span, "point_light.color", d.color.0)?;
         let intensity = v.ctx.number(&span, "point_light.intensity", d.intensity, 0.0..f32::MAX)?;
         lights.push(Light::Point { position, intensity: color * intensity });
+        let keys = KeysDef { keys: &d.keys, interpolation: &d.interpolation };
+        let names = ("position", "intensity");
+        let base = (color, intensity);
+        let t = light_tracks(
+            &v.ctx,
+            v.clock.as_ref(),
+            "point_light",
+            names,
+            &span,
+            &keys,
+            lights.len() - 1,
+            base,
+        )?;
+        light_tracks_all.extend(t);
     }
     for l in &raw.directional_light {
         let span = l.span();
@@ -207,8 +240,22 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
         let color = v.ctx.colour(&span, "directional_light.color", d.color.0)?;
         let irradiance = v.ctx.number(&span, "directional_light.irradiance", d.irradiance, 0.0..f32::MAX)?;
         lights.push(Light::Directional { direction, irradiance: color * irradiance });
+        let keys = KeysDef { keys: &d.keys, interpolation: &d.interpolation };
+        let names = ("direction", "irradiance");
+        let base = (color, irradiance);
+        let t = light_tracks(
+            &v.ctx,
+            v.clock.as_ref(),
+            "directional_light",
+            names,
+            &span,
+            &keys,
+            lights.len() - 1,
+            base,
+        )?;
+        light_tracks_all.extend(t);
     }
-    Ok(Description {
+    let mut d = Description {
         file: file.to_string(),
         render,
         camera,
@@ -218,10 +265,17 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
         planes,
         lights,
         bundle_bytes: 0,
-    })
+        sequence: None,
+    };
+    if let (Some(clock), Some(time)) = (v.clock, v.time) {
+        let tracks =
+            SceneTracks { clock, objects: v.object_tracks, camera: camera_tracks, lights: light_tracks_all };
+        keyframes::evaluate(&v.ctx, &mut d, &tracks, time)?;
+    }
+    Ok(d)
 }
 
-fn camera(ctx: &Ctx, c: Spanned<CameraDef>) -> R<Camera> {
+fn camera(ctx: &Ctx, clock: Option<&Clock>, c: Spanned<CameraDef>) -> R<(Camera, Option<CameraTracks>)> {
     let span = c.span();
     let c = c.into_inner();
     let position = ctx.finite(&span, "camera.position", c.position.0)?;
@@ -276,7 +330,9 @@ fn camera(ctx: &Ctx, c: Spanned<CameraDef>) -> R<Camera> {
             ),
         ));
     }
-    Ok(Camera {
+    let keys = KeysDef { keys: &c.keys, interpolation: &c.interpolation };
+    let tracks = keyframes::camera_tracks(ctx, clock, &span, &keys, c.focus_distance.is_none())?;
+    let camera = Camera {
         position,
         look_at,
         up,
@@ -285,14 +341,32 @@ fn camera(ctx: &Ctx, c: Spanned<CameraDef>) -> R<Camera> {
         lens_radius,
         focus_distance,
         shutter: (open, close),
-    })
+    };
+    Ok((camera, tracks))
 }
 
 impl Description {
-    /// Parses and validates a bundle's scene, with its assets.
+    /// Parses and validates a bundle's scene, with its assets: an animated scene as it
+    /// stands during its first frame.
     pub fn parse(bundle: &crate::Bundle) -> Result<Description, SceneError> {
+        Self::parse_at(bundle, None)
+    }
+
+    /// The scene as it stands during frame `frame` (animation evaluated over its shutter).
+    /// A still scene is the same at every frame; an animated one refuses a frame outside
+    /// its range.
+    pub fn parse_frame(bundle: &crate::Bundle, frame: u32) -> Result<Description, SceneError> {
+        Self::parse_at(bundle, Some(frame))
+    }
+
+    /// The frame range the scene declares, if animated.
+    pub fn frames(&self) -> Option<(u32, u32)> {
+        self.sequence.map(|s| s.frames)
+    }
+
+    fn parse_at(bundle: &crate::Bundle, frame: Option<u32>) -> Result<Description, SceneError> {
         crate::bounds::check_bundle(bundle)?;
-        let mut d = validate(&bundle.name, &bundle.text, bundle)?;
+        let mut d = validate(&bundle.name, &bundle.text, bundle, frame)?;
         crate::bounds::check_referenced(bundle, &d)?;
         d.bundle_bytes = bundle.text.len() as u64
             + bundle.assets.iter().map(|(p, a)| (p.len() + a.len()) as u64).sum::<u64>();
@@ -302,7 +376,7 @@ impl Description {
     /// Parses and validates a scene text whose meshes and images come from `assets`;
     /// `file` names the scene in messages.
     pub fn parse_text(file: &str, text: &str, assets: &dyn Assets) -> Result<Description, SceneError> {
-        let mut d = validate(file, text, assets)?;
+        let mut d = validate(file, text, assets, None)?;
         d.bundle_bytes = text.len() as u64;
         Ok(d)
     }
