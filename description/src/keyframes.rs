@@ -150,11 +150,8 @@ fn make_track<T: Curve>(interpolation: Interpolation, times: Vec<f32>, values: V
     for k in 0..n {
         let (a, b) = (k.saturating_sub(1), (k + 1).min(n - 1));
         // A single key has no slope (key values are finite, so × 0 is zero).
-        let tangent = if a == b {
-            values[k] * 0.0
-        } else {
-            (values[b] - values[a]) * (1.0 / (times[b] - times[a]))
-        };
+        let tangent =
+            if a == b { values[k] * 0.0 } else { (values[b] - values[a]) * (1.0 / (times[b] - times[a])) };
         spline.extend([tangent, values[k], tangent]);
     }
     Track { interpolation, times, values: spline }

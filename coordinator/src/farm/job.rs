@@ -232,6 +232,11 @@ impl Job {
         if let Some((first, last)) = settings.frames {
             tessera_description::job::check_frames(first, last)
                 .map_err(|e| SubmitError::Frames(format!("{first}-{last}: {e}")))?;
+            if let Some((a, b)) = desc.frames().filter(|&(a, b)| first < a || last > b) {
+                return Err(SubmitError::Frames(format!(
+                    "{first}-{last}: the scene's animation has frames {a}-{b} ([animation] frames)"
+                )));
+            }
             if settings.in_rounds() {
                 return Err(SubmitError::Frames(format!(
                     "{first}-{last}: a sequence renders to its sample count; a time budget or noise target is for stills"

@@ -123,8 +123,7 @@ pub fn parse_bundle_within(bundle: &Bundle, memory: u64) -> Result<Scene, LoadEr
 
 /// As `parse_bundle_within`, the scene as it stands during frame `frame` of its animation.
 pub fn parse_bundle_frame_within(bundle: &Bundle, frame: u32, memory: u64) -> Result<Scene, LoadError> {
-    let _ = frame;
-    build_within(Description::parse(bundle)?, bundle, memory)
+    build_within(Description::parse_frame(bundle, frame)?, bundle, memory)
 }
 
 fn build_within(desc: Description, bundle: &Bundle, memory: u64) -> Result<Scene, LoadError> {
