@@ -95,8 +95,10 @@ fn bad_frames_input_gets_one_line() {
     assert!(std::fs::read_dir(dir.path()).unwrap().next().is_none(), "a refused render wrote something");
 }
 
-/// A sequence's status over gRPC: (samples done, total, each frame's (done, total)).
-fn frames_status(url: &str) -> Option<(String, u64, u64, Vec<(u64, u64)>)> {
+/// A sequence's status over gRPC: (state, samples done, total, each frame's (done, total)).
+type Sequence = (String, u64, u64, Vec<(u64, u64)>);
+
+fn frames_status(url: &str) -> Option<Sequence> {
     let rt = tokio::runtime::Builder::new_current_thread().enable_all().build().unwrap();
     rt.block_on(async {
         let channel = tonic::transport::Endpoint::from_shared(url.to_string()).ok()?.connect().await.ok()?;
@@ -109,11 +111,7 @@ fn frames_status(url: &str) -> Option<(String, u64, u64, Vec<(u64, u64)>)> {
     })
 }
 
-fn wait_status(
-    url: &str,
-    what: &str,
-    done: impl Fn(&(String, u64, u64, Vec<(u64, u64)>)) -> bool,
-) -> (String, u64, u64, Vec<(u64, u64)>) {
+fn wait_status(url: &str, what: &str, done: impl Fn(&Sequence) -> bool) -> Sequence {
     let start = std::time::Instant::now();
     loop {
         if let Some(s) = frames_status(url).filter(&done) {

@@ -23,22 +23,14 @@ pub(crate) enum Format {
     Exr,
 }
 
-/// A job's current image: width, height, linear RGB top row first.
-pub(crate) async fn fetch(
-    state: &AppState,
-    caller: &Caller,
-    id: u64,
-) -> Result<(u32, u32, Vec<f32>), ApiError> {
-    fetch_frame(state, caller, id, None).await
-}
-
 /// `?frame=N`: the frame of a sequence an image or live request names (absent: its first).
 #[derive(Debug, Clone, Copy, Default, serde::Deserialize)]
 pub(crate) struct FrameQuery {
     pub frame: Option<u32>,
 }
 
-/// As `fetch`, of frame `frame` of a sequence (`None`: its first).
+/// A job's current image (of frame `frame` of a sequence, `None`: its first): width,
+/// height, linear RGB top row first.
 pub(crate) async fn fetch_frame(
     state: &AppState,
     caller: &Caller,

@@ -332,12 +332,15 @@ struct SceneCache {
     sequences: HashMap<u64, Sequence>,
     /// Built frames of sequences by (content hash, frame), the job's settings applied
     /// (frames of one scene share their settings within a job), least recently used first.
-    frames: VecDeque<((u64, String, u32), Result<Arc<Scene>, Failure>)>,
+    frames: VecDeque<(FrameKey, Result<Arc<Scene>, Failure>)>,
     /// Job ids, oldest first.
     order: VecDeque<u64>,
     /// The memory one scene may take (`WorkerConfig::memory`).
     memory: u64,
 }
+
+/// A built frame's key: (job, scene hash, frame).
+type FrameKey = (u64, String, u32);
 
 /// What a worker keeps of a sequence job to build its frames.
 struct Sequence {
