@@ -160,8 +160,12 @@ pub fn write(
 }
 
 /// A job's image and its AOV layers from a coordinator (`FetchImage` with `aovs`).
-pub async fn fetch(client: &mut Client, job: JobId) -> Result<(u32, u32, Vec<f32>, Resolved)> {
-    let request = pb::FetchImageRequest { job_id: job.0, aovs: true };
+pub async fn fetch(
+    client: &mut Client,
+    job: JobId,
+    frame: Option<u32>,
+) -> Result<(u32, u32, Vec<f32>, Resolved)> {
+    let request = pb::FetchImageRequest { job_id: job.0, aovs: true, frame };
     let mut stream = client.fetch_image(request).await.map_err(crate::remote::status_error)?.into_inner();
     let mut size = None;
     let (mut rgb, mut layers) = (Vec::new(), Resolved::default());

@@ -27,9 +27,15 @@ use crate::report::rate;
 pub struct RenderArgs {
     /// The scene file (TOML).
     pub scene: PathBuf,
-    /// The image to write: .png (8-bit sRGB) or .exr (linear float).
+    /// The image to write: .png (8-bit sRGB) or .exr (linear float). With --frames, a
+    /// run of # in the name is replaced by each frame's number, zero-padded
+    /// (shot_####.exr: shot_0001.exr, …).
     #[arg(short, long)]
     pub output: PathBuf,
+    /// Render frames FIRST-LAST (inclusive) of the scene's animation as one job: every
+    /// frame's first pass before any frame's second, so the whole sequence previews early.
+    #[arg(long, value_name = "FIRST-LAST", allow_hyphen_values = true)]
+    pub frames: Option<String>,
     /// Local worker processes [default: one per core].
     #[arg(long)]
     pub workers: Option<usize>,
@@ -111,6 +117,8 @@ pub struct LocalOptions {
     pub noise: Option<f32>,
     /// AOV layers to accumulate and write, and denoising.
     pub layers: crate::layers::AovArgs,
+    /// The frames of a sequence (`None`: a still); `output` is then a pattern.
+    pub frames: Option<(u32, u32)>,
     /// Show a progress bar.
     pub progress_bar: bool,
     /// Open the viewer window.
@@ -293,6 +301,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         time_limit: opts.time_limit,
         noise: opts.noise,
         aovs: opts.layers.aovs(),
+        frames: opts.frames,
     };
     let (service, job) = start_job(bundle, settings, opts.checkpoints.as_ref()).await?;
     let secrets = Secrets::new()?;
@@ -324,6 +333,8 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
     let mut changed = service.subscribe();
     let mut first_preview = None;
     let mut workers_gone_since: Option<Instant> = None;
+    // A sequence's frames are written as each finishes, while later ones render.
+    let mut written: std::collections::BTreeSet<u32> = std::collections::BTreeSet::new();
     let ctrl_c = tokio::signal::ctrl_c();
     tokio::pin!(ctrl_c);
     let ending = loop {
@@ -338,6 +349,13 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         }
         if let Some(bar) = &bar {
             update_bar(bar, &p);
+        }
+        if let Some(out) = &opts.output {
+            for f in p.frame_progress.iter().filter(|f| f.samples_done == f.samples_total) {
+                if written.insert(f.frame) {
+                    write_frame(&service, job, out, f.frame, &opts.layers)?;
+                }
+            }
         }
         match &p.state {
             JobState::Done => break Ending::Done,
@@ -373,7 +391,14 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         service.checkpoint(true).await.context("writing the checkpoint")?;
     }
     if let Some(out) = &opts.output {
-        crate::layers::write(out, width, height, &rgb, layers, &opts.layers)?;
+        match opts.frames {
+            None => crate::layers::write(out, width, height, &rgb, layers, &opts.layers)?,
+            Some((first, last)) => {
+                for frame in (first..=last).filter(|f| !written.contains(f)) {
+                    write_frame(&service, job, out, frame, &opts.layers)?;
+                }
+            }
+        }
     }
     if let (Ending::Done, Some(c)) = (&ending, &opts.checkpoints) {
         // The image is written: the checkpoint has served its purpose.
@@ -390,6 +415,20 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
     server.abort();
     reaper.abort();
     Ok(LocalRender { ending, progress, wall: start.elapsed(), first_preview, width, height })
+}
+
+/// Writes frame `frame` of sequence `job` to its file of output pattern `out`.
+fn write_frame(
+    service: &CoordinatorService,
+    job: JobId,
+    out: &Path,
+    frame: u32,
+    layers: &crate::layers::AovArgs,
+) -> Result<()> {
+    let image = service.frame_image(job, Some(frame)).ok_or_else(|| anyhow!("{job} has no frame {frame}"))?;
+    let path = crate::frames::frame_path(out, frame);
+    crate::layers::write(&path, image.width, image.height, &image.rgb, image.layers, layers)?;
+    Ok(())
 }
 
 fn progress(service: &CoordinatorService, job: JobId) -> JobProgress {
@@ -416,6 +455,8 @@ fn update_bar(bar: &ProgressBar, p: &JobProgress) {
 pub async fn render(args: RenderArgs) -> Result<ExitCode> {
     crate::check_output(&args.output)?;
     args.layers.check(Some(&args.output))?;
+    let frames = crate::frames::parse(args.frames.as_deref())?;
+    crate::frames::check_pattern(&args.output, frames)?;
     let cores = crate::cores();
     let workers = args.workers.unwrap_or(cores);
     if workers == 0 || workers > 256 {
@@ -443,6 +484,7 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
         time_limit: args.time,
         noise: args.noise,
         layers: args.layers.clone(),
+        frames,
         progress_bar: true,
         view: args.view,
         output: Some(args.output.clone()),
@@ -463,9 +505,18 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
                 ),
                 None => format!("{} spp", p.spp),
             };
+            let written = match frames {
+                Some((first, last)) if last > first => format!(
+                    "{} frames {} .. {}",
+                    last - first + 1,
+                    crate::frames::frame_path(&args.output, first).display(),
+                    crate::frames::frame_path(&args.output, last).display()
+                ),
+                Some((first, _)) => crate::frames::frame_path(&args.output, first).display().to_string(),
+                None => args.output.display().to_string(),
+            };
             eprintln!(
-                "wrote {} ({}x{}, {samples}) in {:.2} s, {}",
-                args.output.display(),
+                "wrote {written} ({}x{}, {samples}) in {:.2} s, {}",
                 r.width,
                 r.height,
                 r.wall.as_secs_f64(),

@@ -4,6 +4,7 @@
 mod bench;
 mod certs;
 mod compare;
+mod frames;
 mod layers;
 mod local;
 mod remote;
@@ -92,6 +93,9 @@ enum Command {
         /// Where the coordinator is and how to reach it.
         #[command(flatten)]
         conn: remote::ClientArgs,
+        /// Also show each frame of a sequence on a line of its own.
+        #[arg(long)]
+        frames: bool,
     },
     /// Cancel a job; its current image stays fetchable.
     Cancel {
@@ -115,6 +119,9 @@ enum Command {
         /// AOV layers of the job to write too (it must have been submitted with them).
         #[command(flatten)]
         layers: layers::AovArgs,
+        /// The frame of a sequence [default: its first].
+        #[arg(long)]
+        frame: Option<u32>,
         /// Where the coordinator is and how to reach it.
         #[command(flatten)]
         conn: remote::ClientArgs,
@@ -210,6 +217,9 @@ pub struct ViewArgs {
     /// The job [default: the running job, else the newest].
     #[arg(long)]
     job: Option<u64>,
+    /// The frame of a sequence to watch [default: its first].
+    #[arg(long)]
+    frame: Option<u32>,
     /// Write the image here (.png or .exr) instead of opening a window.
     #[arg(long)]
     save: Option<PathBuf>,
@@ -352,13 +362,14 @@ async fn run(command: Command) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         Command::Submit(args) => remote::submit(args).await,
-        Command::Status { conn } => remote::status(&conn).await,
+        Command::Status { conn, frames } => remote::status(&conn, frames).await,
         Command::Cancel { job, conn } => remote::cancel(&conn, JobId(job)).await,
-        Command::Fetch { job, output, layers, conn } => {
+        Command::Fetch { job, output, layers, frame, conn } => {
             check_output(&output)?;
             layers.check(Some(&output))?;
             let mut client = remote::connect(&conn).await?;
-            let (w, h, rgb, aov) = layers::fetch(&mut client, JobId(job)).await?;
+            let (w, h, rgb, aov) = layers::fetch(&mut client, JobId(job), frame).await?;
+            let output = frame.map_or(output.clone(), |f| frames::frame_path(&output, f));
             layers::write(&output, w, h, &rgb, aov, &layers)?;
             eprintln!("wrote {} ({w}x{h}) of job {job}", output.display());
             Ok(ExitCode::SUCCESS)
@@ -414,13 +425,16 @@ async fn view(args: ViewArgs) -> Result<ExitCode> {
     let coordinator = args.conn.endpoint()?;
     let job = args.job.map(JobId);
     if let Some(tev) = &args.tev {
-        tessera_viewer::tev::run(&coordinator, job, tev, reconnect_for).await?;
+        tessera_viewer::tev::run_frame(&coordinator, job, args.frame, tev, reconnect_for).await?;
         eprintln!("forwarded the job to tev at {tev}");
         return Ok(ExitCode::SUCCESS);
     }
     let Some(save) = args.save else {
-        tokio::task::spawn_blocking(move || tessera_viewer::window::run(&coordinator, job, reconnect_for))
-            .await??;
+        let frame = args.frame;
+        tokio::task::spawn_blocking(move || {
+            tessera_viewer::window::run_frame(&coordinator, job, frame, reconnect_for)
+        })
+        .await??;
         return Ok(ExitCode::SUCCESS);
     };
     check_output(&save)?;
@@ -435,7 +449,8 @@ async fn view(args: ViewArgs) -> Result<ExitCode> {
         (_, Some(p)) => When::At(p),
         (None, None) => When::End,
     };
-    let outcome = run(Headless { coordinator, job, save: save.clone(), when, reconnect_for }).await?;
+    let frame = args.frame;
+    let outcome = run(Headless { coordinator, job, frame, save: save.clone(), when, reconnect_for }).await?;
     eprintln!(
         "wrote {} at {:.1}%{}",
         save.display(),

@@ -150,9 +150,13 @@ pub struct SubmitArgs {
     /// Where the coordinator is and how to reach it.
     #[command(flatten)]
     pub conn: ClientArgs,
-    /// Wait for the job and write its image here (.png or .exr); implies --wait.
+    /// Wait for the job and write its image here (.png or .exr); implies --wait. With
+    /// --frames, a run of # in the name is replaced by each frame's number, zero-padded.
     #[arg(short, long)]
     pub output: Option<PathBuf>,
+    /// Render frames FIRST-LAST (inclusive) of the scene's animation as one job.
+    #[arg(long, value_name = "FIRST-LAST", allow_hyphen_values = true)]
+    pub frames: Option<String>,
     /// Samples per pixel [default: the scene's].
     #[arg(long)]
     pub spp: Option<u32>,
@@ -330,9 +334,11 @@ pub(crate) fn status_error(s: tonic::Status) -> anyhow::Error {
 
 /// `tessera submit`.
 pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
+    let frames = crate::frames::parse(args.frames.as_deref())?;
     if let Some(out) = &args.output {
         crate::check_output(out)?;
         args.layers.check(Some(out))?;
+        crate::frames::check_pattern(out, frames)?;
     }
     let bundle = Bundle::read(&args.scene)?;
     // Refuse a bad scene here, with its location, before any network traffic; nothing is
@@ -349,6 +355,7 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
                 time_limit: args.time,
                 noise: args.noise,
                 aovs: args.layers.aovs(),
+                frames,
             })),
             priority: args.priority,
         })
@@ -365,8 +372,16 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
     if let JobState::Failed(e) = &state {
         bail!("{job} failed: {e}");
     }
-    if let Some(out) = &args.output {
-        let (w, h, rgb, layers) = crate::layers::fetch(&mut client, job).await?;
+    if let (Some(out), Some((first, last))) = (&args.output, frames) {
+        for frame in first..=last {
+            let path = crate::frames::frame_path(out, frame);
+            let (w, h, rgb, layers) = crate::layers::fetch(&mut client, job, Some(frame)).await?;
+            crate::layers::write(&path, w, h, &rgb, layers, &args.layers)?;
+        }
+        let (a, b) = (crate::frames::frame_path(out, first), crate::frames::frame_path(out, last));
+        eprintln!("wrote frames {first}-{last} ({} .. {}), {job} {}", a.display(), b.display(), state.name());
+    } else if let Some(out) = &args.output {
+        let (w, h, rgb, layers) = crate::layers::fetch(&mut client, job, None).await?;
         crate::layers::write(out, w, h, &rgb, layers, &args.layers)?;
         eprintln!("wrote {} ({w}x{h}), {job} {}", out.display(), state.name());
     }
@@ -441,7 +456,7 @@ async fn wait(client: &mut Client, job: JobId) -> Result<JobProgress> {
 }
 
 /// `tessera status`.
-pub async fn status(conn: &ClientArgs) -> Result<ExitCode> {
+pub async fn status(conn: &ClientArgs, each_frame: bool) -> Result<ExitCode> {
     let mut client = connect(conn).await?;
     let s = client.status(pb::StatusRequest { job_id: 0 }).await.map_err(status_error)?.into_inner();
     let mut out = String::new();
@@ -480,6 +495,9 @@ pub async fn status(conn: &ClientArgs) -> Result<ExitCode> {
             j.height,
             if j.error.is_empty() { String::new() } else { format!(": {}", j.error) }
         );
+        if let Some(f) = &j.frames {
+            out.push_str(&frames_lines(f, &j.frame_status, each_frame));
+        }
     }
     outln!(out, "");
     outln!(out, "{:>6}  {:<24} {:>7} {:>9} {:>12}", "worker", "name", "threads", "in flight", "batches done");
@@ -503,6 +521,30 @@ pub async fn status(conn: &ClientArgs) -> Result<ExitCode> {
         Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e).context("writing the status"),
         _ => Ok(ExitCode::SUCCESS),
     }
+}
+
+/// A sequence's lines under its job in `tessera status`: the frames done, rendering and
+/// with their pass one; with `each_frame`, a line per frame.
+fn frames_lines(range: &pb::FrameRange, frames: &[pb::FrameStatus], each_frame: bool) -> String {
+    let done = frames.iter().filter(|f| f.samples_done >= f.samples_total).count();
+    let started = frames.iter().filter(|f| f.samples_done > 0 && f.samples_done < f.samples_total).count();
+    let previewed = frames.iter().filter(|f| f.pass_one_done > 0).count();
+    let mut out = format!(
+        "       frames {}-{}: {done} of {} done, {started} rendering, {previewed} with a preview\n",
+        range.first,
+        range.last,
+        frames.len()
+    );
+    if each_frame {
+        for f in frames {
+            let pct = f.samples_done as f64 / f.samples_total.max(1) as f64 * 100.0;
+            out.push_str(&format!(
+                "       frame {:>5} {:>6.1}%  pass one {} pixels\n",
+                f.frame, pct, f.pass_one_done
+            ));
+        }
+    }
+    out
 }
 
 /// `tessera pause` and `tessera resume`.

@@ -231,6 +231,7 @@ async fn work_stream(url: &str, then: Vec<u8>) -> Option<pb::CoordinatorMessage>
             name: "hostile".into(),
             threads: 1,
             credit: 0,
+            frames: true,
         })),
     };
     let out = tokio_stream::iter(vec![hello.encode_to_vec(), then]);
@@ -363,6 +364,7 @@ async fn the_coordinator_stays_within_its_budget_under_attack() {
                     job_id: watched,
                     max_rate: 0.0,
                     protocol_version: pb::ProtocolVersion::Current as i32,
+                    frame: None,
                 };
                 match c.clone().watch(req).await {
                     Ok(s) => streams.push(s.into_inner()),
@@ -411,6 +413,7 @@ async fn the_coordinator_stays_within_its_budget_under_attack() {
             job_id: watched,
             max_rate: 0.0,
             protocol_version: pb::ProtocolVersion::Current as i32,
+            frame: None,
         })
         .await;
     assert!(ok.is_ok(), "a viewer is accepted after the others left");

@@ -21,6 +21,7 @@ fn hello(protocol: i32, renderer: &str) -> pb::WorkerMessage {
             name: "hostile".into(),
             threads: 1,
             credit: 1,
+            frames: true,
         })),
     }
 }

@@ -339,6 +339,7 @@ fn refused_calls_are_refused_with_no_side_effect() {
             job_id: alice_job,
             max_rate: 0.0,
             protocol_version: pb::ProtocolVersion::Current as i32,
+            frame: None,
         };
         let (code, _) = status_code(bob.watch(watch).await);
         assert_eq!(code, Code::PermissionDenied);
@@ -510,6 +511,7 @@ fn a_local_render_takes_only_its_own_secret() {
                     name: "intruder".into(),
                     threads: 1,
                     credit: 2,
+                    frames: true,
                 })),
             };
             let mut w = tessera_proto::connect::worker_client(

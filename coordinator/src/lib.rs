@@ -5,6 +5,7 @@
 
 pub mod checkpoint;
 pub mod farm;
+pub mod frames;
 pub mod metrics;
 pub mod persist;
 pub mod scheduler;

@@ -20,6 +20,8 @@ pub struct JobSettings {
     pub noise: Option<f32>,
     /// First-hit layers to accumulate beside radiance.
     pub aovs: Aovs,
+    /// Frames to render, inclusive; None: one still image.
+    pub frames: Option<(u32, u32)>,
 }
 
 /// Which first-hit layers (arbitrary output variables) a job accumulates beside radiance:
@@ -44,6 +46,61 @@ impl JobSettings {
     pub fn in_rounds(&self) -> bool {
         self.time_limit.is_some() || self.noise.is_some()
     }
+
+    /// Frames the job renders: 1 for a still.
+    pub fn frame_count(&self) -> u32 {
+        self.frames.map_or(1, |(first, last)| last.saturating_sub(first).saturating_add(1))
+    }
+}
+
+/// The most frames one job may hold.
+pub const MAX_FRAMES: u32 = 10_000;
+
+/// A frame range as people write it: `1-48` (inclusive) or one frame, `12`. The message
+/// of an error is one line that names the input.
+pub fn parse_frames(s: &str) -> Result<(u32, u32), String> {
+    let number = |t: &str| {
+        t.trim().parse::<u32>().map_err(|_| {
+            format!(
+                "--frames {s}: expected a frame range such as 1-48 (or one frame, 12), got {:?}",
+                t.trim()
+            )
+        })
+    };
+    let (first, last) = match s.trim().split_once('-') {
+        Some((a, b)) => (number(a)?, number(b)?),
+        None => {
+            let f = number(s)?;
+            (f, f)
+        }
+    };
+    check_frames(first, last).map_err(|e| format!("--frames {s}: {e}"))?;
+    Ok((first, last))
+}
+
+/// Checks a frame range (inclusive): ascending and at most `MAX_FRAMES` frames.
+pub fn check_frames(first: u32, last: u32) -> Result<(), String> {
+    if last < first {
+        return Err("the range is reversed".into());
+    }
+    let count = u64::from(last - first) + 1;
+    if count > u64::from(MAX_FRAMES) {
+        return Err(format!("{count} frames, more than the limit of {MAX_FRAMES} in one job"));
+    }
+    Ok(())
+}
+
+/// The progress of one frame of a sequence.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct FrameProgress {
+    /// The frame number.
+    pub frame: u32,
+    /// Pass-one pixels merged.
+    pub pass_one_done: u64,
+    /// Samples merged.
+    pub samples_done: u64,
+    /// Samples in the frame.
+    pub samples_total: u64,
 }
 
 /// Where a job stands.
@@ -116,6 +173,11 @@ pub struct JobProgress {
     /// Why the job ended before its sample count: "time budget", or "noise target" when
     /// every pixel reached it.
     pub halted: Option<&'static str>,
+    /// The frames of a sequence, inclusive (`None`: a still); the other figures are the
+    /// whole sequence's, `width` and `height` one frame's.
+    pub frames: Option<(u32, u32)>,
+    /// Per frame of a sequence, in frame order (empty for a still).
+    pub frame_progress: Vec<FrameProgress>,
 }
 
 impl JobProgress {
@@ -158,4 +220,28 @@ pub fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
         return Err(bad());
     }
     Ok(std::time::Duration::from_secs_f64(total))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn frame_ranges_parse_and_bad_ones_get_one_line() {
+        assert_eq!(parse_frames("1-48"), Ok((1, 48)));
+        assert_eq!(parse_frames(" 7 "), Ok((7, 7)));
+        assert_eq!(parse_frames("0-0"), Ok((0, 0)));
+        assert_eq!(parse_frames("5-2"), Err("--frames 5-2: the range is reversed".into()));
+        assert_eq!(
+            parse_frames("1-20000"),
+            Err("--frames 1-20000: 20000 frames, more than the limit of 10000 in one job".into())
+        );
+        assert_eq!(
+            parse_frames("a-3"),
+            Err("--frames a-3: expected a frame range such as 1-48 (or one frame, 12), got \"a\"".into())
+        );
+        assert!(parse_frames("-3").is_err() && parse_frames("1-").is_err() && parse_frames("").is_err());
+        assert_eq!(JobSettings { frames: Some((3, 5)), ..JobSettings::default() }.frame_count(), 3);
+        assert_eq!(JobSettings::default().frame_count(), 1);
+    }
 }

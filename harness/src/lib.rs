@@ -216,10 +216,13 @@ pub async fn wait_for(
 
 /// A job's current image.
 pub async fn fetch_image(channel: &Channel, id: JobId) -> Result<Image> {
-    let mut stream = client(channel)
-        .fetch_image(pb::FetchImageRequest { job_id: id.0, ..Default::default() })
-        .await?
-        .into_inner();
+    fetch_frame_image(channel, id, None).await
+}
+
+/// The current image of frame `frame` of a sequence (`None`: its first).
+pub async fn fetch_frame_image(channel: &Channel, id: JobId, frame: Option<u32>) -> Result<Image> {
+    let request = pb::FetchImageRequest { job_id: id.0, frame, ..Default::default() };
+    let mut stream = client(channel).fetch_image(request).await?.into_inner();
     let mut image = Image { width: 0, height: 0, bytes: Vec::new() };
     while let Some(chunk) = stream.message().await? {
         image.width = chunk.width;

@@ -36,11 +36,23 @@ impl FakeViewer {
     /// Watches job `job` at up to `max_rate` updates a second (0: the coordinator's
     /// default), keeping a replica if `keep_replica`.
     pub async fn watch(channel: &Channel, job: u64, max_rate: f64, keep_replica: bool) -> Result<FakeViewer> {
+        Self::watch_frame(channel, job, None, max_rate, keep_replica).await
+    }
+
+    /// As `watch`, of frame `frame` of a sequence (`None`: its first).
+    pub async fn watch_frame(
+        channel: &Channel,
+        job: u64,
+        frame: Option<u32>,
+        max_rate: f64,
+        keep_replica: bool,
+    ) -> Result<FakeViewer> {
         let stream = client(channel)
             .watch(pb::WatchRequest {
                 job_id: job,
                 max_rate,
                 protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
+                frame,
             })
             .await?
             .into_inner();

@@ -89,6 +89,7 @@ impl FakeWorker {
             name: name.into(),
             threads: 1,
             credit,
+            frames: true,
         };
         tx.send(pb::WorkerMessage { msg: Some(Out::Hello(hello)) })
             .await

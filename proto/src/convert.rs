@@ -10,7 +10,7 @@ use std::time::Duration;
 use bytes::Bytes;
 use prost::Message;
 use tessera_description::ids::{BatchId, JobId, WorkerId};
-use tessera_description::job::{Aovs, JobProgress, JobSettings, JobState};
+use tessera_description::job::{Aovs, FrameProgress, JobProgress, JobSettings, JobState};
 use tessera_description::Bundle;
 use tessera_film::PixelState;
 
@@ -118,6 +118,7 @@ pub fn settings_to_wire(s: &JobSettings) -> pb::RenderSettings {
         time_limit_seconds: s.time_limit.map_or(0.0, |t| t.as_secs_f64()),
         noise: s.noise.map_or(0.0, f64::from),
         aovs: aovs_to_wire(s.aovs),
+        frames: s.frames.map(|(first, last)| pb::FrameRange { first, last }),
     }
 }
 
@@ -161,7 +162,15 @@ pub fn settings_from_wire(s: pb::RenderSettings) -> Result<JobSettings, WireErro
     let Some(aovs) = aovs_from_wire(s.aovs) else {
         return bad(format!("aovs: unknown layer bits in {:#x} (1 albedo, 2 normal, 4 depth)", s.aovs));
     };
-    Ok(JobSettings { spp: (s.spp != 0).then_some(s.spp), size, time_limit, noise, aovs })
+    let frames = match s.frames {
+        None => None,
+        Some(f) => {
+            tessera_description::job::check_frames(f.first, f.last)
+                .map_err(|e| WireError::Settings(format!("frames {}-{}: {e}", f.first, f.last)))?;
+            Some((f.first, f.last))
+        }
+    };
+    Ok(JobSettings { spp: (s.spp != 0).then_some(s.spp), size, time_limit, noise, aovs, frames })
 }
 
 /// A job state as it travels (a failure's reason travels apart, in `JobStatus::error`).
@@ -218,6 +227,17 @@ pub fn status_to_wire(p: &JobProgress) -> pb::JobStatus {
         // Not part of a job's progress: the service fills them in.
         owner: String::new(),
         workers: 0,
+        frames: p.frames.map(|(first, last)| pb::FrameRange { first, last }),
+        frame_status: p
+            .frame_progress
+            .iter()
+            .map(|f| pb::FrameStatus {
+                frame: f.frame,
+                pass_one_done: f.pass_one_done,
+                samples_done: f.samples_done,
+                samples_total: f.samples_total,
+            })
+            .collect(),
     }
 }
 
@@ -241,6 +261,17 @@ pub fn status_from_wire(s: pb::JobStatus) -> Result<JobProgress, WireError> {
         nonfinite_samples: 0,
         priority: s.priority,
         halted: None,
+        frames: s.frames.map(|f| (f.first, f.last)),
+        frame_progress: s
+            .frame_status
+            .iter()
+            .map(|f| FrameProgress {
+                frame: f.frame,
+                pass_one_done: f.pass_one_done,
+                samples_done: f.samples_done,
+                samples_total: f.samples_total,
+            })
+            .collect(),
     })
 }
 
@@ -294,7 +325,9 @@ mod tests {
                 time_limit: Some(Duration::from_secs(90)),
                 noise: Some(0.01),
                 aovs: Aovs { albedo: true, normal: false, depth: true },
+                frames: None,
             },
+            JobSettings { frames: Some((1, 48)), ..JobSettings::sized(Some(4), None) },
         ] {
             assert_eq!(settings_from_wire(settings_to_wire(&s)), Ok(s));
         }
@@ -312,6 +345,8 @@ mod tests {
         assert!(wire(|s| s.time_limit_seconds = f64::NAN).contains("time_limit_seconds"));
         assert!(wire(|s| s.noise = 1.0).contains("noise"));
         assert!(wire(|s| s.aovs = 8).contains("aovs: unknown layer bits"));
+        let reversed = wire(|s| s.frames = Some(pb::FrameRange { first: 5, last: 2 }));
+        assert!(reversed.contains("frames 5-2: the range is reversed"), "{reversed}");
     }
 
     #[test]
@@ -351,6 +386,11 @@ mod tests {
             nonfinite_samples: 0,
             priority: -1,
             halted: None,
+            frames: Some((7, 8)),
+            frame_progress: vec![
+                FrameProgress { frame: 7, pass_one_done: 64 * 48, samples_done: 900, samples_total: 49152 },
+                FrameProgress { frame: 8, pass_one_done: 0, samples_done: 100, samples_total: 49152 },
+            ],
         };
         let wire = status_to_wire(&p);
         assert_eq!(wire.error, "out of memory");

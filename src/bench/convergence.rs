@@ -277,6 +277,7 @@ pub async fn halt(
                     time_limit: Some(std::time::Duration::from_secs_f64(budget)),
                     noise: adaptive,
                     layers: Default::default(),
+                    frames: None,
                     progress_bar: false,
                     view: false,
                     output: Some(out.clone()),

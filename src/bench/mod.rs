@@ -321,6 +321,7 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
                         time_limit: None,
                         noise: None,
                         layers: Default::default(),
+                        frames: None,
                         progress_bar: false,
                         view: false,
                         output: None,

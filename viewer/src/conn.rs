@@ -18,6 +18,8 @@ pub struct Watch {
     stream: tonic::Streaming<pb::FramebufferUpdate>,
     endpoint: EndpointConfig,
     job: Option<JobId>,
+    /// The frame of a sequence watched (`None`: its first).
+    frame: Option<u32>,
     max_rate: f64,
     reconnect_for: Duration,
 }
@@ -35,14 +37,26 @@ impl Watch {
         max_rate: f64,
         reconnect_for: Duration,
     ) -> Result<Watch, ConnectError> {
+        Self::open_frame(endpoint, job, None, max_rate, reconnect_for).await
+    }
+
+    /// As `open`, watching frame `frame` of a sequence (`None`: its first).
+    pub async fn open_frame(
+        endpoint: &EndpointConfig,
+        job: Option<JobId>,
+        frame: Option<u32>,
+        max_rate: f64,
+        reconnect_for: Duration,
+    ) -> Result<Watch, ConnectError> {
         let endpoint = endpoint.clone().max_message_bytes(MAX_MESSAGE_BYTES);
-        let stream = Self::stream(&endpoint, job, max_rate).await?;
-        Ok(Watch { stream, endpoint, job, max_rate, reconnect_for })
+        let stream = Self::stream(&endpoint, job, frame, max_rate).await?;
+        Ok(Watch { stream, endpoint, job, frame, max_rate, reconnect_for })
     }
 
     async fn stream(
         endpoint: &EndpointConfig,
         job: Option<JobId>,
+        frame: Option<u32>,
         max_rate: f64,
     ) -> Result<tonic::Streaming<pb::FramebufferUpdate>, ConnectError> {
         let mut client = tessera_proto::connect::client(endpoint).await?;
@@ -51,6 +65,7 @@ impl Watch {
                 job_id: job_to_wire(job),
                 max_rate,
                 protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
+                frame,
             })
             .await
             .map_err(|s| ConnectError::Refused(s.message().to_string()))?
@@ -84,7 +99,7 @@ impl Watch {
             let delay = backoff.next_delay();
             warn!("lost the coordinator ({lost}); reconnecting in {delay:?}");
             tokio::time::sleep(delay.min(deadline - now)).await;
-            match Self::stream(&self.endpoint, self.job, self.max_rate).await {
+            match Self::stream(&self.endpoint, self.job, self.frame, self.max_rate).await {
                 Ok(stream) => {
                     info!(job = job_to_wire(self.job), "reconnected to the coordinator");
                     self.stream = stream;

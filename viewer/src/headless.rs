@@ -28,6 +28,8 @@ pub struct Headless {
     pub coordinator: EndpointConfig,
     /// The job (`None`: the running one, else the newest).
     pub job: Option<JobId>,
+    /// The frame of a sequence (`None`: its first).
+    pub frame: Option<u32>,
     /// Where to write (.png or .exr), replaced atomically at each snapshot.
     pub save: PathBuf,
     /// When.
@@ -79,7 +81,7 @@ fn write(r: &Replica, save: &std::path::Path) -> Result<(), HeadlessError> {
 pub async fn run(h: Headless) -> Result<Outcome, HeadlessError> {
     // A snapshot at a given percentage wants fine-grained updates to land close to it.
     let rate = if matches!(h.when, When::At(_)) { 50.0 } else { 10.0 };
-    let mut watch = Watch::open(&h.coordinator, h.job, rate, h.reconnect_for).await?;
+    let mut watch = Watch::open_frame(&h.coordinator, h.job, h.frame, rate, h.reconnect_for).await?;
     let mut replica = Replica::new();
     let mut snapshots = 0;
     let mut last = Instant::now();

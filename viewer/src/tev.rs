@@ -77,10 +77,21 @@ pub async fn run(
     tev: &str,
     reconnect_for: Duration,
 ) -> Result<(), HeadlessError> {
+    run_frame(coordinator, job, None, tev, reconnect_for).await
+}
+
+/// As `run`, forwarding frame `frame` of a sequence (`None`: its first).
+pub async fn run_frame(
+    coordinator: &EndpointConfig,
+    job: Option<JobId>,
+    frame: Option<u32>,
+    tev: &str,
+    reconnect_for: Duration,
+) -> Result<(), HeadlessError> {
     let mut socket = TcpStream::connect(tev)
         .await
         .map_err(|e| HeadlessError::Tev(format!("cannot reach tev at {tev}: {e} (is tev running?)")))?;
-    let mut watch = Watch::open(coordinator, job, 10.0, reconnect_for).await?;
+    let mut watch = Watch::open_frame(coordinator, job, frame, 10.0, reconnect_for).await?;
     let mut replica = Replica::new();
     let mut created = false;
     let mut last = Instant::now() - Duration::from_secs(1);

@@ -41,6 +41,16 @@ pub fn run(
     job: Option<JobId>,
     reconnect_for: Duration,
 ) -> Result<(), WindowError> {
+    run_frame(endpoint, job, None, reconnect_for)
+}
+
+/// As `run`, showing frame `frame` of a sequence (`None`: its first).
+pub fn run_frame(
+    endpoint: &EndpointConfig,
+    job: Option<JobId>,
+    frame: Option<u32>,
+    reconnect_for: Duration,
+) -> Result<(), WindowError> {
     let shared = Arc::new(Mutex::new(Shared::default()));
     let net = shared.clone();
     let net_endpoint = endpoint.clone();
@@ -53,7 +63,7 @@ pub fn run(
         .name("viewer-net".into())
         .spawn(move || {
             runtime.block_on(async move {
-                let ended = match Watch::open(&net_endpoint, job, 20.0, reconnect_for).await {
+                let ended = match Watch::open_frame(&net_endpoint, job, frame, 20.0, reconnect_for).await {
                     Err(e) => e.to_string(),
                     Ok(mut watch) => loop {
                         match watch.next().await {

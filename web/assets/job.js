@@ -15,6 +15,14 @@
   const jobId = match ? Number(match[1]) : null;
 
   let job = null;
+  /** The frame of a sequence shown (`null`: a still, or before the first status). */
+  let frame = null;
+  /** Opens the live socket on the frame shown; set by `live`. */
+  let reopen = null;
+  /** The socket open now, and a count of sockets opened: a socket's close handler that is
+   *  not the newest's (the frame changed) does nothing. */
+  let socketNow = null;
+  let sockets = 0;
 
   // ---- The live image ----
 
@@ -115,7 +123,10 @@
     const note = document.getElementById("live-note");
     function open() {
       const scheme = location.protocol === "https:" ? "wss:" : "ws:";
-      const socket = new WebSocket(`${scheme}//${location.host}/api/jobs/${jobId}/live`);
+      const query = frame === null ? "" : `?frame=${frame}`;
+      const socket = new WebSocket(`${scheme}//${location.host}/api/jobs/${jobId}/live${query}`);
+      const mine = ++sockets;
+      socketNow = socket;
       socket.binaryType = "arraybuffer";
       let heard = false;
       socket.addEventListener("open", () => setConn("live"));
@@ -135,6 +146,7 @@
         }
       });
       socket.addEventListener("close", async (ev) => {
+        if (mine !== sockets) return;
         if (final) {
           setConn("closed");
           note.textContent = "final image";
@@ -145,11 +157,54 @@
         // A socket refused before its first message may be an expired session.
         if (!heard && recheck) await recheck();
         if (!T.me()) return;
-        setTimeout(open, delay);
+        setTimeout(() => {
+          if (mine === sockets) open();
+        }, delay);
         delay = Math.min(delay * 2, 8000);
       });
     }
+    reopen = open;
     open();
+  }
+
+  /** Shows frame `f` of the sequence: a socket of its own, the downloads of that frame. */
+  function showFrame(f) {
+    frame = f;
+    final = false;
+    document.getElementById("live").dataset.final = "false";
+    document.getElementById("live").dataset.frame = String(f);
+    setDownloads();
+    if (socketNow) socketNow.close();
+    if (reopen) reopen();
+  }
+
+  /** A sequence's frame selector and figures, from its status. */
+  function renderFrames(j) {
+    const select = document.getElementById("job-frame");
+    const wrap = document.getElementById("job-frames-wrap");
+    const sequence = Array.isArray(j.frames);
+    select.hidden = !sequence;
+    document.getElementById("job-frame-label").hidden = !sequence;
+    wrap.hidden = !sequence;
+    if (!sequence) return;
+    const frames = j.frame_progress || [];
+    if (select.options.length !== frames.length) {
+      select.replaceChildren(...frames.map((f) => new Option(String(f.frame), String(f.frame))));
+      if (frame === null) {
+        frame = j.frames[0];
+        setDownloads();
+      }
+      select.value = String(frame);
+    }
+    frames.forEach((f, k) => {
+      const text = `${f.frame} · ${Math.floor(f.progress * 100)}%${f.previewed ? "" : " · no preview yet"}`;
+      if (select.options[k] && select.options[k].text !== text) select.options[k].text = text;
+    });
+    const done = frames.filter((f) => f.progress >= 1).length;
+    const previewed = frames.filter((f) => f.previewed).length;
+    document.getElementById("job-frames").textContent =
+      `${j.frames[0]}–${j.frames[1]}: ${done} of ${frames.length} done, ${previewed} previewed`;
+    Object.assign(wrap.dataset, { done: String(done), previewed: String(previewed), count: String(frames.length) });
   }
 
   function setConn(state) {
@@ -187,6 +242,7 @@
     document.getElementById("job-workers").textContent = String(j.workers);
     document.getElementById("job-priority-text").textContent = String(j.priority);
     document.getElementById("job-owner").textContent = j.owner || "—";
+    renderFrames(j);
 
     const may = T.canControl(j);
     const allowed = T.actionsFor(j.state);
@@ -220,12 +276,20 @@
     }
     const input = document.getElementById("job-priority");
     input.addEventListener("change", () => T.changePriority(jobId, input, refresh));
-    const png = document.getElementById("download-png");
-    png.href = `/api/jobs/${jobId}/image.png`;
-    png.download = `job-${jobId}.png`;
-    const exr = document.getElementById("download-exr");
-    exr.href = `/api/jobs/${jobId}/image.exr`;
-    exr.download = `job-${jobId}.exr`;
+    setDownloads();
+    const select = document.getElementById("job-frame");
+    select.addEventListener("change", () => showFrame(Number(select.value)));
+  }
+
+  /** The download links, of the frame shown for a sequence. */
+  function setDownloads() {
+    const query = frame === null ? "" : `?frame=${frame}`;
+    const name = frame === null ? `job-${jobId}` : `job-${jobId}-frame-${frame}`;
+    for (const ext of ["png", "exr"]) {
+      const a = document.getElementById(`download-${ext}`);
+      a.href = `/api/jobs/${jobId}/image.${ext}${query}`;
+      a.download = `${name}.${ext}`;
+    }
   }
 
   document.addEventListener("DOMContentLoaded", async () => {

@@ -3,7 +3,7 @@
 
 use std::io::Cursor;
 
-use axum::extract::{Path, State};
+use axum::extract::{Path, Query, State};
 use axum::http::header::{CACHE_CONTROL, CONTENT_DISPOSITION, CONTENT_TYPE};
 use axum::http::HeaderValue;
 use axum::response::{IntoResponse, Response};
@@ -23,15 +23,23 @@ pub(crate) enum Format {
     Exr,
 }
 
-/// A job's current image: width, height, linear RGB top row first.
-pub(crate) async fn fetch(
+/// `?frame=N`: the frame of a sequence an image or live request names (absent: its first).
+#[derive(Debug, Clone, Copy, Default, serde::Deserialize)]
+pub(crate) struct FrameQuery {
+    pub frame: Option<u32>,
+}
+
+/// A job's current image (of frame `frame` of a sequence, `None`: its first): width,
+/// height, linear RGB top row first.
+pub(crate) async fn fetch_frame(
     state: &AppState,
     caller: &Caller,
     id: u64,
+    frame: Option<u32>,
 ) -> Result<(u32, u32, Vec<f32>), ApiError> {
     let mut stream = Coordinator::fetch_image(
         &state.service,
-        request(&caller.0, pb::FetchImageRequest { job_id: id, ..Default::default() }),
+        request(&caller.0, pb::FetchImageRequest { job_id: id, frame, ..Default::default() }),
     )
     .await?
     .into_inner();
@@ -75,9 +83,15 @@ pub(crate) fn encode(
     Ok(out.into_inner())
 }
 
-async fn image(state: AppState, caller: Caller, raw: String, format: Format) -> Result<Response, ApiError> {
+async fn image(
+    state: AppState,
+    caller: Caller,
+    raw: String,
+    frame: Option<u32>,
+    format: Format,
+) -> Result<Response, ApiError> {
     let id = job_id(&raw)?;
-    let (w, h, rgb) = fetch(&state, &caller, id).await?;
+    let (w, h, rgb) = fetch_frame(&state, &caller, id, frame).await?;
     if rgb.len() != w as usize * h as usize * 3 {
         return Err(ApiError::new(
             axum::http::StatusCode::INTERNAL_SERVER_ERROR,
@@ -99,7 +113,8 @@ async fn image(state: AppState, caller: Caller, raw: String, format: Format) -> 
         Format::Png => ("image/png", "png"),
         Format::Exr => ("image/x-exr", "exr"),
     };
-    let disposition = HeaderValue::from_str(&format!("inline; filename=\"job-{id}.{ext}\"")).expect("ASCII");
+    let name = frame.map_or(format!("job-{id}"), |f| format!("job-{id}-frame-{f}"));
+    let disposition = HeaderValue::from_str(&format!("inline; filename=\"{name}.{ext}\"")).expect("ASCII");
     Ok((
         [
             (CONTENT_TYPE, HeaderValue::from_static(mime)),
@@ -116,8 +131,9 @@ pub(crate) async fn png(
     State(state): State<AppState>,
     caller: Caller,
     Path(raw): Path<String>,
+    Query(q): Query<FrameQuery>,
 ) -> Result<Response, ApiError> {
-    image(state, caller, raw, Format::Png).await
+    image(state, caller, raw, q.frame, Format::Png).await
 }
 
 /// `GET /api/jobs/{id}/image.exr`.
@@ -125,8 +141,9 @@ pub(crate) async fn exr(
     State(state): State<AppState>,
     caller: Caller,
     Path(raw): Path<String>,
+    Query(q): Query<FrameQuery>,
 ) -> Result<Response, ApiError> {
-    image(state, caller, raw, Format::Exr).await
+    image(state, caller, raw, q.frame, Format::Exr).await
 }
 
 #[cfg(test)]

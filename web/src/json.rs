@@ -23,6 +23,22 @@ pub(crate) struct Job {
     pub workers: u32,
     pub error: Option<String>,
     pub owner: String,
+    /// A sequence's frames, `[first, last]` (absent for a still).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub frames: Option<[u32; 2]>,
+    /// Each frame of a sequence, in frame order (absent for a still).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub frame_progress: Vec<FrameProgress>,
+}
+
+/// One frame of a sequence as the API shows it.
+#[derive(Debug, Clone, Serialize, PartialEq)]
+pub(crate) struct FrameProgress {
+    pub frame: u32,
+    /// 0..=1.
+    pub progress: f64,
+    /// Whether every pixel of the frame has its pass-one sample (its preview is whole).
+    pub previewed: bool,
 }
 
 /// A worker as the API shows it.
@@ -72,6 +88,16 @@ impl From<pb::JobStatus> for Job {
         let running = j.state == pb::JobState::Running as i32;
         let eta_seconds = (running && j.samples_per_second > 0.0 && j.samples_per_second.is_finite())
             .then(|| left as f64 / j.samples_per_second);
+        let frame_pixels = u64::from(j.width) * u64::from(j.height);
+        let frame_progress = j
+            .frame_status
+            .iter()
+            .map(|f| FrameProgress {
+                frame: f.frame,
+                progress: (f.samples_done as f64 / f.samples_total.max(1) as f64).clamp(0.0, 1.0),
+                previewed: f.pass_one_done >= frame_pixels,
+            })
+            .collect();
         Job {
             id: j.job_id,
             state: state_name(j.state),
@@ -90,6 +116,8 @@ impl From<pb::JobStatus> for Job {
             workers: j.workers,
             error: nonempty(j.error),
             owner: j.owner,
+            frames: j.frames.map(|f| [f.first, f.last]),
+            frame_progress,
         }
     }
 }

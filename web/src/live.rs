@@ -22,7 +22,7 @@ use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use axum::extract::ws::{CloseFrame, Message, Utf8Bytes, WebSocket, WebSocketUpgrade};
-use axum::extract::{Path, State};
+use axum::extract::{Path, Query, State};
 use axum::http::StatusCode;
 use axum::response::Response;
 use tessera_film::Framebuffer;
@@ -72,10 +72,13 @@ pub(crate) struct Frame {
     end: Option<(u16, String)>,
 }
 
-/// The jobs watched now through one router: job id -> the channel of its shared task.
-pub(crate) type Hubs = Arc<Mutex<HashMap<u64, watch::Sender<Arc<Frame>>>>>;
+/// The jobs watched now through one router: (job id, frame of a sequence) -> the channel
+/// of its shared task.
+pub(crate) type Hubs = Arc<Mutex<HashMap<HubKey, watch::Sender<Arc<Frame>>>>>;
+/// A job and the frame of it watched (`None`: a still, or a sequence's first frame).
+pub(crate) type HubKey = (u64, Option<u32>);
 
-fn lock(hubs: &Hubs) -> std::sync::MutexGuard<'_, HashMap<u64, watch::Sender<Arc<Frame>>>> {
+fn lock(hubs: &Hubs) -> std::sync::MutexGuard<'_, HashMap<HubKey, watch::Sender<Arc<Frame>>>> {
     hubs.lock().unwrap_or_else(|e| e.into_inner())
 }
 
@@ -84,13 +87,14 @@ pub(crate) async fn live(
     State(state): State<AppState>,
     caller: Caller,
     Path(raw): Path<String>,
+    Query(q): Query<crate::images::FrameQuery>,
     ws: Result<WebSocketUpgrade, axum::extract::ws::rejection::WebSocketUpgradeRejection>,
 ) -> Result<Response, ApiError> {
     let id = job_id(&raw)?;
     let job = the_job(&state, &caller, id).await?;
     let ws =
         ws.map_err(|e| ApiError::new(e.status(), format!("GET /api/jobs/{id}/live: {}", e.body_text())))?;
-    let frames = subscribe(&state, &caller, id).await?;
+    let frames = subscribe(&state, &caller, id, q.frame).await?;
     let ws = ws.max_message_size(MAX_INCOMING).max_frame_size(MAX_INCOMING);
     Ok(ws.on_upgrade(move |socket| async move {
         if let Err(e) = stream_job(socket, frames, job).await {
@@ -99,15 +103,17 @@ pub(crate) async fn live(
     }))
 }
 
-/// A receiver of job `id`'s frames, starting its shared task (and taking the viewer slot,
-/// so a full coordinator is a 503 before the upgrade) if no socket watches it yet.
+/// A receiver of job `id`'s frames (of `frame` of a sequence), starting its shared task
+/// (and taking the viewer slot, so a full coordinator is a 503 before the upgrade) if no
+/// socket watches it yet.
 async fn subscribe(
     state: &AppState,
     caller: &Caller,
     id: u64,
+    frame: Option<u32>,
 ) -> Result<watch::Receiver<Arc<Frame>>, ApiError> {
-    let key = id;
-    let joined = |hubs: &HashMap<u64, watch::Sender<Arc<Frame>>>| -> Option<Result<watch::Receiver<Arc<Frame>>, ApiError>> {
+    let key = (id, frame);
+    let joined = |hubs: &HashMap<HubKey, watch::Sender<Arc<Frame>>>| -> Option<Result<watch::Receiver<Arc<Frame>>, ApiError>> {
         let tx = hubs.get(&key)?;
         if tx.receiver_count() >= MAX_SOCKETS_PER_JOB {
             return Some(Err(ApiError::new(
@@ -124,6 +130,7 @@ async fn subscribe(
         job_id: id,
         max_rate: 10.0,
         protocol_version: pb::ProtocolVersion::Current as i32,
+        frame,
     };
     let updates = Coordinator::watch(&state.service, request(&caller.0, watch_req)).await?.into_inner();
     let mut all = lock(&state.hubs);
@@ -145,7 +152,7 @@ async fn replicate(
     mut updates: impl Stream<Item = Result<pb::FramebufferUpdate, tonic::Status>> + Unpin,
     tx: &watch::Sender<Arc<Frame>>,
     hubs: &Hubs,
-    key: u64,
+    key: HubKey,
 ) {
     let leave = || {
         let mut all = lock(hubs);

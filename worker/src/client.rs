@@ -227,6 +227,7 @@ async fn session(
         name: config.name.clone(),
         threads,
         credit: threads * CREDIT_PER_THREAD,
+        frames: true,
     };
     out.send(pb::WorkerMessage { msg: Some(Out::Hello(hello)) }).await.expect("receiver is alive");
     let opened = tokio::select! {
@@ -264,7 +265,7 @@ async fn session(
                 };
                 match m.msg {
                     Some(In::Scene(js)) => scenes.load(js).await,
-                    Some(In::Batch(b)) => match scenes.prepare(&b) {
+                    Some(In::Batch(b)) => match scenes.prepare_frame(&b).await {
                         Ok((scene, pixels)) => {
                             let task = Task { generation, scene, batch: b, pixels, reply: reply.clone() };
                             pool.tasks.send(task).expect("render threads live as long as the process");
@@ -333,15 +334,76 @@ struct SceneCache {
     built: VecDeque<(String, Result<Arc<Scene>, Failure>)>,
     /// Each recent job's scene hash and its scene with the job's settings applied.
     jobs: HashMap<u64, (String, Result<Arc<Scene>, Failure>)>,
+    /// Recent sequences: the job's bundle, its frames and settings, to build each frame.
+    sequences: HashMap<u64, Sequence>,
+    /// Built frames of sequences by (content hash, frame), the job's settings applied
+    /// (frames of one scene share their settings within a job), least recently used first.
+    frames: VecDeque<(FrameKey, Result<Arc<Scene>, Failure>)>,
     /// Job ids, oldest first.
     order: VecDeque<u64>,
     /// The memory one scene may take (`WorkerConfig::memory`).
     memory: u64,
 }
 
+/// A built frame's key: (job, scene hash, frame).
+type FrameKey = (u64, String, u32);
+
+/// What a worker keeps of a sequence job to build its frames.
+struct Sequence {
+    bundle: Arc<tessera_description::Bundle>,
+    frames: (u32, u32),
+    spp: Option<u32>,
+    size: Option<(u32, u32)>,
+}
+
 impl SceneCache {
     fn new(memory: u64) -> SceneCache {
-        SceneCache { built: VecDeque::new(), jobs: HashMap::new(), order: VecDeque::new(), memory }
+        SceneCache {
+            built: VecDeque::new(),
+            jobs: HashMap::new(),
+            sequences: HashMap::new(),
+            frames: VecDeque::new(),
+            order: VecDeque::new(),
+            memory,
+        }
+    }
+
+    /// The scene and pixels of a batch: of a sequence, its frame's scene, built here (off
+    /// the async threads) the first time a batch of that frame comes.
+    async fn prepare_frame(&mut self, b: &pb::Batch) -> Result<(Arc<Scene>, Vec<UVec2>), Failure> {
+        let Some(seq) = self.sequences.get(&b.job_id) else { return self.prepare(b) };
+        // Checked against the job's scene first (hash, refusal).
+        self.prepare(b)?;
+        let (first, last) = seq.frames;
+        if !(first..=last).contains(&b.frame) {
+            return Err(Failure::new(format!(
+                "batch names frame {}, but job {} has frames {first}-{last}",
+                b.frame, b.job_id
+            )));
+        }
+        let key = (b.job_id, b.scene_hash.clone(), b.frame);
+        let scene = match self.frames.iter().position(|(k, _)| *k == key) {
+            Some(i) => self.frames.remove(i).expect("found").1,
+            None => {
+                let (bundle, memory, frame) = (seq.bundle.clone(), self.memory, b.frame);
+                let (spp, size) = (seq.spp, seq.size);
+                tokio::task::spawn_blocking(move || {
+                    crate::build::parse_bundle_frame_within(&bundle, Some(frame), memory)
+                        .map_err(Failure::from)
+                        .map(|mut scene| {
+                            scene.apply(spp, size);
+                            Arc::new(scene)
+                        })
+                })
+                .await
+                .unwrap_or_else(|e| Err(Failure::new(format!("scene building panicked: {e}"))))
+            }
+        };
+        self.frames.push_back((key, scene.clone()));
+        while self.frames.len() > SCENE_CACHE {
+            self.frames.pop_front();
+        }
+        Self::pixels(scene?, b).map_err(Failure::new)
     }
 
     async fn load(&mut self, js: pb::JobScene) {
@@ -350,10 +412,14 @@ impl SceneCache {
         let settings = js.settings.unwrap_or_default();
         let spp = (settings.spp != 0).then_some(settings.spp);
         let size = (settings.width != 0 && settings.height != 0).then_some((settings.width, settings.height));
+        let frames = settings.frames.map(|f| (f.first, f.last));
         let base = match js.bundle {
             None => Err(Failure::new("the coordinator sent a job without its scene")),
             Some(b) => {
-                let bundle = bundle_from_wire(b);
+                let bundle = Arc::new(bundle_from_wire(b));
+                if let Some(frames) = frames {
+                    self.sequences.insert(job, Sequence { bundle: bundle.clone(), frames, spp, size });
+                }
                 let name = claimed.clone();
                 // Hashing and building a large scene is CPU work: keep it off the async threads.
                 let checked = tokio::task::spawn_blocking(move || {
@@ -400,6 +466,7 @@ impl SceneCache {
         while self.order.len() > JOB_CACHE {
             if let Some(old) = self.order.pop_front() {
                 self.jobs.remove(&old);
+                self.sequences.remove(&old);
             }
         }
     }

@@ -98,7 +98,8 @@ impl Job {
         now: Instant,
     ) -> Option<(Lease, Extra)> {
         let width = self.framebuffer.width();
-        if let Some(l) = self.fence.repairs.lease(worker, token, width, now) {
+        let frame_pixels = u64::from(width) * u64::from(self.queue.frame_height());
+        if let Some(l) = self.fence.repairs.lease(worker, token, width, frame_pixels, now) {
             return Some((l, Extra::Repair));
         }
         let a = self.fence.audits.iter_mut().find(|a| a.open_to(identity))?;
@@ -129,6 +130,7 @@ impl Farm {
     /// are skipped; a quarantined worker gets nothing.
     pub fn assign(&mut self, worker: WorkerId, now: Instant) -> Option<Assignment> {
         let identity = self.workers.get(&worker)?.identity.clone();
+        let renders_frames = self.workers.get(&worker)?.renders_frames;
         if self.standing.get(&identity).is_some_and(|s| s.quarantined.is_some()) {
             return None;
         }
@@ -137,6 +139,7 @@ impl Farm {
             .service_order()
             .into_iter()
             .filter(|id| !self.jobs[id].fence.refused_by.contains(&identity))
+            .filter(|id| renders_frames || self.jobs[id].settings.frames.is_none())
             .collect();
         let token = self.entropy.token();
         let extra = order.iter().find_map(|id| {
@@ -181,7 +184,12 @@ impl Farm {
             .then(|| (job.bundle.clone(), job.scene_hash.clone(), job.settings.clone()));
         let even_sums = job.framebuffer.has_even();
         let aovs = job.aov.layout().bits();
+        let index = batch.quads.first().map_or(0, |q| q.y / job.queue.frame_height().max(1));
+        let frame = job.settings.frames.map_or(0, |(first, _)| first + index);
+        let frame_row = index * job.queue.frame_height();
         Some(Assignment {
+            frame,
+            frame_row,
             job: job.id,
             scene,
             scene_hash: job.scene_hash.clone(),

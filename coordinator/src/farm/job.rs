@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 
 use tessera_description::bundle::Bundle;
 use tessera_description::ids::{JobId, WorkerId};
-use tessera_description::job::{JobProgress, JobSettings, JobState};
+use tessera_description::job::{FrameProgress, JobProgress, JobSettings, JobState};
 use tessera_film::aov::AovLayers;
 use tessera_film::Framebuffer;
 
@@ -87,7 +87,7 @@ impl Job {
             scene: self.bundle.name.clone(),
             state: self.state.clone(),
             width: self.framebuffer.width(),
-            height: self.framebuffer.height(),
+            height: self.queue.frame_height(),
             spp: self.spp,
             pass: self.queue.pass().number(),
             samples_done: self.queue.samples_done(),
@@ -98,6 +98,46 @@ impl Job {
             nonfinite_samples: self.nonfinite_samples,
             priority: self.priority,
             halted: self.halted,
+            frames: self.settings.frames,
+            frame_progress: self.frame_progress(),
+        }
+    }
+
+    /// Each frame's progress, in frame order (empty for a still).
+    fn frame_progress(&self) -> Vec<FrameProgress> {
+        let Some((first, _)) = self.settings.frames else { return Vec::new() };
+        let frame_pixels = u64::from(self.framebuffer.width()) * u64::from(self.queue.frame_height());
+        let frame_total = frame_pixels * u64::from(self.spp);
+        let done = self.queue.frames_done().iter().enumerate();
+        done.map(|(k, &(pass_one_done, samples_done))| FrameProgress {
+            frame: first + k as u32,
+            pass_one_done,
+            samples_done,
+            samples_total: frame_total,
+        })
+        .collect()
+    }
+
+    /// The frames of a sequence, inclusive; `None` for a still.
+    pub fn frames(&self) -> Option<(u32, u32)> {
+        self.settings.frames
+    }
+
+    /// One frame's height (the framebuffer stacks a sequence's frames: frame `first + k`
+    /// is rows `k · frame_height ..`).
+    pub fn frame_height(&self) -> u32 {
+        self.queue.frame_height()
+    }
+
+    /// The stacked index (0 for the first frame) of frame `frame`, or of the first frame
+    /// when `None`; `None` when the job has no such frame. A still's only frame is
+    /// `None` or 0.
+    pub fn frame_index(&self, frame: Option<u32>) -> Option<u32> {
+        match (self.settings.frames, frame) {
+            (None, None | Some(0)) => Some(0),
+            (None, Some(_)) => None,
+            (Some(_), None) => Some(0),
+            (Some((first, last)), Some(f)) => (first..=last).contains(&f).then(|| f - first),
         }
     }
 
@@ -198,6 +238,32 @@ impl Job {
         }
         desc.apply(settings.spp, settings.size);
         let scene = desc.render;
+        if let Some((first, last)) = settings.frames {
+            tessera_description::job::check_frames(first, last)
+                .map_err(|e| SubmitError::Frames(format!("{first}-{last}: {e}")))?;
+            if let Some((a, b)) = desc.frames().filter(|&(a, b)| first < a || last > b) {
+                return Err(SubmitError::Frames(format!(
+                    "{first}-{last}: the scene's animation has frames {a}-{b} ([animation] frames)"
+                )));
+            }
+            if settings.in_rounds() {
+                return Err(SubmitError::Frames(format!(
+                    "{first}-{last}: a sequence renders to its sample count; a time budget or noise target is for stills"
+                )));
+            }
+        }
+        let frames = settings.frame_count();
+        // A sequence's frames are stacked in one framebuffer; a pixel's index must fit the
+        // viewers' u32.
+        let stacked = u64::from(scene.width) * u64::from(scene.height) * u64::from(frames);
+        if stacked > u64::from(u32::MAX) {
+            return Err(SubmitError::Frames(format!(
+                "{frames} frames of {}x{} are {stacked} pixels, more than the {} one job may hold",
+                scene.width,
+                scene.height,
+                u32::MAX
+            )));
+        }
         if let Some(n) = settings.noise.filter(|n| !(n.is_finite() && *n > 0.0 && *n < 1.0)) {
             return Err(SubmitError::Noise(n));
         }
@@ -207,15 +273,16 @@ impl Job {
         let spp = scene.spp;
         admit(&super::budget::Footprint {
             width: scene.width,
-            height: scene.height,
+            height: scene.height * frames,
             even_sums: settings.in_rounds() && settings.noise.is_some(),
             bundle_bytes: desc.bundle_bytes,
             aovs: layout_of(settings.aovs),
         })?;
         let (queue, framebuffer) = match (settings.in_rounds(), settings.noise.is_some()) {
-            (false, _) => {
-                (PassQueue::new(scene.width, scene.height, spp), Framebuffer::new(scene.width, scene.height))
-            }
+            (false, _) => (
+                PassQueue::sequence(scene.width, scene.height, frames, spp),
+                Framebuffer::new(scene.width, scene.height * frames),
+            ),
             (true, adaptive) => (
                 PassQueue::with_rounds(scene.width, scene.height, spp),
                 if adaptive {
@@ -225,7 +292,7 @@ impl Job {
                 },
             ),
         };
-        let aov = AovLayers::new(layout_of(settings.aovs), scene.width, scene.height);
+        let aov = AovLayers::new(layout_of(settings.aovs), scene.width, scene.height * frames);
         Ok(Job {
             id,
             scene_hash: bundle.hash(),

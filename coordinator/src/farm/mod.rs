@@ -72,6 +72,8 @@ pub struct WorkerInfo {
     /// Its leases were taken back for silence (until it is heard again): it is not
     /// counted on to render audits.
     silent: bool,
+    /// It renders a batch's frame (`Hello.frames`): only then is it given sequences.
+    pub renders_frames: bool,
 }
 
 impl WorkerInfo {
@@ -126,6 +128,11 @@ pub struct Assignment {
     pub aovs: u32,
     /// The lease's token, which the worker must send back.
     pub token: LeaseToken,
+    /// The frame the batch renders (0 for a still).
+    pub frame: u32,
+    /// The stacked framebuffer's first row of that frame: the batch's pixels are
+    /// `y - frame_row` in the frame.
+    pub frame_row: u32,
 }
 
 impl Assignment {
@@ -189,6 +196,9 @@ pub enum SubmitError {
     /// A zero time budget.
     #[error("the time budget must be positive")]
     TimeLimit,
+    /// A frame range that cannot be rendered.
+    #[error("frames {0}")]
+    Frames(String),
     /// The job does not fit the coordinator's memory budget (`RESOURCE_EXHAUSTED`).
     #[error("{0}")]
     OverBudget(String),
@@ -396,6 +406,14 @@ impl Farm {
         Ok(self.register(identity, name, threads, now))
     }
 
+    /// Says whether worker `id` renders a batch's frame; one that does not (an older
+    /// build) is given stills only.
+    pub fn set_renders_frames(&mut self, id: WorkerId, renders: bool) {
+        if let Some(w) = self.workers.get_mut(&id) {
+            w.renders_frames = renders;
+        }
+    }
+
     fn register(&mut self, identity: String, name: String, threads: u32, now: Instant) -> WorkerId {
         self.next_worker += 1;
         let id = WorkerId(self.next_worker);
@@ -408,6 +426,7 @@ impl Farm {
             last_seen: now,
             delivered: VecDeque::from([(now, 0)]),
             silent: false,
+            renders_frames: true,
         };
         self.workers.insert(id, info);
         id

@@ -118,19 +118,23 @@ impl Repairs {
     }
 
     /// A repair batch for `worker`: pixels waiting for the same samples, in index order,
-    /// about a pass-two batch's worth.
+    /// about a pass-two batch's worth, all of one frame (`frame_pixels` a frame: a batch
+    /// renders one frame's scene).
     pub(super) fn lease(
         &mut self,
         worker: WorkerId,
         token: LeaseToken,
         width: u32,
+        frame_pixels: u64,
         now: Instant,
     ) -> Option<Lease> {
         let (&(start, end), _) = self.pending.iter().next()?;
         let per = u64::from(end - start).max(1);
         let most = (PASS_TWO_SAMPLES / per).clamp(1, PASS_TWO_MAX_PIXELS as u64) as usize;
         let set = self.pending.get_mut(&(start, end)).expect("first key");
-        let take: Vec<u64> = set.iter().copied().take(most).collect();
+        let frame_of = |i: u64| i / frame_pixels.max(1);
+        let first = set.iter().next().map_or(0, |&i| frame_of(i));
+        let take: Vec<u64> = set.iter().copied().take_while(|&i| frame_of(i) == first).take(most).collect();
         for i in &take {
             set.remove(i);
             self.range_of.remove(i);

@@ -68,7 +68,8 @@ impl Job {
                 let decide: Option<&dyn Fn(Quad) -> bool> = if target.is_some() { Some(&keep) } else { None };
                 PassQueue::restore_rounds(w, h, job.spp, &c.completed, &fb.accumulators().1, decide)?
             } else {
-                PassQueue::restore(w, h, job.spp, &c.completed)?
+                let frames = job.settings.frame_count();
+                PassQueue::restore_sequence(w, job.queue.frame_height(), frames, job.spp, &c.completed)?
             };
             if job.queue.samples_done() != c.samples_done {
                 return Err(RestoreJobError::Mismatch {

@@ -45,26 +45,35 @@ impl WalkCut {
     }
 }
 
-/// The paper's two passes: pass one off the walk, then pass two off the walk again.
+/// The paper's two passes: pass one off the walk, then pass two off the walk again. A
+/// sequence's frames are stacked, frame k in rows `k · height ..`: pass one walks every
+/// frame in turn, in frame order, before pass two walks them again, so the whole sequence
+/// previews before any frame refines. A batch never spans two frames.
 #[derive(Debug)]
 pub(super) struct FixedSpp {
     width: u32,
+    /// One frame's height.
     height: u32,
     spp: u32,
     pass: Pass,
     walk: WalkCut,
     cut_all: bool,
+    /// Frames stacked, and the one being walked.
+    frames: u32,
+    frame: u32,
 }
 
 impl FixedSpp {
-    pub(super) fn new(width: u32, height: u32, spp: u32) -> Self {
+    pub(super) fn new(width: u32, height: u32, spp: u32, frames: u32) -> Self {
         FixedSpp {
             width,
             height,
             spp,
             pass: Pass::One,
             walk: WalkCut::new(width, height),
-            cut_all: width == 0 || height == 0,
+            cut_all: width == 0 || height == 0 || frames == 0,
+            frames,
+            frame: 0,
         }
     }
 
@@ -79,10 +88,18 @@ impl FixedSpp {
                 Pass::One => 0..1,
                 Pass::Two => 1..self.spp,
             };
-            let (quads, exhausted) = self.walk.take(pass, self.spp);
+            let (mut quads, exhausted) = self.walk.take(pass, self.spp);
+            let offset = self.frame * self.height;
+            if offset > 0 {
+                quads.iter_mut().for_each(|q| q.y += offset);
+            }
             if exhausted {
-                if self.pass == Pass::One && self.spp > 1 {
+                if self.frame + 1 < self.frames {
+                    self.frame += 1;
+                    self.walk = WalkCut::new(self.width, self.height);
+                } else if self.pass == Pass::One && self.spp > 1 {
                     self.pass = Pass::Two;
+                    self.frame = 0;
                     self.walk = WalkCut::new(self.width, self.height);
                 } else {
                     self.cut_all = true;

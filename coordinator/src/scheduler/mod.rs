@@ -55,13 +55,49 @@ pub struct PassQueue {
     mean_batch_time: Option<Duration>,
     samples_done: u64,
     pass_one_pixels_done: u64,
+    /// One frame's height (a still's whole height): a sequence's frames are stacked.
+    frame_height: u32,
+    /// Per frame: pass-one pixels and samples merged.
+    per_frame: Vec<(u64, u64)>,
 }
 
 impl PassQueue {
     /// The batches of a `width × height` image at `spp` samples per pixel.
     pub fn new(width: u32, height: u32, spp: u32) -> Self {
+        Self::sequence(width, height, 1, spp)
+    }
+
+    /// The batches of `frames` frames of `width × height` stacked (frame k in rows
+    /// `k · height ..`), in the paper's two passes: every frame's pass one before any
+    /// frame's pass two.
+    pub fn sequence(width: u32, height: u32, frames: u32, spp: u32) -> Self {
         let spp = spp.max(1);
-        Self::with_cut(width, height, spp, Cut::Fixed(FixedSpp::new(width, height, spp)))
+        let cut = Cut::Fixed(FixedSpp::new(width, height, spp, frames));
+        let mut q = Self::with_cut(width, height.saturating_mul(frames), spp, cut);
+        q.frame_height = height;
+        q.per_frame = vec![(0, 0); frames as usize];
+        q
+    }
+
+    /// As `restore`, for a sequence made by `sequence`.
+    pub fn restore_sequence(
+        width: u32,
+        height: u32,
+        frames: u32,
+        spp: u32,
+        completed: &Completed,
+    ) -> Result<Self, RestoreError> {
+        Self::restore_with(PassQueue::sequence(width, height, frames, spp), completed)
+    }
+
+    /// Per frame (one for a still): pass-one pixels and samples merged.
+    pub fn frames_done(&self) -> &[(u64, u64)] {
+        &self.per_frame
+    }
+
+    /// One frame's height.
+    pub fn frame_height(&self) -> u32 {
+        self.frame_height
     }
 
     /// The batches of a job whose pass two runs in rounds over tiles (see `rounds.rs`).
@@ -87,6 +123,8 @@ impl PassQueue {
             mean_batch_time: None,
             samples_done: 0,
             pass_one_pixels_done: 0,
+            frame_height: height,
+            per_frame: vec![(0, 0)],
         }
     }
 
@@ -204,6 +242,14 @@ impl PassQueue {
 
     fn account(&mut self, spec: &BatchSpec) {
         self.samples_done += spec.sample_count();
+        // A batch lies in one frame (`FixedSpp` cuts each frame's walk apart).
+        let frame = spec.quads.first().map_or(0, |q| (q.y / self.frame_height.max(1)) as usize);
+        if let Some(f) = self.per_frame.get_mut(frame) {
+            f.1 += spec.sample_count();
+            if spec.pass == Pass::One {
+                f.0 += spec.quads.len() as u64;
+            }
+        }
         if spec.pass == Pass::One {
             self.pass_one_pixels_done += spec.quads.len() as u64;
         } else if self.cut.rounds().is_none() {

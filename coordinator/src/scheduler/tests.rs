@@ -195,3 +195,55 @@ fn restore_refuses_batches_the_job_does_not_have() {
     let unordered = Completed { below: 3, above: vec![2] };
     assert!(matches!(PassQueue::restore(8, 8, 2, &unordered), Err(RestoreError::Unordered { .. })));
 }
+
+/// A sequence's frames, stacked: every frame's pass one is cut before any frame's pass
+/// two, frames in order within each pass; no batch spans two frames; every pixel of every
+/// frame gets exactly spp samples; each frame's own figures add up.
+#[test]
+fn a_sequence_cuts_every_frame_s_pass_one_before_any_pass_two() {
+    let now = Instant::now();
+    for (w, h, frames, spp) in [(7, 5, 3, 4), (16, 16, 2, 2), (33, 17, 4, 1), (1, 1, 5, 3)] {
+        let mut q = PassQueue::sequence(w, h, frames, spp);
+        assert_eq!(q.samples_total(), u64::from(w * h * frames * spp));
+        let batches = drain(&mut q, now);
+        let mut samples = vec![0u32; (w * h * frames) as usize];
+        let mut order = Vec::new();
+        for b in &batches {
+            let frame = b.quads[0].y / h;
+            assert!(b.quads.iter().all(|p| p.y / h == frame), "{w}x{h}x{frames}: a batch spans frames");
+            for p in &b.quads {
+                samples[(p.y * w + p.x) as usize] += b.samples.end - b.samples.start;
+            }
+            order.push((b.pass, frame));
+            q.complete(b.id, now).unwrap();
+        }
+        assert!(samples.iter().all(|&s| s == spp), "{w}x{h}x{frames}@{spp}");
+        assert!(order.windows(2).all(|o| o[0] <= o[1]), "{w}x{h}x{frames}: {order:?}");
+        assert_eq!(q.frames_done().len(), frames as usize);
+        for &(pass_one, done) in q.frames_done() {
+            assert_eq!((pass_one, done), (u64::from(w * h), u64::from(w * h * spp)));
+        }
+        assert!(q.is_finished());
+    }
+}
+
+/// A sequence taken up from its merged batches hands out exactly the rest, with each
+/// frame's figures as they were.
+#[test]
+fn a_restored_sequence_resumes_exactly_the_unmerged_batches() {
+    let now = Instant::now();
+    let (w, h, frames, spp) = (12, 9, 3, 4);
+    let mut q = PassQueue::sequence(w, h, frames, spp);
+    let all = drain(&mut q, now);
+    for b in all.iter().step_by(3).take(all.len() / 2) {
+        q.complete(b.id, now).unwrap();
+    }
+    let mut r = PassQueue::restore_sequence(w, h, frames, spp, &q.completed()).unwrap();
+    assert_eq!(r.frames_done(), q.frames_done());
+    assert_eq!(r.samples_done(), q.samples_done());
+    for b in drain(&mut r, now) {
+        r.complete(b.id, now).unwrap();
+    }
+    assert!(r.is_finished());
+    assert_eq!(r.samples_done(), r.samples_total());
+}

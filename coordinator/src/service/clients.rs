@@ -104,14 +104,16 @@ impl CoordinatorService {
         request: Request<pb::FetchImageRequest>,
     ) -> Result<Response<BoxStream<pb::ImageChunk>>, Status> {
         self.check_owner(&auth::caller(&request)?, JobId(request.get_ref().job_id))?;
-        let request = request.into_inner();
-        let (id, with_layers) = (JobId(request.job_id), request.aovs);
+        let req = request.into_inner();
+        let (id, frame, with_layers) = (JobId(req.job_id), req.frame, req.aovs);
+        self.check_frame(id, frame)?;
         // A snapshot under the lock; the image is resolved outside it.
         let this = self.clone();
-        let image = tokio::task::spawn_blocking(move || this.image(id))
+        let image = tokio::task::spawn_blocking(move || this.frame_image(id, frame))
             .await
             .map_err(|e| Status::internal(format!("resolving the image failed: {e}")))?
             .ok_or_else(|| Status::not_found(format!("no {id} on this coordinator")))?;
+        let frame = frame.unwrap_or_else(|| self.farm().job(id).and_then(|j| j.frames()).map_or(0, |f| f.0));
         let (width, height, rgb, state) =
             (image.width, image.height, image.rgb, convert::state_to_wire(&image.state));
         let layers = if with_layers { image.layers } else { Default::default() };
@@ -136,10 +138,27 @@ impl CoordinatorService {
                     rows: (rows.len() / row_floats) as u32,
                     rgb: rows.iter().flat_map(|v| v.to_le_bytes()).collect(),
                     state: state as i32,
+                    frame,
                 })
             })
             .collect();
         Ok(Response::new(Box::pin(tokio_stream::iter(chunks))))
+    }
+
+    /// `NOT_FOUND` unless `job` exists and has `frame` (`None`: any job).
+    pub(super) fn check_frame(&self, job: JobId, frame: Option<u32>) -> Result<(), Status> {
+        let farm = self.farm();
+        let Some(j) = farm.job(job) else {
+            return Err(Status::not_found(format!("no {job} on this coordinator")));
+        };
+        if j.frame_index(frame).is_some() {
+            return Ok(());
+        }
+        let f = frame.unwrap_or(0);
+        Err(Status::not_found(match j.frames() {
+            Some((first, last)) => format!("{job} has frames {first}-{last}, not frame {f}"),
+            None => format!("{job} is a still image: it has no frame {f}"),
+        }))
     }
 
     pub(super) async fn rpc_pause(

@@ -132,6 +132,7 @@ mod tests {
                 name: "x".repeat(MAX_NAME_BYTES),
                 threads: u32::MAX,
                 credit: u32::MAX,
+                frames: true,
             })),
         };
         let failed = pb::WorkerMessage {

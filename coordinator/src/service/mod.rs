@@ -15,6 +15,7 @@ mod auth;
 mod budget;
 mod clients;
 mod durability;
+mod frame_viewers;
 mod gate;
 pub mod probes;
 mod rpc;
@@ -213,15 +214,25 @@ impl CoordinatorService {
         self.farm().job(job).map(|j| j.progress(Instant::now()))
     }
 
-    /// A job's image now: a snapshot under the lock, resolved outside it.
+    /// A job's image now: a snapshot under the lock, resolved outside it. A sequence's
+    /// is its first frame's.
     pub fn image(&self, job: JobId) -> Option<Image> {
-        let (fb, aov, state) = {
+        self.frame_image(job, None)
+    }
+
+    /// The image of `frame` of a sequence now (`None`: its first; a still has only frame
+    /// `None` or 0), with its AOV layers; `None` if there is no such job or frame.
+    /// Finished frames are whole while later ones render.
+    pub fn frame_image(&self, job: JobId, frame: Option<u32>) -> Option<Image> {
+        let (fb, aov, state, rows) = {
             let farm = self.farm();
             let j = farm.job(job)?;
-            (j.framebuffer().clone(), j.aov().clone(), j.state.clone())
+            let index = j.frame_index(frame)?;
+            let rows = crate::frames::FrameRows { row: index * j.frame_height(), height: j.frame_height() };
+            (j.framebuffer().clone(), j.aov().clone(), j.state.clone(), rows)
         };
-        let layers = aov.resolve(|x, y| fb.count(x, y));
-        Some(Image { width: fb.width(), height: fb.height(), rgb: fb.resolve(), state, layers })
+        let layers = rows.cut_layers(fb.width(), fb.height(), aov.resolve(|x, y| fb.count(x, y)));
+        Some(Image { width: fb.width(), height: rows.height, rgb: rows.resolve(&fb), state, layers })
     }
 
     /// The tonic services of this coordinator, each with its message limits: `Coordinator`

@@ -65,12 +65,21 @@ impl Coordinator for CoordinatorService {
         let interval = Duration::from_secs_f64(1.0 / rate.max(1.0 / 60.0));
         // One update in flight: a viewer that does not read holds one chunk, no backlog.
         let (tx, rx) = mpsc::channel(1);
+        self.check_frame(job, req.frame)?;
+        let sequence = self.farm().job(job).and_then(|j| Some((j.frames()?, j.frame_index(req.frame)?)));
         let slot = self.viewer_slot(job)?;
-        let feed = self.clone().feed_viewer(job, interval, tx);
+        // A sequence's viewers watch one frame each (frame_viewers.rs); a still's share its
+        // publisher.
+        let this = self.clone();
         tokio::spawn(async move {
             // The viewer's place is held until its task ends (it left, or the job is over).
             let _slot = slot;
-            feed.await
+            match sequence {
+                Some(((first, _), index)) => {
+                    this.feed_frame_viewer(job, first + index, index, interval, tx).await
+                }
+                None => this.feed_viewer(job, interval, tx).await,
+            }
         });
         Ok(Response::new(Box::pin(ReceiverStream::new(rx))))
     }

@@ -174,6 +174,7 @@ impl ViewSnapshot {
                 r#final: self.over && end,
                 reset: reset && first,
                 protocol_version: if reset && first { tessera_proto::PROTOCOL_VERSION as i32 } else { 0 },
+                frame: 0,
             };
             first = false;
             Some(update)
@@ -215,7 +216,7 @@ impl CoordinatorService {
     }
 
     /// Waits until the viewers' byte budget allows sending `u`.
-    async fn within_budget(&self, u: &pb::FramebufferUpdate) {
+    pub(super) async fn within_budget(&self, u: &pb::FramebufferUpdate) {
         use prost::Message;
         let wait = self.feeds.budget.spend(u.encoded_len());
         if !wait.is_zero() {

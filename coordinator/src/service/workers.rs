@@ -84,7 +84,10 @@ impl CoordinatorService {
         let identity = identity(&hello.name);
         let joined = self.farm().add_worker_as(identity.clone(), hello.name.clone(), threads, Instant::now());
         let id = match joined {
-            Ok(id) => id,
+            Ok(id) => {
+                self.farm().set_renders_frames(id, hello.frames);
+                id
+            }
             Err(reason) => {
                 warn!(%identity, "{reason}; refused");
                 let _ = tx.send(Ok(refuse(reason))).await;
@@ -127,7 +130,7 @@ impl CoordinatorService {
                         break;
                     }
                 }
-                let pixels = a.batch.quads.iter().flat_map(|q| [q.x, q.y]).collect();
+                let pixels = a.batch.quads.iter().flat_map(|q| [q.x, q.y - a.frame_row]).collect();
                 let batch = pb::Batch {
                     job_id: a.job.0,
                     batch_id: a.batch.id.0,
@@ -140,6 +143,7 @@ impl CoordinatorService {
                     even_sums: a.even_sums,
                     lease: a.token.0.to_vec(),
                     aovs: a.aovs,
+                    frame: a.frame,
                 };
                 if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Batch(batch)) })).await.is_err() {
                     break;

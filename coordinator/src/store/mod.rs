@@ -24,8 +24,12 @@ pub const DB_FILE: &str = "jobs.db";
 /// Checkpoints kept per job: the newest, and one to fall back on should it be damaged.
 const GENERATIONS_KEPT: i64 = 2;
 /// The layout version of the tables, in `PRAGMA user_version`. Layout 2 added the jobs'
-/// owners; a layout-1 file is migrated at open (its jobs get no owner).
-const SCHEMA_VERSION: i64 = 2;
+/// owners; a layout-1 file is migrated at open (its jobs get no owner). Layout 3 added a
+/// sequence's frames (`frame_first`, `frame_last`; NULL for a still), migrated alike.
+const SCHEMA_VERSION: i64 = 3;
+/// The columns layout 3 added.
+const FRAME_COLUMNS: &str = "ALTER TABLE jobs ADD COLUMN frame_first INTEGER;
+                 ALTER TABLE jobs ADD COLUMN frame_last INTEGER;";
 /// Test hook: a checkpoint write stops this many milliseconds before its commit, so a test
 /// can kill the coordinator in the middle of a write.
 pub const FAULT_STALL_ENV: &str = "TESSERA_FAULT_STALL_CHECKPOINT_MS";
@@ -256,7 +260,8 @@ impl Store {
                     id INTEGER PRIMARY KEY,
                     priority INTEGER NOT NULL,
                     spp INTEGER, width INTEGER, height INTEGER, time_limit REAL, noise REAL,
-                    state TEXT NOT NULL, error TEXT, owner TEXT NOT NULL DEFAULT '');
+                    state TEXT NOT NULL, error TEXT, owner TEXT NOT NULL DEFAULT '',
+                    frame_first INTEGER, frame_last INTEGER);
                  CREATE TABLE IF NOT EXISTS scenes (
                     job INTEGER PRIMARY KEY, bundle BLOB NOT NULL, bundle_sum BLOB NOT NULL);
                  CREATE TABLE IF NOT EXISTS checkpoint_parts (
@@ -270,6 +275,13 @@ impl Store {
             // One transaction: a coordinator killed here leaves a layout-1 file to migrate again.
             conn.execute_batch(&format!(
                 "BEGIN; ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT '';
+                 {FRAME_COLUMNS}
+                 PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+            ))
+            .map_err(write_err)?;
+        } else if version == 2 {
+            conn.execute_batch(&format!(
+                "BEGIN; {FRAME_COLUMNS}
                  PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
             ))
             .map_err(write_err)?;
@@ -377,6 +389,12 @@ impl Store {
             Ok(mut s) => s.query_row([id], |r| r.get(0))?,
             Err(_) => String::new(),
         };
+        // Nor frames, before layout 3.
+        let frames: (Option<u32>, Option<u32>) =
+            match self.conn.prepare("SELECT frame_first, frame_last FROM jobs WHERE id = ?1") {
+                Ok(mut s) => s.query_row([id], |r| Ok((r.get(0)?, r.get(1)?)))?,
+                Err(_) => (None, None),
+            };
         let row: (
             i32,
             Option<u32>,
@@ -415,7 +433,7 @@ impl Store {
         let record = JobRecord {
             id: JobId(id as u64),
             bundle: std::sync::Arc::new(bundle),
-            settings: JobSettings { spp, size, time_limit, noise, aovs },
+            settings: JobSettings { spp, size, time_limit, noise, aovs, frames: frames.0.zip(frames.1) },
             priority,
             state,
             owner,
@@ -489,8 +507,9 @@ impl JobStore for Store {
         )
         .map_err(err)?;
         tx.execute(
-            "INSERT INTO jobs (id, priority, spp, width, height, time_limit, noise, state, error, owner, aovs)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11)",
+            "INSERT INTO jobs (id, priority, spp, width, height, time_limit, noise, state, error, owner, aovs,
+                               frame_first, frame_last)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13)",
             params![
                 job.id.0 as i64,
                 job.priority,
@@ -502,7 +521,9 @@ impl JobStore for Store {
                 state,
                 error,
                 job.owner,
-                tessera_proto::convert::aovs_to_wire(job.settings.aovs)
+                tessera_proto::convert::aovs_to_wire(job.settings.aovs),
+                job.settings.frames.map(|f| f.0),
+                job.settings.frames.map(|f| f.1)
             ],
         )
         .map_err(err)?;

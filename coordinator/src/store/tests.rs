@@ -19,6 +19,7 @@ fn record(id: u64) -> JobRecord {
             time_limit: Some(std::time::Duration::from_millis(1500)),
             noise: Some(0.02),
             aovs: tessera_description::job::Aovs { albedo: true, normal: false, depth: true },
+            frames: Some((3, 9)),
         },
         priority: -2,
         state: JobState::Running,
@@ -132,9 +133,10 @@ fn a_layout_1_database_is_migrated_and_keeps_its_jobs() {
         let (mut store, loaded) = Store::open(dir.path()).unwrap();
         assert!(loaded.problems.is_empty(), "{:?}", loaded.problems);
         assert_eq!(loaded.jobs.len(), 1);
-        // A layout-1 job has neither an owner nor AOV layers.
+        // A layout-1 job has neither an owner, nor AOV layers, nor frames.
         let mut expected = JobRecord { owner: String::new(), ..record(1) };
         expected.settings.aovs = Default::default();
+        expected.settings.frames = None;
         assert_eq!(loaded.jobs[0].record, expected);
         let version: i64 = store.conn.query_row("PRAGMA user_version", [], |r| r.get(0)).unwrap();
         assert_eq!(version, SCHEMA_VERSION);
