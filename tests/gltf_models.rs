@@ -80,9 +80,9 @@ fn every_sample_model_validates_or_is_refused_in_one_line() {
     for path in &all {
         let rel = path.strip_prefix(&dir).unwrap().to_string_lossy().to_string();
         let expected = REFUSED.iter().find(|(p, _)| *p == rel).map(|(_, m)| *m);
-        let got = Bundle::read(path).map_err(|e| e.to_string()).and_then(|b| {
-            tessera_description::Description::parse(&b).map(|_| b).map_err(|e| e.to_string())
-        });
+        let got = Bundle::read(path)
+            .map_err(|e| e.to_string())
+            .and_then(|b| tessera_description::Description::parse(&b).map(|_| b).map_err(|e| e.to_string()));
         match (got, expected) {
             (Ok(bundle), None) => match render_small(&bundle) {
                 Ok((mean, nonfinite)) => {
