@@ -11,6 +11,7 @@
 // `!(x > 0.0)` is how this crate rejects NaN along with the values out of range.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod animation;
 pub mod bounds;
 pub mod bundle;
 pub mod error;

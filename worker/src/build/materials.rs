@@ -34,6 +34,9 @@ pub(super) fn textures(
                 let texels = values.chunks_exact(3).map(Vec3::from_slice).collect();
                 Ok(Texture::Image { width, height, texels })
             }
+            TextureKind::GltfImage { file, image, .. } => {
+                Err(err(t.at, format!("{file}: images[{image}]: glTF textures are not built yet")))
+            }
         })
         .collect()
 }
@@ -66,8 +69,8 @@ fn tex(c: d::Color) -> Tex {
 }
 
 /// The renderer's material for a described one.
-pub(super) fn material(m: &d::Material) -> Material {
-    match *m {
+pub(super) fn material(m: &d::Material, file: &str) -> Result<Material, SceneError> {
+    Ok(match *m {
         d::Material::Classic(c) => Material::Classic(Classic {
             color: tex(c.color),
             ambient: c.ambient,
@@ -86,5 +89,13 @@ pub(super) fn material(m: &d::Material) -> Material {
         d::Material::Conductor { eta, k, roughness } => Material::Conductor { eta, k, roughness },
         d::Material::RoughDielectric { ior, roughness } => Material::RoughDielectric { ior, roughness },
         d::Material::Plastic { diffuse, ior } => Material::Plastic { diffuse: tex(diffuse), ior },
-    }
+        d::Material::Pbr(_) => {
+            return Err(SceneError {
+                file: file.to_string(),
+                line: 1,
+                column: 1,
+                message: "glTF metallic-roughness materials are not built yet".into(),
+            })
+        }
+    })
 }

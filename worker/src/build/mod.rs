@@ -62,7 +62,11 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
     drop(bounds);
     let slots = crate::render::triangles::slots(&bvh, &shapes.prims, &shapes.meshes);
     let world = World {
-        materials: desc.materials.iter().map(materials::material).collect(),
+        materials: desc
+            .materials
+            .iter()
+            .map(|m| materials::material(m, &desc.file))
+            .collect::<Result<_, _>>()?,
         textures,
         prims: shapes.prims,
         bvh,

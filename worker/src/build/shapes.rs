@@ -98,6 +98,12 @@ impl Shapes {
                 let mesh = Mesh { p: m.p, n: m.n, uv: m.uv, tris: m.tris };
                 self.mesh(mesh, o, &trs, motion, err)?;
             }
+            S::GltfPrimitive { file, mesh, primitive, .. } => {
+                return Err(err(
+                    o.at,
+                    format!("{file}: meshes[{mesh}].primitives[{primitive}]: glTF meshes are not built yet"),
+                ))
+            }
         }
         Ok(())
     }
