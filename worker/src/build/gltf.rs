@@ -141,7 +141,7 @@ impl Asset {
             Some(r) => r.into_u32().collect(),
             None => (0..count as u32).collect(),
         };
-        if indices.len() % 3 != 0 {
+        if !indices.len().is_multiple_of(3) {
             return Err(format!("{at}.indices: {} indices do not make whole triangles", indices.len()));
         }
         if let Some(bad) = indices.iter().find(|&&i| i as usize >= count) {
