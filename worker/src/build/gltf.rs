@@ -198,3 +198,90 @@ impl Asset {
         Ok(Rgba::new(w, h, wraps, stored, srgb, linear))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use base64::Engine;
+
+    struct None_;
+    impl Assets for None_ {
+        fn get(&self, _: &str) -> Option<&[u8]> {
+            None
+        }
+    }
+
+    /// A glTF file with one buffer (as a data: URI) holding `bytes`, and `json` spliced
+    /// in (accessors, views, meshes).
+    fn file(bytes: &[u8], json: &str) -> Vec<u8> {
+        let data = base64::engine::general_purpose::STANDARD.encode(bytes);
+        format!(
+            r#"{{"asset": {{"version": "2.0"}}, "buffers": [{{"byteLength": {}, "uri": "data:application/octet-stream;base64,{data}"}}], {json}}}"#,
+            bytes.len()
+        )
+        .into_bytes()
+    }
+
+    fn load(bytes: Vec<u8>) -> Result<Asset, String> {
+        struct One(Vec<u8>);
+        impl Assets for One {
+            fn get(&self, path: &str) -> Option<&[u8]> {
+                (path == "m.gltf").then_some(self.0.as_slice())
+            }
+        }
+        let mut files = Files::default();
+        let one = One(bytes);
+        files.get("m.gltf", &one)?;
+        Ok(files.read.remove("m.gltf").expect("read"))
+    }
+
+    fn f32s(v: &[f32]) -> Vec<u8> {
+        v.iter().flat_map(|x| x.to_le_bytes()).collect()
+    }
+
+    /// A non-indexed triangle whose positions a sparse accessor overrides in part: the
+    /// mesh holds the substituted values and one triangle of corners 0, 1, 2.
+    #[test]
+    fn sparse_accessors_are_applied_and_unindexed_primitives_are_triangles() {
+        let mut bytes = f32s(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0]);
+        bytes.extend(1u16.to_le_bytes());
+        bytes.extend([0, 0]);
+        bytes.extend(f32s(&[5.0, 6.0, 7.0]));
+        let json = r#""bufferViews": [{"buffer": 0, "byteOffset": 0, "byteLength": 36},
+            {"buffer": 0, "byteOffset": 36, "byteLength": 2}, {"buffer": 0, "byteOffset": 40, "byteLength": 12}],
+          "accessors": [{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3",
+            "min": [0, 0, 0], "max": [5, 6, 7],
+            "sparse": {"count": 1, "indices": {"bufferView": 1, "componentType": 5123},
+                       "values": {"bufferView": 2}}}],
+          "meshes": [{"primitives": [{"attributes": {"POSITION": 0}}, {"attributes": {"POSITION": 0}, "mode": 0}]}]"#;
+        let asset = load(file(&bytes, json)).unwrap();
+        let (mesh, extras) = asset.primitive(0, 0).unwrap();
+        assert_eq!(mesh.p, [Vec3::ZERO, Vec3::new(5.0, 6.0, 7.0), Vec3::Y]);
+        assert_eq!(mesh.tris, [[[0, u32::MAX, u32::MAX], [1, u32::MAX, u32::MAX], [2, u32::MAX, u32::MAX]]]);
+        assert!(extras.is_none() && mesh.n.is_empty() && mesh.uv.is_empty());
+        // Other modes are refused, naming the JSON path.
+        assert_eq!(
+            asset.primitive(0, 1).unwrap_err(),
+            "m.gltf: meshes[0].primitives[1].mode: only TRIANGLES (4) is rendered"
+        );
+        assert_eq!(asset.primitive(3, 0).unwrap_err(), "m.gltf: meshes[3].primitives[0]: does not exist");
+    }
+
+    #[test]
+    fn uris_resolve_beside_the_file_and_stay_in_the_bundle() {
+        assert_eq!(resolve("models/duck/duck.gltf", "tex%20one.png").unwrap(), "models/duck/tex one.png");
+        assert_eq!(resolve("duck.gltf", "./a/../b.bin").unwrap(), "b.bin");
+        assert!(resolve("duck.gltf", "../../etc/passwd").is_err());
+        assert_eq!(
+            uri_bytes("d.gltf", "data:application/octet-stream;base64,AAEC", &None_).unwrap(),
+            vec![0, 1, 2]
+        );
+        assert!(uri_bytes("d.gltf", "missing.bin", &None_).unwrap_err().contains("missing.bin"));
+        // A buffer shorter than it says is refused at load, with its path.
+        let short = br#"{"asset": {"version": "2.0"}, "buffers": [{"byteLength": 9, "uri": "data:application/octet-stream;base64,AAEC"}]}"#;
+        assert_eq!(
+            load(short.to_vec()).err().unwrap(),
+            "m.gltf: buffers[0]: 3 bytes where byteLength says 9"
+        );
+    }
+}

@@ -110,6 +110,14 @@ fn tangent(mesh: &Mesh, extras: Option<&Extras>, tri: u32, b: [f32; 3], n: Vec3)
     Some((t, w))
 }
 
+/// The world normal of tangent-space normal `nt` in the frame of shading normal `ns`,
+/// tangent `t` (made orthogonal to `ns`, Gram–Schmidt) and bitangent `ns × t · sign`.
+fn perturb(ns: Vec3, t: Vec3, sign: f32, nt: Vec3) -> Option<Vec3> {
+    let t = (t - ns * ns.dot(t)).try_normalize()?;
+    let bt = ns.cross(t) * sign;
+    (t * nt.x + bt * nt.y + ns * nt.z).try_normalize()
+}
+
 /// A deterministic number in [0, 1) for a ray meeting primitive `prim`: the stochastic
 /// coverage of `BLEND` without a sample dimension of its own.
 fn coverage_threshold(ray: &Ray, prim: u32) -> f32 {
@@ -222,10 +230,7 @@ impl Scene {
         if let Some(m) = w.prims[sh.hit.prim as usize].motion {
             t = w.motions[m as usize].at(time).transform_vector3(t);
         }
-        // Gram–Schmidt against the shading normal.
-        let t = (t - ns * ns.dot(t)).try_normalize()?;
-        let bt = ns.cross(t) * sign;
-        (t * nt.x + bt * nt.y + ns * nt.z).try_normalize()
+        perturb(ns, t, sign, nt)
     }
 
     /// What the emissive texture multiplies a glTF emitter's radiance by at a hit (1
@@ -277,6 +282,30 @@ mod tests {
         let uvs = texcoords(&mesh, Some(&x), 0, [0.5, 0.25, 0.25], Vec2::splat(9.0));
         assert_eq!(uvs, [Vec2::splat(9.0), Vec2::new(0.25, 0.25)]);
         assert_eq!(texcoords(&mesh, None, 0, [0.5, 0.25, 0.25], Vec2::ONE), [Vec2::ONE; 2]);
+    }
+
+    #[test]
+    fn normal_maps_tilt_along_the_tangent_frame() {
+        let ns = Vec3::new(0.0, 0.0, 1.0);
+        // A flat map (texel 0.5, 0.5, 1) keeps the normal, whatever the tangent.
+        let flat = Vec3::new(0.0, 0.0, 1.0);
+        assert!((perturb(ns, Vec3::new(1.0, 0.0, 0.3), 1.0, flat).unwrap() - ns).length() < 1e-6);
+        // Red tilts towards the tangent, green towards the bitangent (its sign).
+        let red = Vec3::new(1.0, 0.0, 1.0);
+        assert!(
+            (perturb(ns, Vec3::X, 1.0, red).unwrap() - Vec3::new(1.0, 0.0, 1.0).normalize()).length() < 1e-6
+        );
+        let green = Vec3::new(0.0, 1.0, 1.0);
+        assert!(
+            (perturb(ns, Vec3::X, 1.0, green).unwrap() - Vec3::new(0.0, 1.0, 1.0).normalize()).length()
+                < 1e-6
+        );
+        assert!(
+            (perturb(ns, Vec3::X, -1.0, green).unwrap() - Vec3::new(0.0, -1.0, 1.0).normalize()).length()
+                < 1e-6
+        );
+        // A tangent along the normal makes no frame.
+        assert_eq!(perturb(ns, ns, 1.0, red), None);
     }
 
     #[test]
