@@ -111,7 +111,8 @@ fn read_vec3<'de, A: SeqAccess<'de>>(mut seq: A, exp: &dyn de::Expected) -> Resu
 #[serde(deny_unknown_fields)]
 pub(crate) struct SceneFile {
     pub(crate) render: Spanned<RenderDef>,
-    pub(crate) camera: Spanned<CameraDef>,
+    /// Optional when a `[[gltf]]` asset has a camera.
+    pub(crate) camera: Option<Spanned<CameraDef>>,
     #[serde(default)]
     pub(crate) textures: BTreeMap<String, Spanned<TextureDef>>,
     #[serde(default)]
@@ -128,6 +129,8 @@ pub(crate) struct SceneFile {
     pub(crate) triangle: Vec<Spanned<TriangleDef>>,
     #[serde(default)]
     pub(crate) mesh: Vec<Spanned<MeshDef>>,
+    #[serde(default)]
+    pub(crate) gltf: Vec<Spanned<GltfDef>>,
     #[serde(default)]
     pub(crate) point_light: Vec<Spanned<PointLightDef>>,
     #[serde(default)]
@@ -292,6 +295,15 @@ pub(crate) struct MeshDef {
     pub(crate) material: String,
     pub(crate) transform: Option<TransformDef>,
     pub(crate) motion: Option<TransformDef>,
+}
+
+/// A glTF asset placed in the scene.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct GltfDef {
+    pub(crate) file: String,
+    pub(crate) scene: Option<crate::gltf::SceneRef>,
+    pub(crate) transform: Option<TransformDef>,
 }
 
 #[derive(Debug, Deserialize)]

@@ -87,6 +87,12 @@ pub(crate) struct Validator<'a> {
     /// Each mesh file's scan, made once however often the scene uses it: a scene of many
     /// uses of one large file costs one scan, not one per use.
     pub(crate) scans: BTreeMap<String, (crate::obj::ObjCounts, Vec3)>,
+    /// The frame whose animation glTF assets are evaluated at (None: their rest pose).
+    pub(crate) frame: Option<crate::animation::FrameTime>,
+    /// The first `[[gltf]]` camera, for a scene without `[camera]`.
+    pub(crate) gltf_camera: Option<crate::gltf::GltfCamera>,
+    /// The `[[gltf]]` assets' punctual lights.
+    pub(crate) gltf_lights: Vec<Light>,
 }
 
 /// Parses and validates a scene whose meshes and images come from `assets`.
@@ -141,7 +147,7 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
         background,
         ambient,
     };
-    let camera = camera(&ctx, raw.camera)?;
+    let camera = raw.camera.map(|c| camera(&ctx, c)).transpose()?;
 
     let mut v = Validator {
         ctx,
@@ -154,6 +160,9 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
         objects: Vec::new(),
         triangles: 0,
         scans: BTreeMap::new(),
+        frame: None,
+        gltf_camera: None,
+        gltf_lights: Vec::new(),
     };
     for (name, t) in &raw.textures {
         v.texture(name, &t.span(), t.get_ref())?;
@@ -188,6 +197,18 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
     for m in &raw.mesh {
         v.mesh(&m.span(), m.get_ref())?;
     }
+    for g in &raw.gltf {
+        v.gltf(&g.span(), g.get_ref())?;
+    }
+    let camera = match (camera, v.gltf_camera) {
+        (Some(c), _) => c,
+        (None, Some(g)) => gltf_camera(&v.ctx, g)?,
+        (None, None) => {
+            return Err(v
+                .ctx
+                .err(&(0..0), "missing table [camera] (required unless a [[gltf]] asset has a camera)"))
+        }
+    };
     let mut lights = Vec::new();
     for l in &raw.point_light {
         let span = l.span();
@@ -208,6 +229,7 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
         let irradiance = v.ctx.number(&span, "directional_light.irradiance", d.irradiance, 0.0..f32::MAX)?;
         lights.push(Light::Directional { direction, irradiance: color * irradiance });
     }
+    lights.append(&mut v.gltf_lights);
     Ok(Description {
         file: file.to_string(),
         render,
@@ -218,6 +240,28 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
         planes,
         lights,
         bundle_bytes: 0,
+    })
+}
+
+/// A glTF camera as the scene's camera: a pinhole, shutter fully open.
+fn gltf_camera(ctx: &Ctx, g: crate::gltf::GltfCamera) -> R<Camera> {
+    let forward = g.look_at - g.position;
+    if !(g.position.is_finite() && g.look_at.is_finite() && g.up.is_finite())
+        || forward.cross(g.up).length_squared() == 0.0
+    {
+        return Err(
+            ctx.err(&(0..0), "the glTF camera's node places it nowhere (its transform is degenerate)")
+        );
+    }
+    Ok(Camera {
+        position: g.position,
+        look_at: g.look_at,
+        up: g.up,
+        fov: g.yfov,
+        axis: FovAxis::Vertical,
+        lens_radius: 0.0,
+        focus_distance: forward.length(),
+        shutter: (0.0, 1.0),
     })
 }
 

@@ -40,7 +40,7 @@ pub(super) fn textures(
             TextureKind::GltfImage { file, image, .. } => {
                 let decoded = files
                     .get(file, assets)
-                    .and_then(|a| a.image(*image, assets, srgb[i], linear[i] || !srgb[i]))
+                    .and_then(|a| super::gltf::image(a, *image, assets, srgb[i], linear[i] || !srgb[i]))
                     .map_err(|e| err(t.at, e))?;
                 Ok(Texture::Rgba(Box::new(decoded)))
             }

@@ -107,7 +107,7 @@ impl Shapes {
                 let (mesh, mut extras) = self
                     .gltf
                     .get(file, assets)
-                    .and_then(|a| a.primitive(*mesh, *primitive))
+                    .and_then(|a| super::gltf::primitive(a, *mesh, *primitive))
                     .map_err(|e| err(o.at, e))?;
                 if let Some(x) = extras.as_mut().filter(|_| motion.is_none() && !trs.is_identity()) {
                     // Baked like the positions; a mirroring transform flips the handedness.
