@@ -146,6 +146,26 @@ fn a_gltf_model_renders_as_the_same_model_written_in_toml() {
     assert!(bottom_right.x > 2.0 * bottom_right.z && bottom_right.y > 2.0 * bottom_right.z, "{bottom_right}");
 }
 
+/// The same, with the glTF file placed by the description's own loader (`[[gltf]]` in
+/// `quad_gltf.toml`): its material, image and primitive are the ones the test above
+/// writes by hand, and the render is the same.
+#[test]
+fn a_gltf_table_renders_as_the_hand_written_scene() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/gltf_quad");
+    let (_, bundle) = dir();
+    let toml = Description::parse(&bundle).unwrap();
+    let placed = Bundle::read(&root.join("quad_gltf.toml")).unwrap();
+    let desc = Description::parse(&placed).unwrap_or_else(|e| panic!("{e}"));
+    assert!(
+        matches!(desc.materials.last(), Some(Material::Pbr(p)) if p.ior == 1.0 && p.base_color_texture.is_some())
+    );
+    let by_hand = render(&toml, &bundle);
+    let gltf = render(&desc, &placed);
+    let worst = by_hand.iter().zip(&gltf).map(|(a, b)| (*a - *b).abs().max_element()).fold(0.0, f32::max);
+    eprintln!("[[gltf]] against TOML: worst pixel {worst}");
+    assert!(worst < 0.01, "worst pixel differs by {worst}");
+}
+
 fn bundle_size(d: &Description) -> (u32, u32) {
     (d.render.width, d.render.height)
 }

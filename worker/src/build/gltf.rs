@@ -43,7 +43,8 @@ pub(super) fn primitive(asset: &Asset, mesh: u32, primitive: u32) -> Result<(Mes
     let uv = sets.next().unwrap_or_default();
     let uv1 = sets.next().unwrap_or_default();
     let tangents = g.tangents.take().unwrap_or_default();
-    let corner = |i: u32| [i, if n.is_empty() { u32::MAX } else { i }, if uv.is_empty() { u32::MAX } else { i }];
+    let corner =
+        |i: u32| [i, if n.is_empty() { u32::MAX } else { i }, if uv.is_empty() { u32::MAX } else { i }];
     let tris = g.triangles.iter().map(|t| [corner(t[0]), corner(t[1]), corner(t[2])]).collect();
     let extras = (!uv1.is_empty() || !tangents.is_empty()).then_some(Extras { uv1, tangents });
     Ok((Mesh { p: g.positions, n, uv, tris }, extras))
@@ -52,7 +53,13 @@ pub(super) fn primitive(asset: &Asset, mesh: u32, primitive: u32) -> Result<(Mes
 /// Image `image` of `asset` decoded (stored RGBA values in [0, 1]) for the roles the
 /// scene reads it in, with the wrap modes of the first texture that shows it (glTF's
 /// samplers belong to textures; the description names images).
-pub(super) fn image(asset: &Asset, image: u32, assets: &dyn Assets, srgb: bool, linear: bool) -> Result<Rgba, String> {
+pub(super) fn image(
+    asset: &Asset,
+    image: u32,
+    assets: &dyn Assets,
+    srgb: bool,
+    linear: bool,
+) -> Result<Rgba, String> {
     let bytes = asset.image(image, assets).map_err(|e| e.to_string())?;
     let img = super::materials::decode_image(&bytes)
         .map_err(|e| format!("{}: images[{image}]: not a readable image: {e}", asset.file))?;
