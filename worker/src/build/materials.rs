@@ -13,11 +13,14 @@ use crate::render::texture::{Tex, Texture};
 pub(super) fn textures(
     desc: &Description,
     assets: &dyn Assets,
+    files: &mut super::gltf::Files,
     err: &dyn Fn(Location, String) -> SceneError,
 ) -> Result<Vec<Texture>, SceneError> {
+    let (srgb, linear) = roles(desc);
     desc.textures
         .iter()
-        .map(|t| match &t.kind {
+        .enumerate()
+        .map(|(i, t)| match &t.kind {
             TextureKind::Checker { even, odd, size, space } => {
                 Ok(Texture::Checker { even: *even, odd: *odd, size: *size, space: *space })
             }
@@ -35,10 +38,34 @@ pub(super) fn textures(
                 Ok(Texture::Image { width, height, texels })
             }
             TextureKind::GltfImage { file, image, .. } => {
-                Err(err(t.at, format!("{file}: images[{image}]: glTF textures are not built yet")))
+                let decoded = files
+                    .get(file, assets)
+                    .and_then(|a| super::gltf::image(a, *image, assets, srgb[i], linear[i] || !srgb[i]))
+                    .map_err(|e| err(t.at, e))?;
+                Ok(Texture::Rgba(Box::new(decoded)))
             }
         })
         .collect()
+}
+
+/// Per texture: whether a glTF material reads it as sRGB colour (base colour,
+/// emissive) and whether as linear data (metallic-roughness, normals).
+fn roles(desc: &Description) -> (Vec<bool>, Vec<bool>) {
+    let (mut srgb, mut linear) = (vec![false; desc.textures.len()], vec![false; desc.textures.len()]);
+    let mark = |v: &mut Vec<bool>, r: Option<d::TexRef>| {
+        if let Some(slot) = r.and_then(|r| v.get_mut(r.texture as usize)) {
+            *slot = true;
+        }
+    };
+    for m in &desc.materials {
+        if let d::Material::Pbr(p) = m {
+            mark(&mut srgb, p.base_color_texture);
+            mark(&mut srgb, p.emissive_texture);
+            mark(&mut linear, p.metallic_roughness_texture);
+            mark(&mut linear, p.normal_texture.map(|(r, _)| r));
+        }
+    }
+    (srgb, linear)
 }
 
 /// Decodes an image within the texture budget: its size is read from the header and
@@ -69,8 +96,8 @@ fn tex(c: d::Color) -> Tex {
 }
 
 /// The renderer's material for a described one.
-pub(super) fn material(m: &d::Material, file: &str) -> Result<Material, SceneError> {
-    Ok(match *m {
+pub(super) fn material(m: &d::Material) -> Material {
+    match *m {
         d::Material::Classic(c) => Material::Classic(Classic {
             color: tex(c.color),
             ambient: c.ambient,
@@ -89,13 +116,6 @@ pub(super) fn material(m: &d::Material, file: &str) -> Result<Material, SceneErr
         d::Material::Conductor { eta, k, roughness } => Material::Conductor { eta, k, roughness },
         d::Material::RoughDielectric { ior, roughness } => Material::RoughDielectric { ior, roughness },
         d::Material::Plastic { diffuse, ior } => Material::Plastic { diffuse: tex(diffuse), ior },
-        d::Material::Pbr(_) => {
-            return Err(SceneError {
-                file: file.to_string(),
-                line: 1,
-                column: 1,
-                message: "glTF metallic-roughness materials are not built yet".into(),
-            })
-        }
-    })
+        d::Material::Pbr(p) => Material::Pbr(p),
+    }
 }
