@@ -46,7 +46,36 @@ fn files(dir: &Path) -> Vec<PathBuf> {
 /// The files the package holds that Tessera refuses, with the end of their one line
 /// (after the file's name): invalid files, and valid ones using what Tessera does not
 /// draw, each for the reason given.
-const REFUSED: &[(&str, &str)] = &[];
+const REFUSED: &[(&str, &str)] = &[
+    ("BoxTextured-glTF-techniqueWebGL/BoxTextured.gltf", "extensionsRequired[0]: the file requires extension \"KHR_technique_webgl\", which Tessera does not support (it reads KHR_lights_punctual, KHR_materials_emissive_strength, KHR_materials_ior, KHR_materials_transmission)"),
+    ("BoxWithInfinites-glTF-Binary/BoxWithInfinites.glb", "meshes[0].primitives[0].attributes[\"POSITION\"]: vertex 0 of accessor 2 is [-inf, -0.5, 0.5], not finite"),
+    ("IncorrectVertexArrays/Cube.gltf", "bufferViews[2]: bytes 504..936 lie beyond the end of buffer 0 (514 bytes)"),
+    ("IndexOutOfRange/AllIndicesOutOfRange.gltf", "meshes[0].primitives[0].indices: index 0 of accessor 0 is 65535, but the primitive has 24 vertices"),
+    ("IndexOutOfRange/IndexOutOfRange.gltf", "meshes[0].primitives[0].indices: index 0 of accessor 0 is 255, but the primitive has 24 vertices"),
+    ("MissingBin/BoxTextured.gltf", "buffers[0].uri: cannot read \"BoxTextured0.bin\" (the URI \"BoxTextured0.bin\", relative to the glTF file's folder)"),
+    ("RecursiveNodes/RecursiveNodes.gltf", "nodes[0]: node 0 is its own ancestor: the node hierarchy has a cycle"),
+    ("SchemaFailures/sceneWrongType.gltf", "not a glTF 2.0 document: invalid type: string \"hello\", expected index into child of root at line 6 column 20"),
+    ("TestNoRootNode/NoScene.gltf", "scene: scene 0 does not exist"),
+    ("TestNoRootNode/SceneWithoutNodes.gltf", "not a glTF 2.0 document: missing field `nodes` at line 8 column 9"),
+    ("draco/2CylinderEngine.gltf", "extensionsRequired[0]: the file requires extension \"KHR_draco_mesh_compression\", which Tessera does not support (it reads KHR_lights_punctual, KHR_materials_emissive_strength, KHR_materials_ior, KHR_materials_transmission)"),
+    ("glTF-Asset-Generator/Mesh_PrimitiveMode/Mesh_PrimitiveMode_00.gltf", "meshes[0].primitives[0].mode: mode 0 (Points) is not drawn: Tessera renders surfaces, mode 4 (TRIANGLES) only"),
+    ("glTF-Asset-Generator/Mesh_PrimitiveMode/Mesh_PrimitiveMode_01.gltf", "meshes[0].primitives[0].mode: mode 1 (Lines) is not drawn: Tessera renders surfaces, mode 4 (TRIANGLES) only"),
+    ("glTF-Asset-Generator/Mesh_PrimitiveMode/Mesh_PrimitiveMode_02.gltf", "meshes[0].primitives[0].mode: mode 2 (LineLoop) is not drawn: Tessera renders surfaces, mode 4 (TRIANGLES) only"),
+    ("glTF-Asset-Generator/Mesh_PrimitiveMode/Mesh_PrimitiveMode_03.gltf", "meshes[0].primitives[0].mode: mode 3 (LineStrip) is not drawn: Tessera renders surfaces, mode 4 (TRIANGLES) only"),
+    ("glTF-Asset-Generator/Mesh_PrimitiveMode/Mesh_PrimitiveMode_04.gltf", "meshes[0].primitives[0].mode: mode 5 (TriangleStrip) is not drawn: Tessera renders surfaces, mode 4 (TRIANGLES) only"),
+    ("glTF-Asset-Generator/Mesh_PrimitiveMode/Mesh_PrimitiveMode_05.gltf", "meshes[0].primitives[0].mode: mode 6 (TriangleFan) is not drawn: Tessera renders surfaces, mode 4 (TRIANGLES) only"),
+    ("glTF-Asset-Generator/Mesh_PrimitiveMode/Mesh_PrimitiveMode_07.gltf", "meshes[0].primitives[0].mode: mode 0 (Points) is not drawn: Tessera renders surfaces, mode 4 (TRIANGLES) only"),
+    ("glTF-Asset-Generator/Mesh_PrimitiveMode/Mesh_PrimitiveMode_08.gltf", "meshes[0].primitives[0].mode: mode 1 (Lines) is not drawn: Tessera renders surfaces, mode 4 (TRIANGLES) only"),
+    ("glTF-Asset-Generator/Mesh_PrimitiveMode/Mesh_PrimitiveMode_09.gltf", "meshes[0].primitives[0].mode: mode 2 (LineLoop) is not drawn: Tessera renders surfaces, mode 4 (TRIANGLES) only"),
+    ("glTF-Asset-Generator/Mesh_PrimitiveMode/Mesh_PrimitiveMode_10.gltf", "meshes[0].primitives[0].mode: mode 3 (LineStrip) is not drawn: Tessera renders surfaces, mode 4 (TRIANGLES) only"),
+    ("glTF-Asset-Generator/Mesh_PrimitiveMode/Mesh_PrimitiveMode_11.gltf", "meshes[0].primitives[0].mode: mode 5 (TriangleStrip) is not drawn: Tessera renders surfaces, mode 4 (TRIANGLES) only"),
+    ("glTF-Asset-Generator/Mesh_PrimitiveMode/Mesh_PrimitiveMode_12.gltf", "meshes[0].primitives[0].mode: mode 6 (TriangleFan) is not drawn: Tessera renders surfaces, mode 4 (TRIANGLES) only"),
+    ("wrongTypes/badArray.gltf", "not a glTF 2.0 document: invalid type: map, expected a sequence at line 44 column 26"),
+    ("wrongTypes/badNumber.gltf", "not a glTF 2.0 document: invalid type: string \"not a number\", expected f32 at line 132 column 27"),
+    ("wrongTypes/badObject.gltf", "not a glTF 2.0 document: invalid type: string \"not an object\", expected an array of length 4 at line 125 column 52"),
+    ("wrongTypes/badString.gltf", "not a glTF 2.0 document: invalid type: integer `42`, expected a string at line 12 column 14"),
+    ("wrongTypes/badUint.gltf", "not a glTF 2.0 document: invalid type: integer `-1`, expected index into child of root at line 128 column 31"),
+];
 
 fn render_small(bundle: &Bundle) -> Result<(f64, u64), String> {
     const SIZE: (u32, u32) = (48, 48);
