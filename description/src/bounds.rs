@@ -136,6 +136,11 @@ pub(crate) fn check_referenced(bundle: &Bundle, desc: &Description) -> Result<()
         }
     }
     used.extend(gltf.iter().map(String::as_str));
+    if let Some(crate::model::Environment { kind: crate::model::EnvironmentKind::Map { file, .. }, .. }) =
+        &desc.environment
+    {
+        used.insert(file.as_str());
+    }
     let unused: Vec<String> = bundle
         .assets
         .iter()

@@ -380,6 +380,9 @@ pub(crate) fn asset_references(text: &str) -> Vec<String> {
     if let Some(textures) = table.get("textures").and_then(|t| t.as_table()) {
         out.extend(textures.values().filter_map(file_of));
     }
+    if let Some(environment) = table.get("environment") {
+        out.extend(file_of(environment));
+    }
     out
 }
 

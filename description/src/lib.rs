@@ -18,6 +18,7 @@ pub mod error;
 pub mod gltf;
 pub mod ids;
 pub mod job;
+mod lights;
 pub mod limits;
 pub mod machine;
 mod materials;

@@ -24,7 +24,7 @@ fn metal_preset(name: &str) -> Option<(Vec3, Vec3)> {
 }
 
 /// The format and size of an image from its header, without decoding its pixels.
-fn image_size(bytes: &[u8]) -> image::ImageResult<(u32, u32)> {
+pub(crate) fn image_size(bytes: &[u8]) -> image::ImageResult<(u32, u32)> {
     image::ImageReader::new(Cursor::new(bytes)).with_guessed_format()?.into_dimensions()
 }
 

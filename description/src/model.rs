@@ -35,8 +35,10 @@ pub struct Description {
     pub objects: Vec<Object>,
     /// Infinite planes.
     pub planes: Vec<Plane>,
-    /// Point and directional lights (emitting objects are lights too, built with them).
+    /// Point, spot and directional lights (emitting objects are lights too, built with them).
     pub lights: Vec<Light>,
+    /// Light from infinitely far away: a uniform colour or an equirectangular image.
+    pub environment: Option<Environment>,
     /// Bytes of the bundle: the scene text and every asset.
     pub bundle_bytes: u64,
 }
@@ -432,6 +434,47 @@ pub enum Light {
         direction: Vec3,
         /// Irradiance per channel (colour times irradiance).
         irradiance: Vec3,
+    },
+    /// A spot light (glTF KHR_lights_punctual semantics: smooth falloff between the cones).
+    Spot {
+        /// Position.
+        position: Vec3,
+        /// Unit direction the light travels in (the cone's axis).
+        direction: Vec3,
+        /// Radiant intensity per channel on the axis (colour times intensity).
+        intensity: Vec3,
+        /// Half-angle in radians inside which the intensity is full.
+        inner_cone: f32,
+        /// Half-angle in radians outside which there is no light.
+        outer_cone: f32,
+    },
+}
+
+/// Light from infinitely far away, seen by every ray that escapes the scene.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Environment {
+    /// Its radiance: uniform or an image.
+    pub kind: EnvironmentKind,
+    /// Factor on the radiance.
+    pub strength: f32,
+    /// Turn about +y in radians (right-handed: +x towards -z for a positive angle).
+    pub rotation: f32,
+}
+
+/// Where an environment's radiance comes from.
+#[derive(Debug, Clone, PartialEq)]
+pub enum EnvironmentKind {
+    /// The same radiance from every direction.
+    Uniform(Vec3),
+    /// An equirectangular image asset (Radiance `.hdr` or OpenEXR), checked from its
+    /// header only; its pixels are the renderer's to decode.
+    Map {
+        /// The normalised asset path.
+        file: String,
+        /// Width in pixels.
+        width: u32,
+        /// Height in pixels.
+        height: u32,
     },
 }
 

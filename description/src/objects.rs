@@ -214,12 +214,17 @@ impl Validator<'_> {
         for (i, (slot, v)) in vertices.iter_mut().zip(&d.vertices).enumerate() {
             *slot = self.ctx.finite(span, &format!("triangle.vertices[{i}]"), v.0)?;
         }
-        let material = self.material_of(span, &d.material)?;
+        let surface = self.surface(span, "triangle", d.material.as_ref(), d.emission)?;
         let place = self.placement(span, "triangle", &d.transform, &d.motion)?;
+        if surface.1.is_some() && place.1.is_some() {
+            return Err(self
+                .ctx
+                .err(span, "triangle: lights cannot move (give `emission` or `motion`, not both)"));
+        }
         let extent = vertices.iter().fold(Vec3::ZERO, |e, v| e.max(v.abs()));
         self.check_reach(span, "triangle", extent, 0.0, &place)?;
         self.count_triangles(span, 1)?;
-        self.push(span, Shape::Triangle { vertices }, (material, None), place);
+        self.push(span, Shape::Triangle { vertices }, surface, place);
         Ok(())
     }
 
@@ -244,11 +249,16 @@ impl Validator<'_> {
                 .ctx
                 .err(span, format!("mesh {:?} has no faces (`f`): it would draw nothing", d.file)));
         }
-        let material = self.material_of(span, &d.material)?;
+        let surface = self.surface(span, "mesh", d.material.as_ref(), d.emission)?;
         let place = self.placement(span, "mesh", &d.transform, &d.motion)?;
+        if surface.1.is_some() && place.1.is_some() {
+            return Err(self
+                .ctx
+                .err(span, "mesh: lights cannot move (give `emission` or `motion`, not both)"));
+        }
         self.check_reach(span, "mesh", extent, 0.0, &place)?;
         self.count_triangles(span, counts.triangles)?;
-        self.push(span, Shape::Mesh { file: path, counts }, (material, None), place);
+        self.push(span, Shape::Mesh { file: path, counts }, surface, place);
         Ok(())
     }
 

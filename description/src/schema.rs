@@ -135,6 +135,10 @@ pub(crate) struct SceneFile {
     pub(crate) point_light: Vec<Spanned<PointLightDef>>,
     #[serde(default)]
     pub(crate) directional_light: Vec<Spanned<DirectionalLightDef>>,
+    #[serde(default)]
+    pub(crate) spot_light: Vec<Spanned<SpotLightDef>>,
+    #[serde(default)]
+    pub(crate) environment: Option<Spanned<EnvironmentDef>>,
 }
 
 #[derive(Debug, Deserialize)]
@@ -283,7 +287,8 @@ pub(crate) struct BoxDef {
 #[serde(deny_unknown_fields)]
 pub(crate) struct TriangleDef {
     pub(crate) vertices: [V3; 3],
-    pub(crate) material: String,
+    pub(crate) material: Option<String>,
+    pub(crate) emission: Option<Rgb>,
     pub(crate) transform: Option<TransformDef>,
     pub(crate) motion: Option<TransformDef>,
 }
@@ -292,7 +297,8 @@ pub(crate) struct TriangleDef {
 #[serde(deny_unknown_fields)]
 pub(crate) struct MeshDef {
     pub(crate) file: String,
-    pub(crate) material: String,
+    pub(crate) material: Option<String>,
+    pub(crate) emission: Option<Rgb>,
     pub(crate) transform: Option<TransformDef>,
     pub(crate) motion: Option<TransformDef>,
 }
@@ -326,4 +332,28 @@ pub(crate) struct DirectionalLightDef {
 
 fn white() -> Rgb {
     Rgb(Vec3::ONE)
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct SpotLightDef {
+    pub(crate) position: V3,
+    pub(crate) direction: V3,
+    #[serde(default = "white")]
+    pub(crate) color: Rgb,
+    pub(crate) intensity: f32,
+    /// Half-angle in degrees of full intensity (glTF `innerConeAngle`, default 0).
+    pub(crate) inner_cone: Option<f32>,
+    /// Half-angle in degrees where the light ends (glTF `outerConeAngle`, default 45).
+    pub(crate) outer_cone: Option<f32>,
+}
+
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct EnvironmentDef {
+    pub(crate) file: Option<String>,
+    pub(crate) color: Option<Rgb>,
+    pub(crate) strength: Option<f32>,
+    /// Degrees about +y.
+    pub(crate) rotation: Option<f32>,
 }

@@ -22,6 +22,9 @@ pub const UV_BYTES: u64 = 8;
 /// Bytes per image texel at the peak of decoding: the decoded 8-bit RGBA image, the
 /// linear floats and the texels kept.
 pub const TEXEL_BYTES: u64 = 4 + 12 + 12;
+/// Bytes per environment-map texel at the peak of building: the decoded float image, the
+/// linear radiance kept, and the sampling distribution's pdf and CDF entries.
+pub const ENVIRONMENT_TEXEL_BYTES: u64 = 16 + 12 + 8;
 /// Bytes per pixel of the coordinator's framebuffer: sums of three channels in fixed
 /// point, a sample count and the version that last changed it (`Framebuffer::bytes_for`
 /// is the exact figure, tiles included; a coordinator test checks that they agree).
@@ -85,11 +88,19 @@ impl Description {
                 })
                 .collect();
         let texels: u64 = textures.iter().map(|&(w, h)| u64::from(w) * u64::from(h)).sum();
+        let environment_texels = match &self.environment {
+            Some(crate::model::Environment {
+                kind: crate::model::EnvironmentKind::Map { width, height, .. },
+                ..
+            }) => u64::from(*width) * u64::from(*height),
+            _ => 0,
+        };
         let worker_bytes = primitives * (PRIMITIVE_BYTES + BVH_BYTES_PER_PRIMITIVE)
             + triangles * TRIANGLE_BYTES
             + vertices * VEC3_BYTES
             + uvs * UV_BYTES
             + texels * TEXEL_BYTES
+            + environment_texels * ENVIRONMENT_TEXEL_BYTES
             + self.bundle_bytes;
         let pixels = u64::from(self.render.width) * u64::from(self.render.height);
         let per_pixel = FRAMEBUFFER_BYTES_PER_PIXEL + if even_sums { EVEN_SUMS_BYTES_PER_PIXEL } else { 0 };

@@ -229,7 +229,11 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
         let irradiance = v.ctx.number(&span, "directional_light.irradiance", d.irradiance, 0.0..f32::MAX)?;
         lights.push(Light::Directional { direction, irradiance: color * irradiance });
     }
+    for l in &raw.spot_light {
+        lights.push(v.spot_light(&l.span(), l.get_ref())?);
+    }
     lights.append(&mut v.gltf_lights);
+    let environment = raw.environment.as_ref().map(|e| v.environment(&e.span(), e.get_ref())).transpose()?;
     Ok(Description {
         file: file.to_string(),
         render,
@@ -239,6 +243,7 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets) -> R<Descrip
         objects: v.objects,
         planes,
         lights,
+        environment,
         bundle_bytes: 0,
     })
 }

@@ -1,6 +1,6 @@
-//! KHR_lights_punctual: point and directional lights placed by their nodes (shining
-//! down the node's −z). glTF's units map onto Tessera's: a point light's candela is its
-//! radiant intensity, a directional light's lux its irradiance (both per unit colour);
+//! KHR_lights_punctual: point, spot and directional lights placed by their nodes (shining
+//! down the node's −z). glTF's units map onto Tessera's: a point or spot light's candela
+//! is its radiant intensity, a directional light's lux its irradiance (per unit colour);
 //! `range` is ignored (the inverse-square falloff is physical).
 
 use glam::Vec3;
@@ -46,11 +46,23 @@ pub(crate) fn punctual(file: &str, root: &Root, walked: &[Placed]) -> Result<Vec
             Checked::Valid(Type::Point) => Light::Point { position: w.translate, intensity: power },
             Checked::Valid(Type::Directional) => Light::Directional { direction, irradiance: power },
             Checked::Valid(Type::Spot) => {
-                return Err(GltfError::new(
-                    file,
-                    at!("{path}.type"),
-                    "spot lights are not in this build of Tessera's renderer",
-                ))
+                let spot = light.spot.as_ref();
+                let inner = spot.map_or(0.0, |s| s.inner_cone_angle);
+                let outer = spot.map_or(std::f32::consts::FRAC_PI_4, |s| s.outer_cone_angle);
+                if !(0.0 <= inner && inner < outer && outer <= std::f32::consts::FRAC_PI_2) {
+                    return Err(GltfError::new(
+                        file,
+                        at!("{path}.spot"),
+                        format!("cone angles {inner} and {outer} must satisfy 0 <= inner < outer <= π/2"),
+                    ));
+                }
+                Light::Spot {
+                    position: w.translate,
+                    direction,
+                    intensity: power,
+                    inner_cone: inner,
+                    outer_cone: outer,
+                }
             }
             Checked::Invalid => {
                 return Err(GltfError::new(file, at!("{path}.type"), "is not a valid light type"))

@@ -301,14 +301,16 @@ fn the_files_camera_and_lights_are_used() {
         {"mesh": 0},
         {"camera": 0, "translation": [0, 0, 4]},
         {"extensions": {"KHR_lights_punctual": {"light": 0}}, "translation": [1, 2, 3]},
-        {"extensions": {"KHR_lights_punctual": {"light": 1}}, "rotation": [-0.70710677, 0, 0, 0.70710677]}
+        {"extensions": {"KHR_lights_punctual": {"light": 1}}, "rotation": [-0.70710677, 0, 0, 0.70710677]},
+        {"extensions": {"KHR_lights_punctual": {"light": 2}}, "translation": [0, 5, 0], "rotation": [-0.70710677, 0, 0, 0.70710677]}
     ]);
-    doc["scenes"][0]["nodes"] = json!([0, 1, 2, 3]);
+    doc["scenes"][0]["nodes"] = json!([0, 1, 2, 3, 4]);
     doc["cameras"] = json!([{"type": "perspective", "perspective": {"yfov": 0.5, "znear": 0.1}}]);
     doc["extensionsUsed"] = json!(["KHR_lights_punctual"]);
     doc["extensions"] = json!({"KHR_lights_punctual": {"lights": [
         {"type": "point", "color": [1, 0.5, 0.25], "intensity": 8},
-        {"type": "directional", "intensity": 3}
+        {"type": "directional", "intensity": 3},
+        {"type": "spot", "intensity": 2, "spot": {"innerConeAngle": 0.25, "outerConeAngle": 0.5}}
     ]}});
     let d = Description::parse(&scene_with(&doc, "", false)).unwrap();
     assert_eq!(d.camera.position, Vec3::new(0.0, 0.0, 4.0));
@@ -322,6 +324,11 @@ fn the_files_camera_and_lights_are_used() {
     let Light::Directional { direction, irradiance } = d.lights[1] else { panic!() };
     assert!((direction - Vec3::NEG_Y).length() < 1e-5, "{direction}");
     assert_eq!(irradiance, Vec3::splat(3.0));
+    let Light::Spot { position, direction, intensity, inner_cone, outer_cone } = d.lights[2] else {
+        panic!()
+    };
+    assert!((direction - Vec3::NEG_Y).length() < 1e-5 && position == Vec3::new(0.0, 5.0, 0.0));
+    assert_eq!((intensity, inner_cone, outer_cone), (Vec3::splat(2.0), 0.25, 0.5));
     // A TOML camera wins.
     let d = Description::parse(&scene_with(&doc, "", true)).unwrap();
     assert_eq!(d.camera.position, Vec3::new(0.0, 0.0, 5.0));
@@ -434,7 +441,11 @@ fn a_glb_read_as_the_scene_is_framed_and_lit() {
     assert!(b.text.contains("[[gltf]]\nfile = \"tri.glb\"\n"), "{}", b.text);
     let d = Description::parse(&b).unwrap();
     assert_eq!((d.render.width, d.render.height, d.render.spp), (640, 480, super::wrap::DEFAULT_SPP));
-    assert_eq!(d.render.background, Vec3::splat(super::wrap::DEFAULT_SKY));
+    let sky = d.environment.as_ref().map(|e| (e.kind.clone(), e.strength));
+    assert_eq!(
+        sky,
+        Some((crate::model::EnvironmentKind::Uniform(Vec3::splat(super::wrap::DEFAULT_SKY)), 1.0))
+    );
     // The camera looks at the triangle's bounding box's centre.
     assert!((d.camera.look_at - Vec3::new(0.5, 0.5, 0.0)).length() < 1e-5, "{:?}", d.camera);
     // A bad file is refused when read, in one line naming it and the JSON path.

@@ -12,7 +12,8 @@ pub const DEFAULT_HEIGHT: u32 = 480;
 pub const DEFAULT_SPP: u32 = 64;
 /// Vertical field of view of the framing camera, degrees.
 pub const DEFAULT_FOV_DEGREES: f32 = 40.0;
-/// Radiance of the uniform white sky that lights a wrapped glTF file (escaping rays).
+/// Radiance of the uniform white sky (`[environment] color`) that lights a wrapped glTF
+/// file.
 pub const DEFAULT_SKY: f32 = 0.8;
 
 fn v3(v: glam::Vec3) -> String {
@@ -28,7 +29,8 @@ pub fn scene_text(file: &str, assets: &dyn Assets) -> Result<String, GltfError> 
     let quoted = toml::Value::String(file.to_string()).to_string();
     let mut text = format!(
         "# The scene Tessera renders for the glTF file {quoted} (its defaults: docs/gltf.md).\n\
-         [render]\nwidth = {width}\nheight = {DEFAULT_HEIGHT}\nspp = {DEFAULT_SPP}\nbackground = {DEFAULT_SKY:?}\n\n"
+         [render]\nwidth = {width}\nheight = {DEFAULT_HEIGHT}\nspp = {DEFAULT_SPP}\n\n\
+         [environment]\ncolor = {DEFAULT_SKY:?}\n\n"
     );
     if imported.camera.is_none() {
         let fov = DEFAULT_FOV_DEGREES.to_radians();

@@ -15,7 +15,7 @@ use tessera_description::{Bundle, SceneError};
 
 use crate::render::bvh::Bvh;
 use crate::render::camera::Camera;
-use crate::render::light::Light;
+use crate::render::light::{Light, LightChoice};
 use crate::render::{Scene, World};
 
 pub use tessera_description::limits;
@@ -53,14 +53,29 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
             tessera_description::model::Light::Directional { direction, irradiance } => {
                 Light::Directional { direction, irradiance }
             }
+            tessera_description::model::Light::Spot {
+                position,
+                direction,
+                intensity,
+                inner_cone,
+                outer_cone,
+            } => Light::spot(position, direction, intensity, inner_cone, outer_cone),
         });
     }
+    let environment = match &desc.environment {
+        Some(env) => {
+            lights.push(Light::Environment(Arc::new(environment(env, assets, &err)?)));
+            Some(lights.len() as u32 - 1)
+        }
+        None => None,
+    };
     let bounds: Vec<_> = {
         use rayon::prelude::*;
         shapes.prims.par_iter().map(|p| p.bounds(&shapes.meshes, &shapes.motions)).collect()
     };
     let bvh = Bvh::build(&bounds);
     drop(bounds);
+    let light_choice = LightChoice::new(&lights, scene_radius(&bvh));
     let slots = crate::render::triangles::slots(&bvh, &shapes.prims, &shapes.meshes);
     let materials: Vec<_> = desc.materials.iter().map(materials::material).collect();
     let surfaces = crate::render::surface::Surfaces::new(&materials, std::mem::take(&mut shapes.extras));
@@ -75,6 +90,8 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
         motions: shapes.motions,
         lights,
         surfaces,
+        light_choice,
+        environment,
     };
     Ok(Scene {
         width: r.width,
@@ -88,6 +105,55 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
         camera,
         world: Arc::new(world),
     })
+}
+
+/// Half the diagonal of the bounded objects' box (1 without any): the disc through which
+/// directional light and the environment reach the scene, for weighing lights by power.
+fn scene_radius(bvh: &Bvh) -> f32 {
+    let b = bvh.bounds();
+    let r = 0.5 * (b.max - b.min).length();
+    if b.is_empty() || !(r.is_finite() && r > 0.0) {
+        1.0
+    } else {
+        r
+    }
+}
+
+/// The environment light: a uniform radiance, or an image decoded (its header was checked
+/// in validation; its pixels may still be damaged) with non-finite and negative texels
+/// taken as black.
+fn environment(
+    env: &tessera_description::model::Environment,
+    assets: &dyn Assets,
+    err: &dyn Fn(Location, String) -> SceneError,
+) -> Result<crate::render::environment::Environment, SceneError> {
+    use crate::render::environment::Environment;
+    use tessera_description::model::EnvironmentKind;
+    match &env.kind {
+        EnvironmentKind::Uniform(c) => Ok(Environment::uniform(*c * env.strength, env.rotation)),
+        EnvironmentKind::Map { file, .. } => {
+            // The environment has no table position of its own in the description.
+            let at = Location { line: 1, column: 1 };
+            let bytes = assets.get(file).ok_or_else(|| {
+                err(at, format!("environment.file: cannot read {file:?} (relative to the scene's folder)"))
+            })?;
+            let img = materials::decode_image(bytes)
+                .map_err(|e| err(at, format!("environment.file: {file:?} is not a readable image: {e}")))?;
+            let (width, height, values) = crate::render::texture::linear_rgb(&img);
+            let texels = values
+                .chunks_exact(3)
+                .map(|c| {
+                    let v = glam::Vec3::from_slice(c) * env.strength;
+                    if v.is_finite() {
+                        v.max(glam::Vec3::ZERO)
+                    } else {
+                        glam::Vec3::ZERO
+                    }
+                })
+                .collect();
+            Ok(Environment::map(width as usize, height as usize, texels, env.rotation))
+        }
+    }
 }
 
 /// Validates and builds a bundle's scene.

@@ -1,6 +1,7 @@
 //! Primitives, meshes, motions and area lights, from the described objects, in their order.
 
 use std::collections::HashMap;
+use std::sync::Arc;
 
 use glam::Vec3;
 use tessera_description::bundle::Assets;
@@ -9,7 +10,7 @@ use tessera_description::obj::{parse_obj, ObjMesh};
 use tessera_description::SceneError;
 
 use crate::render::geometry::Sphere;
-use crate::render::light::Light;
+use crate::render::light::{Light, MeshLight};
 use crate::render::shape::{Mesh, Primitive, Rect, Shape};
 use crate::render::surface::Extras;
 use crate::render::transform::{Motion, Trs};
@@ -168,9 +169,21 @@ impl Shapes {
             return Err(err(o.at, NOT_FINITE.into()));
         }
         let index = self.meshes.len() as u32;
+        // An emitting mesh is one light over all its triangles (validation keeps it still,
+        // so it is in world space here).
+        let light = match o.emission {
+            Some(radiance) if motion.is_none() => {
+                let tris = (0..mesh.tris.len() as u32).map(|t| mesh.corners(t)).collect();
+                MeshLight::new(tris, radiance).map(|m| {
+                    self.lights.push(Light::Mesh(Arc::new(m)));
+                    self.lights.len() as u32 - 1
+                })
+            }
+            _ => None,
+        };
         self.prims.reserve(mesh.tris.len());
         for tri in 0..mesh.tris.len() as u32 {
-            self.push(Shape::Triangle { mesh: index, tri }, o.material, None, motion);
+            self.push(Shape::Triangle { mesh: index, tri }, o.material, light, motion);
         }
         self.meshes.push(mesh);
         Ok(())

@@ -46,6 +46,20 @@ fn power_heuristic(a: f32, b: f32) -> f32 {
 /// blocker: relative, so it holds at every scale.
 const SHADOW_SHORTEN: f32 = 1.0 - 1e-4;
 
+/// What a ray leaving the scene along `dir` sees: the environment, weighted against its
+/// light sample by MIS unless the ray was sampled from a Dirac lobe (density `prev_pdf`
+/// otherwise); the background when there is no environment.
+fn escaped(scene: &Scene, dir: Vec3, from_dirac: bool, prev_pdf: f32) -> Vec3 {
+    let w = &*scene.world;
+    let Some(i) = w.environment else { return scene.background };
+    let super::light::Light::Environment(env) = &w.lights[i as usize] else { return scene.background };
+    let le = env.radiance(dir);
+    if from_dirac || le == Vec3::ZERO {
+        return le;
+    }
+    le * power_heuristic(prev_pdf, w.light_choice.pmf(i as usize) * env.pdf(dir))
+}
+
 /// The radiance arriving along `ray`; `depth` segments precede it.
 pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32) -> Vec3 {
     let mut l = Vec3::ZERO;
@@ -58,7 +72,7 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
     let mut last = false;
     for depth in depth..scene.max_depth {
         let Some(mut sh) = scene.intersect(&ray, f32::INFINITY, time) else {
-            l += beta * scene.background;
+            l += beta * escaped(scene, ray.dir, from_dirac, prev_pdf);
             break;
         };
         if let Some(li) = sh.light {
@@ -71,7 +85,8 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
                 let w = if from_dirac {
                     1.0
                 } else {
-                    power_heuristic(prev_pdf, light.pdf(prev_p, ray.dir, sh.hit.t))
+                    let pick = scene.world.light_choice.pmf(li as usize);
+                    power_heuristic(prev_pdf, pick * light.pdf(prev_p, ray.dir, sh.hit.t, sh.hit.n))
                 };
                 l += beta * le * w;
             }
@@ -109,25 +124,26 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
         };
         let wo = frame.to_local(wo_world);
         if depth + 1 < scene.max_depth && !bsdf.is_delta() {
-            for light in &scene.world.lights {
+            let w = &*scene.world;
+            w.light_choice.for_each(&w.lights, sampler, |light, pick, sampler| {
                 let u = if light.is_delta() { Vec2::ZERO } else { sampler.get_2d() };
-                let Some(ls) = light.sample(hit.p, u) else { continue };
+                let Some(ls) = light.sample(hit.p, u) else { return };
                 let f = bsdf.eval(wo, frame.to_local(ls.wi));
                 if f == Vec3::ZERO {
-                    continue;
+                    return;
                 }
                 let origin = offset_ray_origin(hit.p, hit.p_error, hit.n, ls.wi);
                 let tr = scene.transmittance(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time);
                 if tr == Vec3::ZERO {
-                    continue;
+                    return;
                 }
                 let w = if light.is_delta() {
                     1.0
                 } else {
-                    power_heuristic(ls.pdf, bsdf.pdf(wo, frame.to_local(ls.wi)))
+                    power_heuristic(pick * ls.pdf, bsdf.pdf(wo, frame.to_local(ls.wi)))
                 };
-                l += beta * f * ls.weighted * tr * w;
-            }
+                l += beta * f * ls.weighted * tr * (w / pick);
+            });
         }
         let u_lobe = sampler.get_1d();
         let u = sampler.get_2d();
@@ -184,24 +200,25 @@ fn classic(
     let color = m.color.eval(&scene.world.textures, hit.p, hit.uv);
 
     let mut l = scene.ambient * m.ambient * color;
-    for light in &scene.world.lights {
+    let world = &*scene.world;
+    world.light_choice.for_each(&world.lights, sampler, |light, pick, sampler| {
         let u = if light.is_delta() { Vec2::ZERO } else { sampler.get_2d() };
-        let Some(ls) = light.sample(hit.p, u) else { continue };
+        let Some(ls) = light.sample(hit.p, u) else { return };
         let cos = ns.dot(ls.wi);
         if cos <= 0.0 || n.dot(ls.wi) <= 0.0 {
-            continue;
+            return;
         }
         let origin = offset_ray_origin(hit.p, hit.p_error, n, ls.wi);
         let tr = scene.transmittance(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time);
         if tr == Vec3::ZERO {
-            continue;
+            return;
         }
         let mut f = color * (m.diffuse * cos);
         if m.specular > 0.0 {
             f += Vec3::splat(m.specular * reflect(ls.wi, ns).dot(wo).max(0.0).powf(m.shininess));
         }
-        l += ls.weighted * tr * f;
-    }
+        l += ls.weighted * tr * f / pick;
+    });
 
     if depth + 1 >= scene.max_depth {
         return l;

@@ -5,6 +5,8 @@
 pub mod bsdf;
 pub mod bvh;
 pub mod camera;
+pub mod distribution;
+pub mod environment;
 pub mod geometry;
 pub mod integrator;
 pub mod light;
@@ -79,6 +81,11 @@ pub struct World {
     pub lights: Vec<Light>,
     /// glTF surfaces: extra vertex attributes, which materials cut out hits.
     pub surfaces: surface::Surfaces,
+    /// Which lights a shading point samples (all, or one by power).
+    pub light_choice: light::LightChoice,
+    /// The environment's index in `lights`, when the scene has one: escaping rays see it
+    /// instead of the background.
+    pub environment: Option<u32>,
 }
 
 /// A hit with what lies at it.
