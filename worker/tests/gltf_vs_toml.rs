@@ -196,3 +196,36 @@ fn alpha_cut_outs_are_no_hits() {
     let r = half[row * w + right];
     assert!(r.x > 4.0 * r.y && r.x > 4.0 * r.z, "the occluder's opaque half is red: {r}");
 }
+
+/// An emissive glTF primitive is a light whose radiance the emissive texture multiplies
+/// where rays meet it: seen directly, each quadrant shows its texel's sRGB-decoded colour
+/// times the emissive factor.
+#[test]
+fn the_emissive_texture_multiplies_the_emission() {
+    let (assets, bundle) = dir();
+    let toml = Description::parse(&bundle).unwrap();
+    let mut d = gltf_scene(&toml);
+    let factor = Vec3::new(2.0, 1.0, 0.5);
+    d.materials[0] = Material::Pbr(Pbr {
+        emissive: factor,
+        emissive_texture: Some(TexRef { texture: 0, texcoord: 0 }),
+        ..checker_material(0)
+    });
+    d.objects[0].emission = Some(factor);
+    d.lights.clear();
+    let img = render(&d, &assets);
+    let (w, h) = (toml.render.width as usize, toml.render.height as usize);
+    let decode = |c: u8| {
+        let v = f32::from(c) / 255.0;
+        ((v + 0.055) / 1.055).powf(2.4)
+    };
+    // Pixels at the quadrants' centres (±0.5): bilinear lookups there blend only texels
+    // of the quadrant's own colour.
+    for ((dx, dy), texel) in
+        [((-6i32, -6i32), [200u8, 40, 40]), ((5, 5), [230, 210, 60]), ((-6, 5), [50, 70, 200])]
+    {
+        let px = img[(h as i32 / 2 + dy) as usize * w + (w as i32 / 2 + dx) as usize];
+        let want = Vec3::new(decode(texel[0]), decode(texel[1]), decode(texel[2])) * factor;
+        assert!((px - want).abs().max_element() < 1e-3, "pixel {px}, texel {want}");
+    }
+}

@@ -89,9 +89,9 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
         meshes: shapes.meshes,
         motions: shapes.motions,
         lights,
+        surfaces,
         light_choice,
         environment,
-        surfaces,
     };
     Ok(Scene {
         width: r.width,

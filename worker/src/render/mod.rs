@@ -79,13 +79,13 @@ pub struct World {
     pub motions: Vec<Motion>,
     /// Lights.
     pub lights: Vec<Light>,
+    /// glTF surfaces: extra vertex attributes, which materials cut out hits.
+    pub surfaces: surface::Surfaces,
     /// Which lights a shading point samples (all, or one by power).
     pub light_choice: light::LightChoice,
     /// The environment's index in `lights`, when the scene has one: escaping rays see it
     /// instead of the background.
     pub environment: Option<u32>,
-    /// glTF surfaces: extra vertex attributes, which materials cut out hits.
-    pub surfaces: surface::Surfaces,
 }
 
 /// A hit with what lies at it.
