@@ -125,6 +125,17 @@ pub(crate) fn check_referenced(bundle: &Bundle, desc: &Description) -> Result<()
             used.insert(file.as_str());
         }
     }
+    // `[[gltf]]` assets (used even when they hold no mesh) and their buffers and images.
+    let mut gltf = Vec::new();
+    for reference in crate::bundle::asset_references(&bundle.text) {
+        if let (Ok(path), true) = (check_asset_path(&reference), crate::bundle::is_gltf(&reference)) {
+            if let Some(bytes) = crate::bundle::Assets::get(bundle, &path) {
+                gltf.extend(crate::gltf::external_assets(&path, bytes));
+            }
+            gltf.push(path);
+        }
+    }
+    used.extend(gltf.iter().map(String::as_str));
     if let Some(crate::model::Environment { kind: crate::model::EnvironmentKind::Map { file, .. }, .. }) =
         &desc.environment
     {

@@ -81,6 +81,9 @@ pub enum BundleError {
         /// The limit.
         limit: u64,
     },
+    /// A glTF file given as the scene is not a usable glTF asset.
+    #[error("{0}")]
+    Gltf(#[from] crate::gltf::GltfError),
 }
 
 /// Why [`read_regular`] read nothing.
@@ -186,7 +189,14 @@ impl Bundle {
     /// the scene within [`limits::MAX_SCENE_BYTES`]. A reference that escapes the folder
     /// or names no readable file is left out here, with why in `refused`; parsing then
     /// reports it with its location.
+    ///
+    /// A `.gltf` or `.glb` file is a scene too: the bundle's scene is then a generated
+    /// TOML text wrapping it as a `[[gltf]]` table (`crate::gltf::wrap`), with its
+    /// buffers and images beside it as assets.
     pub fn read(path: &Path) -> Result<Bundle, BundleError> {
+        if is_gltf(&path.to_string_lossy()) {
+            return Bundle::read_gltf(path);
+        }
         let bytes = read_regular(path, limits::MAX_SCENE_BYTES, false).map_err(|u| match u {
             Unread::NotRegular(kind) => BundleError::NotRegular { path: path.to_owned(), kind },
             Unread::TooLarge(size) => {
@@ -202,7 +212,11 @@ impl Bundle {
         let root = std::fs::canonicalize(dir);
         let mut assets: Vec<(String, Vec<u8>)> = Vec::new();
         let mut refused: Vec<(String, AssetRefusal)> = Vec::new();
-        for reference in asset_references(&text) {
+        let mut references = asset_references(&text);
+        let mut next = 0;
+        while next < references.len() {
+            let reference = references[next].clone();
+            next += 1;
             let Ok(rel) = check_asset_path(&reference) else { continue };
             if assets.iter().any(|(p, _)| *p == rel) || refused.iter().any(|(p, _)| *p == rel) {
                 continue;
@@ -212,12 +226,50 @@ impl Bundle {
                 Err(e) => Err(AssetRefusal::Io(e.to_string())),
             };
             match read {
+                // A glTF asset's buffers and images beside it are assets too (checked like
+                // every asset path; `data:` URIs are inside it).
+                Ok(data) if is_gltf(&rel) => {
+                    references.extend(crate::gltf::external_assets(&rel, &data));
+                    assets.push((rel, data));
+                }
                 Ok(data) => assets.push((rel, data)),
                 Err(why) => refused.push((rel, why)),
             }
         }
         assets.sort();
         Ok(Bundle { name: path.display().to_string(), text, assets, refused })
+    }
+
+    fn read_gltf(path: &Path) -> Result<Bundle, BundleError> {
+        let data = read_regular(path, limits::MAX_ASSET_BYTES, false).map_err(|u| match u {
+            Unread::NotRegular(kind) => BundleError::NotRegular { path: path.to_owned(), kind },
+            Unread::TooLarge(size) => {
+                BundleError::TooLarge { path: path.to_owned(), size, limit: limits::MAX_ASSET_BYTES }
+            }
+            Unread::Io(source) => BundleError::Read { path: path.to_owned(), source },
+        })?;
+        let name = path.file_name().map_or_else(|| "model.gltf".into(), |n| n.to_string_lossy().into_owned());
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d,
+            _ => Path::new("."),
+        };
+        let root = std::fs::canonicalize(dir);
+        let mut bundle =
+            Bundle { name: path.display().to_string(), text: String::new(), assets: vec![], refused: vec![] };
+        for rel in crate::gltf::external_assets(&name, &data) {
+            if bundle.assets.iter().any(|(p, _)| *p == rel) || bundle.refused.iter().any(|(p, _)| *p == rel) {
+                continue;
+            }
+            match root.as_ref().map_err(|e| AssetRefusal::Io(e.to_string())).and_then(|r| read_asset(r, &rel))
+            {
+                Ok(bytes) => bundle.assets.push((rel, bytes)),
+                Err(why) => bundle.refused.push((rel, why)),
+            }
+        }
+        bundle.assets.push((name.clone(), data));
+        bundle.assets.sort();
+        bundle.text = crate::gltf::wrap::scene_text(&name, &bundle)?;
+        Ok(bundle)
     }
 
     /// The content hash: blake3 over the text and every asset, each length-prefixed so
@@ -307,14 +359,23 @@ pub fn check_asset_path(path: &str) -> Result<String, String> {
     Ok(parts.join("/"))
 }
 
-/// The asset paths a scene text names: `file` of every mesh and texture. A text that is
-/// not valid TOML names none (parsing reports the syntax error).
-fn asset_references(text: &str) -> Vec<String> {
+/// Whether an asset path names a glTF file (`.gltf` or `.glb`).
+pub(crate) fn is_gltf(path: &str) -> bool {
+    let lower = path.to_ascii_lowercase();
+    lower.ends_with(".gltf") || lower.ends_with(".glb")
+}
+
+/// The asset paths a scene text names: `file` of every mesh, texture and glTF asset. A
+/// text that is not valid TOML names none (parsing reports the syntax error).
+pub(crate) fn asset_references(text: &str) -> Vec<String> {
     let Ok(table) = text.parse::<toml::Table>() else { return Vec::new() };
     let mut out = Vec::new();
     let file_of = |v: &toml::Value| v.get("file").and_then(|f| f.as_str()).map(str::to_string);
     if let Some(meshes) = table.get("mesh").and_then(|m| m.as_array()) {
         out.extend(meshes.iter().filter_map(file_of));
+    }
+    if let Some(models) = table.get("gltf").and_then(|m| m.as_array()) {
+        out.extend(models.iter().filter_map(file_of));
     }
     if let Some(textures) = table.get("textures").and_then(|t| t.as_table()) {
         out.extend(textures.values().filter_map(file_of));

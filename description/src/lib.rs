@@ -15,6 +15,7 @@ pub mod animation;
 pub mod bounds;
 pub mod bundle;
 pub mod error;
+pub mod gltf;
 pub mod ids;
 pub mod job;
 mod keyframes;

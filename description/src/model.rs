@@ -3,7 +3,7 @@
 //! what the scene file itself spells out: meshes are named by their asset and counted,
 //! images by their asset and size.
 
-use glam::Vec3;
+use glam::{Vec3, Vec4};
 
 use crate::obj::ObjCounts;
 use crate::transform::Trs;
@@ -173,6 +173,67 @@ pub enum TextureKind {
         /// Height in pixels.
         height: u32,
     },
+    /// An image inside (or beside) a glTF asset: glTF `images[image]` of `file`.
+    GltfImage {
+        /// The normalised asset path of the glTF file.
+        file: String,
+        /// Index into the asset's `images`.
+        image: u32,
+        /// Width in pixels, from the image's header.
+        width: u32,
+        /// Height in pixels, from the image's header.
+        height: u32,
+    },
+}
+
+/// A glTF texture reference, resolved: which texture of the scene and which texture
+/// coordinate set of the primitive.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct TexRef {
+    /// Index into `Description::textures`.
+    pub texture: u32,
+    /// The primitive's `TEXCOORD_n` set.
+    pub texcoord: u32,
+}
+
+/// How a glTF material's alpha is used.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum AlphaMode {
+    /// Alpha ignored: fully opaque.
+    Opaque,
+    /// Cut-out: a hit whose alpha is below the cutoff is no hit.
+    Mask(f32),
+    /// Blended with what lies behind by alpha.
+    Blend,
+}
+
+/// glTF 2.0 metallic-roughness (spec appendix B), with the extensions Tessera reads.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Pbr {
+    /// Base colour factor, linear RGBA.
+    pub base_color: Vec4,
+    /// Base colour texture, sRGB-encoded.
+    pub base_color_texture: Option<TexRef>,
+    /// Metallic factor.
+    pub metallic: f32,
+    /// Perceptual roughness factor (α = roughness²).
+    pub roughness: f32,
+    /// Linear texture: blue is metallic, green is roughness.
+    pub metallic_roughness_texture: Option<TexRef>,
+    /// Tangent-space normal map (linear) and its scale.
+    pub normal_texture: Option<(TexRef, f32)>,
+    /// Emissive factor times `KHR_materials_emissive_strength`.
+    pub emissive: Vec3,
+    /// Emissive texture, sRGB.
+    pub emissive_texture: Option<TexRef>,
+    /// Alpha use.
+    pub alpha: AlphaMode,
+    /// glTF `doubleSided`: back faces are shaded like front faces.
+    pub double_sided: bool,
+    /// `KHR_materials_ior`, default 1.5.
+    pub ior: f32,
+    /// `KHR_materials_transmission` factor; 0 is none.
+    pub transmission: f32,
 }
 
 /// A colour parameter: constant or textured.
@@ -252,6 +313,8 @@ pub enum Material {
         /// Index of the coat.
         ior: f32,
     },
+    /// glTF 2.0 metallic-roughness (spec appendix B).
+    Pbr(Pbr),
 }
 
 /// A bounded object's shape, in object space.
@@ -292,6 +355,20 @@ pub enum Shape {
         /// What the file holds, from a validating scan.
         counts: ObjCounts,
     },
+    /// One triangle primitive of a glTF asset's mesh (mode TRIANGLES), vertices in the
+    /// mesh's own space; the node's world transform is the Object's transform.
+    GltfPrimitive {
+        /// The normalised asset path of the glTF file.
+        file: String,
+        /// Index into the asset's `meshes`.
+        mesh: u32,
+        /// Index into that mesh's `primitives`.
+        primitive: u32,
+        /// Triangles it holds.
+        triangles: u64,
+        /// Vertices (the POSITION accessor's count).
+        vertices: u64,
+    },
 }
 
 /// A bounded object.
@@ -317,6 +394,7 @@ impl Object {
         match &self.shape {
             Shape::Box { .. } => 6,
             Shape::Mesh { counts, .. } => counts.triangles as u64,
+            Shape::GltfPrimitive { triangles, .. } => *triangles,
             _ => 1,
         }
     }
@@ -326,6 +404,7 @@ impl Object {
         match &self.shape {
             Shape::Triangle { .. } => 1,
             Shape::Mesh { counts, .. } => counts.triangles as u64,
+            Shape::GltfPrimitive { triangles, .. } => *triangles,
             _ => 0,
         }
     }

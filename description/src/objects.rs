@@ -71,7 +71,7 @@ impl Validator<'_> {
 
     /// The static transform and the motion (if any) of an object; its keys, if any, are
     /// checked into the animation of the object pushed next.
-    fn placement(
+    pub(crate) fn placement(
         &mut self,
         span: &Range<usize>,
         what: &'static str,
@@ -95,7 +95,7 @@ impl Validator<'_> {
     /// origin wherever its placement takes it: a transform that overflows would make it
     /// vanish (or fill the image with NaN) without a word. Rotations keep lengths and a
     /// motion interpolates between its ends, so |t| + |s|·r at both ends bounds it all.
-    fn check_reach(
+    pub(crate) fn check_reach(
         &self,
         span: &Range<usize>,
         what: &str,
@@ -123,7 +123,7 @@ impl Validator<'_> {
         Ok(())
     }
 
-    fn push(
+    pub(crate) fn push(
         &mut self,
         span: &Range<usize>,
         shape: Shape,
@@ -306,7 +306,7 @@ impl Validator<'_> {
         Ok(())
     }
 
-    fn count_triangles(&mut self, span: &Range<usize>, n: usize) -> R<()> {
+    pub(crate) fn count_triangles(&mut self, span: &Range<usize>, n: usize) -> R<()> {
         self.triangles += n;
         if self.triangles > limits::MAX_TRIANGLES {
             return Err(self

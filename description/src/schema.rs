@@ -113,7 +113,8 @@ fn read_vec3<'de, A: SeqAccess<'de>>(mut seq: A, exp: &dyn de::Expected) -> Resu
 #[serde(deny_unknown_fields)]
 pub(crate) struct SceneFile {
     pub(crate) render: Spanned<RenderDef>,
-    pub(crate) camera: Spanned<CameraDef>,
+    /// Optional when a `[[gltf]]` asset has a camera.
+    pub(crate) camera: Option<Spanned<CameraDef>>,
     pub(crate) animation: Option<Spanned<AnimationDef>>,
     #[serde(default)]
     pub(crate) textures: BTreeMap<String, Spanned<TextureDef>>,
@@ -131,6 +132,8 @@ pub(crate) struct SceneFile {
     pub(crate) triangle: Vec<Spanned<TriangleDef>>,
     #[serde(default)]
     pub(crate) mesh: Vec<Spanned<MeshDef>>,
+    #[serde(default)]
+    pub(crate) gltf: Vec<Spanned<GltfDef>>,
     #[serde(default)]
     pub(crate) point_light: Vec<Spanned<PointLightDef>>,
     #[serde(default)]
@@ -319,6 +322,15 @@ pub(crate) struct MeshDef {
     #[serde(default)]
     pub(crate) keys: Vec<Spanned<TransformKey>>,
     pub(crate) interpolation: Option<Spanned<String>>,
+}
+
+/// A glTF asset placed in the scene.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct GltfDef {
+    pub(crate) file: String,
+    pub(crate) scene: Option<crate::gltf::SceneRef>,
+    pub(crate) transform: Option<TransformDef>,
 }
 
 #[derive(Debug, Deserialize)]

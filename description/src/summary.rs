@@ -69,17 +69,24 @@ impl Description {
                     vertices += (counts.positions + counts.normals) as u64;
                     uvs += counts.uvs as u64;
                 }
+                // A glTF primitive's vertices carry a position, a normal and a texture
+                // coordinate each (the normal computed when absent).
+                Shape::GltfPrimitive { vertices: n, .. } => {
+                    vertices += 2 * n;
+                    uvs += n;
+                }
                 _ => {}
             }
         }
-        let textures: Vec<(u32, u32)> = self
-            .textures
-            .iter()
-            .filter_map(|t| match t.kind {
-                TextureKind::Image { width, height, .. } => Some((width, height)),
-                TextureKind::Checker { .. } => None,
-            })
-            .collect();
+        let textures: Vec<(u32, u32)> =
+            self.textures
+                .iter()
+                .filter_map(|t| match t.kind {
+                    TextureKind::Image { width, height, .. }
+                    | TextureKind::GltfImage { width, height, .. } => Some((width, height)),
+                    TextureKind::Checker { .. } => None,
+                })
+                .collect();
         let texels: u64 = textures.iter().map(|&(w, h)| u64::from(w) * u64::from(h)).sum();
         let environment_texels = match &self.environment {
             Some(crate::model::Environment {

@@ -91,12 +91,17 @@ pub(crate) struct Validator<'a> {
     pub(crate) scans: BTreeMap<String, (crate::obj::ObjCounts, Vec3)>,
     /// The `[animation]` table, checked.
     pub(crate) clock: Option<Clock>,
-    /// The frame the scene is read at, with its shutter window (for animated assets).
+    /// The frame the scene is read at, with its shutter window (glTF assets' animations
+    /// are evaluated over it too).
     pub(crate) time: Option<FrameTime>,
     /// The keys of the object being checked, until it is pushed.
     pub(crate) pending: Option<ObjectTracks>,
     /// Objects' animations.
     pub(crate) object_tracks: Vec<ObjectTracks>,
+    /// The first `[[gltf]]` camera, for a scene without `[camera]`.
+    pub(crate) gltf_camera: Option<crate::gltf::GltfCamera>,
+    /// The `[[gltf]]` assets' punctual lights.
+    pub(crate) gltf_lights: Vec<Light>,
 }
 
 /// Parses and validates a scene whose meshes and images come from `assets`, as it stands
@@ -153,9 +158,12 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets, frame: Optio
         ambient,
     };
     let clock = raw.animation.as_ref().map(|a| keyframes::clock(&ctx, a)).transpose()?;
-    let (camera, camera_tracks) = camera(&ctx, clock.as_ref(), raw.camera)?;
+    let toml_camera = raw.camera.map(|c| camera(&ctx, clock.as_ref(), c)).transpose()?;
+    // A scene whose camera comes from a glTF asset has no shutter of its own: its frames
+    // are sharp.
+    let shutter = toml_camera.as_ref().map_or((0.0, 0.0), |(c, _)| c.shutter);
     let frame = clock.as_ref().map(|c| frame.unwrap_or(c.first));
-    let time = clock.as_ref().zip(frame).map(|(c, f)| FrameTime::new(f, c.fps, camera.shutter));
+    let time = clock.as_ref().zip(frame).map(|(c, f)| FrameTime::new(f, c.fps, shutter));
 
     let mut v = Validator {
         ctx,
@@ -172,6 +180,8 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets, frame: Optio
         time,
         pending: None,
         object_tracks: Vec::new(),
+        gltf_camera: None,
+        gltf_lights: Vec::new(),
     };
     for (name, t) in &raw.textures {
         v.texture(name, &t.span(), t.get_ref())?;
@@ -206,6 +216,18 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets, frame: Optio
     for m in &raw.mesh {
         v.mesh(&m.span(), m.get_ref())?;
     }
+    for g in &raw.gltf {
+        v.gltf(&g.span(), g.get_ref())?;
+    }
+    let (camera, camera_tracks) = match (toml_camera, v.gltf_camera) {
+        (Some(c), _) => c,
+        (None, Some(g)) => (gltf_camera(&v.ctx, g)?, None),
+        (None, None) => {
+            return Err(v
+                .ctx
+                .err(&(0..0), "missing table [camera] (required unless a [[gltf]] asset has a camera)"))
+        }
+    };
     let mut lights = Vec::new();
     let mut light_tracks_all = Vec::new();
     for l in &raw.point_light {
@@ -258,6 +280,7 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets, frame: Optio
     for l in &raw.spot_light {
         lights.push(v.spot_light(&l.span(), l.get_ref())?);
     }
+    lights.append(&mut v.gltf_lights);
     let environment = raw.environment.as_ref().map(|e| v.environment(&e.span(), e.get_ref())).transpose()?;
     let mut d = Description {
         file: file.to_string(),
@@ -278,6 +301,28 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets, frame: Optio
         keyframes::evaluate(&v.ctx, &mut d, &tracks, time)?;
     }
     Ok(d)
+}
+
+/// A glTF camera as the scene's camera: a pinhole, shutter fully open.
+fn gltf_camera(ctx: &Ctx, g: crate::gltf::GltfCamera) -> R<Camera> {
+    let forward = g.look_at - g.position;
+    if !(g.position.is_finite() && g.look_at.is_finite() && g.up.is_finite())
+        || forward.cross(g.up).length_squared() == 0.0
+    {
+        return Err(
+            ctx.err(&(0..0), "the glTF camera's node places it nowhere (its transform is degenerate)")
+        );
+    }
+    Ok(Camera {
+        position: g.position,
+        look_at: g.look_at,
+        up: g.up,
+        fov: g.yfov,
+        axis: FovAxis::Vertical,
+        lens_radius: 0.0,
+        focus_distance: forward.length(),
+        shutter: (0.0, 1.0),
+    })
 }
 
 fn camera(ctx: &Ctx, clock: Option<&Clock>, c: Spanned<CameraDef>) -> R<(Camera, Option<CameraTracks>)> {

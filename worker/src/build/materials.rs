@@ -13,11 +13,14 @@ use crate::render::texture::{Tex, Texture};
 pub(super) fn textures(
     desc: &Description,
     assets: &dyn Assets,
+    files: &mut super::gltf::Files,
     err: &dyn Fn(Location, String) -> SceneError,
 ) -> Result<Vec<Texture>, SceneError> {
+    let (srgb, linear) = roles(desc);
     desc.textures
         .iter()
-        .map(|t| match &t.kind {
+        .enumerate()
+        .map(|(i, t)| match &t.kind {
             TextureKind::Checker { even, odd, size, space } => {
                 Ok(Texture::Checker { even: *even, odd: *odd, size: *size, space: *space })
             }
@@ -34,8 +37,35 @@ pub(super) fn textures(
                 let texels = values.chunks_exact(3).map(Vec3::from_slice).collect();
                 Ok(Texture::Image { width, height, texels })
             }
+            TextureKind::GltfImage { file, image, .. } => {
+                let decoded = files
+                    .get(file, assets)
+                    .and_then(|a| super::gltf::image(a, *image, assets, srgb[i], linear[i] || !srgb[i]))
+                    .map_err(|e| err(t.at, e))?;
+                Ok(Texture::Rgba(Box::new(decoded)))
+            }
         })
         .collect()
+}
+
+/// Per texture: whether a glTF material reads it as sRGB colour (base colour,
+/// emissive) and whether as linear data (metallic-roughness, normals).
+fn roles(desc: &Description) -> (Vec<bool>, Vec<bool>) {
+    let (mut srgb, mut linear) = (vec![false; desc.textures.len()], vec![false; desc.textures.len()]);
+    let mark = |v: &mut Vec<bool>, r: Option<d::TexRef>| {
+        if let Some(slot) = r.and_then(|r| v.get_mut(r.texture as usize)) {
+            *slot = true;
+        }
+    };
+    for m in &desc.materials {
+        if let d::Material::Pbr(p) = m {
+            mark(&mut srgb, p.base_color_texture);
+            mark(&mut srgb, p.emissive_texture);
+            mark(&mut linear, p.metallic_roughness_texture);
+            mark(&mut linear, p.normal_texture.map(|(r, _)| r));
+        }
+    }
+    (srgb, linear)
 }
 
 /// Decodes an image within the texture budget: its size is read from the header and
@@ -86,5 +116,6 @@ pub(super) fn material(m: &d::Material) -> Material {
         d::Material::Conductor { eta, k, roughness } => Material::Conductor { eta, k, roughness },
         d::Material::RoughDielectric { ior, roughness } => Material::RoughDielectric { ior, roughness },
         d::Material::Plastic { diffuse, ior } => Material::Plastic { diffuse: tex(diffuse), ior },
+        d::Material::Pbr(p) => Material::Pbr(p),
     }
 }

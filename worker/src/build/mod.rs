@@ -3,6 +3,7 @@
 //! `tessera_description`; what can still fail here is only what a header could not tell
 //! (an image whose pixels are damaged) or assets that differ from the ones validated.
 
+mod gltf;
 mod materials;
 mod shapes;
 
@@ -33,8 +34,8 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
         column: at.column,
         message,
     };
-    let textures = materials::textures(desc, assets, &err)?;
     let mut shapes = shapes::Shapes::default();
+    let textures = materials::textures(desc, assets, &mut shapes.gltf, &err)?;
     for o in &desc.objects {
         shapes.object(o, &desc.objects, assets, &err)?;
     }
@@ -76,8 +77,10 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
     drop(bounds);
     let light_choice = LightChoice::new(&lights, scene_radius(&bvh));
     let slots = crate::render::triangles::slots(&bvh, &shapes.prims, &shapes.meshes);
+    let materials: Vec<_> = desc.materials.iter().map(materials::material).collect();
+    let surfaces = crate::render::surface::Surfaces::new(&materials, std::mem::take(&mut shapes.extras));
     let world = World {
-        materials: desc.materials.iter().map(materials::material).collect(),
+        materials,
         textures,
         prims: shapes.prims,
         bvh,
@@ -86,6 +89,7 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
         meshes: shapes.meshes,
         motions: shapes.motions,
         lights,
+        surfaces,
         light_choice,
         environment,
     };

@@ -12,6 +12,7 @@ use tessera_description::SceneError;
 use crate::render::geometry::Sphere;
 use crate::render::light::{Light, MeshLight};
 use crate::render::shape::{Mesh, Primitive, Rect, Shape};
+use crate::render::surface::Extras;
 use crate::render::transform::{Motion, Trs};
 
 /// The error for geometry that a transform overflowed.
@@ -27,6 +28,10 @@ pub(super) struct Shapes {
     /// Meshes read and still to be used again, by asset, with the uses left: a mesh used
     /// again is copied, not parsed again, and dropped at its last use.
     read: HashMap<String, (ObjMesh, usize)>,
+    /// The glTF files read, each once.
+    pub(super) gltf: super::gltf::Files,
+    /// Extra vertex attributes of glTF meshes, by mesh index.
+    pub(super) extras: HashMap<u32, Extras>,
 }
 
 impl Shapes {
@@ -97,6 +102,26 @@ impl Shapes {
                     self.read[file].0.clone()
                 };
                 let mesh = Mesh { p: m.p, n: m.n, uv: m.uv, tris: m.tris };
+                self.mesh(mesh, o, &trs, motion, err)?;
+            }
+            S::GltfPrimitive { file, mesh, primitive, .. } => {
+                let (mesh, mut extras) = self
+                    .gltf
+                    .get(file, assets)
+                    .and_then(|a| super::gltf::primitive(a, *mesh, *primitive))
+                    .map_err(|e| err(o.at, e))?;
+                if let Some(x) = extras.as_mut().filter(|_| motion.is_none() && !trs.is_identity()) {
+                    // Baked like the positions; a mirroring transform flips the handedness.
+                    let m = trs.matrix();
+                    let flip = if m.matrix3.determinant() < 0.0 { -1.0 } else { 1.0 };
+                    for t in &mut x.tangents {
+                        let v = m.transform_vector3(t.truncate()).normalize_or_zero();
+                        *t = v.extend(t.w * flip);
+                    }
+                }
+                if let Some(x) = extras {
+                    self.extras.insert(self.meshes.len() as u32, x);
+                }
                 self.mesh(mesh, o, &trs, motion, err)?;
             }
         }

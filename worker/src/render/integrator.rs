@@ -77,7 +77,10 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
         };
         if let Some(li) = sh.light {
             let light = &scene.world.lights[li as usize];
-            let le = light.emitted(sh.hit.n, ray.dir);
+            let mut le = light.emitted(sh.hit.n, ray.dir);
+            if le != Vec3::ZERO && matches!(scene.world.materials[sh.material as usize], Material::Pbr(_)) {
+                le *= scene.emission_scale(&sh, time);
+            }
             if le != Vec3::ZERO {
                 let w = if from_dirac {
                     1.0
@@ -102,16 +105,23 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
             l += beta * classic(scene, sampler, &ray, &hit, c, depth, time);
             break;
         }
-        let bsdf = material.bsdf(&scene.world.textures, hit.p, hit.uv).expect("physically based material");
         let wo_world = -ray.dir;
-        // Dielectrics need to know inside from outside; opaque surfaces shade both sides.
-        let mut ns = hit.ns;
-        if !matches!(material, Material::Dielectric { .. } | Material::RoughDielectric { .. })
-            && ns.dot(wo_world) < 0.0
-        {
-            ns = -ns;
-        }
-        let frame = Frame::new(ns);
+        let (bsdf, frame) = if let Material::Pbr(m) = material {
+            // glTF: texture coordinate sets, normal map, single or double sided.
+            let Some(shading) = scene.pbr_shading(&sh, m, wo_world, time) else { break };
+            shading
+        } else {
+            let bsdf =
+                material.bsdf(&scene.world.textures, hit.p, hit.uv).expect("physically based material");
+            // Dielectrics need to know inside from outside; opaque surfaces shade both sides.
+            let mut ns = hit.ns;
+            if !matches!(material, Material::Dielectric { .. } | Material::RoughDielectric { .. })
+                && ns.dot(wo_world) < 0.0
+            {
+                ns = -ns;
+            }
+            (bsdf, Frame::new(ns))
+        };
         let wo = frame.to_local(wo_world);
         if depth + 1 < scene.max_depth && !bsdf.is_delta() {
             let w = &*scene.world;

@@ -1,10 +1,12 @@
 //! Materials: the classic (Whitted/Phong) model of the seed paper, with Cook's gloss and
 //! translucency, and the physically based family of `bsdf/`.
 
-use glam::{Vec2, Vec3};
+use glam::{Vec2, Vec3, Vec4};
 
-use super::bsdf::{fresnel_diffuse_reflectance, Bsdf, SMOOTH_ALPHA};
-use super::texture::{Tex, Texture};
+pub use tessera_description::model::{AlphaMode, Pbr, TexRef};
+
+use super::bsdf::{fresnel_diffuse_reflectance, Bsdf, MetallicRoughness, SMOOTH_ALPHA};
+use super::texture::{Encoding, Tex, Texture};
 
 /// The classic model: ambient, diffuse colour, Phong highlight, mirror reflection and
 /// refraction coefficients. Colours are reflectances of the classic model, not
@@ -77,6 +79,89 @@ pub enum Material {
         /// Coat index.
         ior: f32,
     },
+    /// glTF 2.0 metallic-roughness, its textures read with the primitive's texture
+    /// coordinate sets (`pbr_*` below).
+    Pbr(Pbr),
+}
+
+/// What a glTF material is at one point, its textures looked up.
+#[derive(Debug, Clone, Copy)]
+pub struct PbrPoint {
+    /// The BRDF.
+    pub bsdf: MetallicRoughness,
+    /// The tangent-space normal from the normal map (scaled in x and y), if it has one.
+    pub normal: Option<Vec3>,
+}
+
+/// A texture reference's value at a point with texture coordinate sets `uvs`.
+fn lookup(textures: &[Texture], r: TexRef, uvs: &[Vec2; 2], encoding: Encoding) -> Vec4 {
+    let uv = uvs[(r.texcoord as usize).min(1)];
+    textures[r.texture as usize].rgba(Vec3::ZERO, uv, encoding)
+}
+
+/// Base colour (linear RGBA): the factor times the sRGB texture.
+pub fn pbr_base(m: &Pbr, textures: &[Texture], uvs: &[Vec2; 2]) -> Vec4 {
+    match m.base_color_texture {
+        Some(r) => m.base_color * lookup(textures, r, uvs, Encoding::Srgb),
+        None => m.base_color,
+    }
+}
+
+/// The material at a point: base colour, metallic and roughness (texture blue and green),
+/// the normal map's tangent-space normal.
+pub fn pbr_point(m: &Pbr, textures: &[Texture], uvs: &[Vec2; 2]) -> PbrPoint {
+    let base = pbr_base(m, textures, uvs);
+    let (mut metallic, mut roughness) = (m.metallic, m.roughness);
+    if let Some(r) = m.metallic_roughness_texture {
+        let t = lookup(textures, r, uvs, Encoding::Linear);
+        metallic *= t.z;
+        roughness *= t.y;
+    }
+    let normal = m.normal_texture.map(|(r, scale)| {
+        let t = lookup(textures, r, uvs, Encoding::Linear);
+        let n = t.truncate() * 2.0 - Vec3::ONE;
+        Vec3::new(n.x * scale, n.y * scale, n.z)
+    });
+    let roughness = roughness.clamp(0.0, 1.0);
+    PbrPoint {
+        bsdf: MetallicRoughness {
+            base: base.truncate().clamp(Vec3::ZERO, Vec3::ONE),
+            metallic: metallic.clamp(0.0, 1.0),
+            alpha: roughness * roughness,
+            ior: m.ior,
+            transmission: m.transmission.clamp(0.0, 1.0),
+        },
+        normal,
+    }
+}
+
+/// What the emissive texture multiplies the primitive's emission by (the Object's
+/// emission is the factor): its sRGB colour, or 1.
+pub fn pbr_emission_scale(m: &Pbr, textures: &[Texture], uvs: &[Vec2; 2]) -> Vec3 {
+    match m.emissive_texture {
+        Some(r) => lookup(textures, r, uvs, Encoding::Srgb).truncate(),
+        None => Vec3::ONE,
+    }
+}
+
+/// Whether a hit on a glTF surface counts, by its alpha: `MASK` cuts out below the
+/// cutoff; `BLEND` is stochastic coverage, the hit kept when alpha exceeds `threshold`
+/// (a hash of the ray in [0, 1), so that on average a fraction alpha of the rays stop).
+pub fn pbr_covers(m: &Pbr, textures: &[Texture], uvs: &[Vec2; 2], threshold: f32) -> bool {
+    let alpha = || pbr_base(m, textures, uvs).w;
+    match m.alpha {
+        AlphaMode::Opaque => true,
+        AlphaMode::Mask(cutoff) => alpha() >= cutoff,
+        AlphaMode::Blend => alpha() > threshold,
+    }
+}
+
+impl Material {
+    /// Whether some hits on this material may be no hits (alpha cut-outs): only these pay
+    /// for the any-hit test.
+    pub fn has_alpha(&self) -> bool {
+        matches!(self, Material::Pbr(m) if m.alpha != AlphaMode::Opaque)
+    }
 }
 
 impl Material {
@@ -104,6 +189,9 @@ impl Material {
                 eta: *ior,
                 fdr: fresnel_diffuse_reflectance(*ior),
             },
+            // Both texture coordinate sets read `uv` here; the integrator shades glTF
+            // surfaces through `pbr_point` with the primitive's own sets.
+            Material::Pbr(m) => Bsdf::MetallicRoughness(pbr_point(m, textures, &[uv, uv]).bsdf),
         })
     }
 
@@ -145,6 +233,12 @@ impl Material {
             Material::Classic(c) => matches!(c.color, Tex::Map(_)),
             Material::Lambert { albedo } => matches!(albedo, Tex::Map(_)),
             Material::Plastic { diffuse, .. } => matches!(diffuse, Tex::Map(_)),
+            Material::Pbr(m) => {
+                m.base_color_texture.is_some()
+                    || m.metallic_roughness_texture.is_some()
+                    || m.normal_texture.is_some()
+                    || m.emissive_texture.is_some()
+            }
             _ => false,
         }
     }

@@ -13,6 +13,7 @@ pub mod light;
 pub mod material;
 pub mod sampler;
 pub mod shape;
+pub mod surface;
 pub mod texture;
 pub mod transform;
 pub mod triangles;
@@ -78,6 +79,8 @@ pub struct World {
     pub motions: Vec<Motion>,
     /// Lights.
     pub lights: Vec<Light>,
+    /// glTF surfaces: extra vertex attributes, which materials cut out hits.
+    pub surfaces: surface::Surfaces,
     /// Which lights a shading point samples (all, or one by power).
     pub light_choice: light::LightChoice,
     /// The environment's index in `lights`, when the scene has one: escaping rays see it
@@ -117,6 +120,16 @@ impl Scene {
 
     /// The nearest surface the ray hits before `t_max`, at shutter fraction `time`.
     pub fn intersect(&self, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceHit> {
+        // Only scenes with alpha cut-outs pay for the any-hit test.
+        if self.world.surfaces.any_alpha {
+            self.nearest::<true>(ray, t_max, time)
+        } else {
+            self.nearest::<false>(ray, t_max, time)
+        }
+    }
+
+    /// [`Scene::intersect`], with hits on materials with alpha tested when `ALPHA`.
+    fn nearest<const ALPHA: bool>(&self, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceHit> {
         let w = &*self.world;
         // An inline triangle's hit is completed (point, normals, uv) only once it is known
         // to be the nearest; it is the same hit `Primitive::intersect` would have made.
@@ -125,6 +138,9 @@ impl Scene {
         let t_max = w.bvh.traverse_slots(ray, t_max, |k, t_max| match w.slots[k].kind() {
             triangles::SlotKind::Triangle(i) => {
                 let (t, b1, b2) = w.slots[k].hit(ray, t_max)?;
+                if ALPHA && !w.covers_slot(i, b1, b2, ray) {
+                    return None;
+                }
                 nearest = Some((i, t, b1, b2));
                 best = None;
                 Some(t)
@@ -132,6 +148,12 @@ impl Scene {
             triangles::SlotKind::Generic(i) => {
                 let prim = &w.prims[i as usize];
                 let mut hit = prim.intersect(ray, t_max, time, &w.meshes, &w.motions)?;
+                if ALPHA
+                    && w.surfaces.alpha[prim.material as usize]
+                    && !w.covers_hit(i, hit.p, hit.uv, ray, time)
+                {
+                    return None;
+                }
                 hit.prim = i;
                 nearest = None;
                 best = Some(SurfaceHit { hit, material: prim.material, light: prim.light });
@@ -171,6 +193,16 @@ impl Scene {
     /// zero if an opaque surface is in the way, else the product of the transmissions of
     /// the classic-model surfaces crossed (coloured shadows).
     pub fn transmittance(&self, ray: &Ray, dist: f32, time: f32) -> Vec3 {
+        if self.world.surfaces.any_alpha {
+            self.transmittance_with::<true>(ray, dist, time)
+        } else {
+            self.transmittance_with::<false>(ray, dist, time)
+        }
+    }
+
+    /// [`Scene::transmittance`], with crossings of materials with alpha tested when
+    /// `ALPHA` (a cut-out crossing is no crossing).
+    fn transmittance_with<const ALPHA: bool>(&self, ray: &Ray, dist: f32, time: f32) -> Vec3 {
         let mut tr = Vec3::ONE;
         let mut pass = |material: u32, emitter: bool| {
             // An emitter's own surface does not shadow the light it sends.
@@ -185,9 +217,23 @@ impl Scene {
         let w = &*self.world;
         w.bvh.visit_slots(ray, dist, |k| {
             let (i, crossings) = match w.slots[k].kind() {
-                triangles::SlotKind::Triangle(i) => (i, u32::from(w.slots[k].hit(ray, dist).is_some())),
+                triangles::SlotKind::Triangle(i) => {
+                    let hit = w.slots[k].hit(ray, dist);
+                    let hit = match hit {
+                        Some((_, b1, b2)) if ALPHA => w.covers_slot(i, b1, b2, ray),
+                        hit => hit.is_some(),
+                    };
+                    (i, u32::from(hit))
+                }
                 triangles::SlotKind::Generic(i) => {
-                    (i, w.prims[i as usize].crossings(ray, dist, time, &w.meshes, &w.motions))
+                    let prim = &w.prims[i as usize];
+                    if ALPHA && w.surfaces.alpha[prim.material as usize] {
+                        // A triangle, crossed at most once.
+                        let hit = prim.intersect(ray, dist, time, &w.meshes, &w.motions);
+                        (i, u32::from(hit.is_some_and(|h| w.covers_hit(i, h.p, h.uv, ray, time))))
+                    } else {
+                        (i, prim.crossings(ray, dist, time, &w.meshes, &w.motions))
+                    }
                 }
             };
             let prim = &w.prims[i as usize];

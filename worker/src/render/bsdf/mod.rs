@@ -12,6 +12,7 @@ mod dielectric;
 mod frame;
 mod fresnel;
 mod lambert;
+mod metallic_roughness;
 mod microfacet;
 mod mirror;
 mod plastic;
@@ -24,6 +25,7 @@ use glam::{Vec2, Vec3};
 
 pub use frame::Frame;
 pub use fresnel::{fresnel_conductor, fresnel_dielectric, fresnel_diffuse_reflectance};
+pub use metallic_roughness::MetallicRoughness;
 pub use microfacet::{ggx_d, ggx_g1};
 pub use warp::{concentric_disk, cosine_hemisphere};
 
@@ -102,6 +104,9 @@ pub enum Bsdf {
         /// Internal diffuse Fresnel reflectance of the coat.
         fdr: f32,
     },
+    /// glTF 2.0's metallic-roughness BRDF (its specification's appendix B), with
+    /// KHR_materials_transmission.
+    MetallicRoughness(MetallicRoughness),
 }
 
 /// Roughness below which a microfacet lobe is treated as perfectly smooth: GGX with
@@ -115,6 +120,7 @@ impl Bsdf {
             Bsdf::Mirror { .. } | Bsdf::Dielectric { .. } | Bsdf::SmoothConductor { .. } => true,
             Bsdf::RoughConductor { .. } | Bsdf::RoughDielectric { .. } => false,
             Bsdf::Lambert { .. } | Bsdf::Plastic { .. } => false,
+            Bsdf::MetallicRoughness(b) => b.is_delta(),
         }
     }
 
@@ -125,6 +131,7 @@ impl Bsdf {
             Bsdf::Plastic { diffuse, eta, fdr } => plastic::eval(wo, wi, diffuse, eta, fdr),
             Bsdf::RoughConductor { eta, k, alpha } => rough_conductor::eval(wo, wi, eta, k, alpha),
             Bsdf::RoughDielectric { eta, alpha } => Vec3::splat(rough_dielectric::eval(wo, wi, eta, alpha)),
+            Bsdf::MetallicRoughness(b) => b.eval(wo, wi),
             Bsdf::Mirror { .. } | Bsdf::Dielectric { .. } | Bsdf::SmoothConductor { .. } => Vec3::ZERO,
         }
     }
@@ -136,6 +143,7 @@ impl Bsdf {
             Bsdf::Plastic { diffuse, eta, .. } => plastic::pdf(wo, wi, diffuse, eta),
             Bsdf::RoughConductor { alpha, .. } => rough_conductor::pdf(wo, wi, alpha),
             Bsdf::RoughDielectric { eta, alpha } => rough_dielectric::pdf(wo, wi, eta, alpha),
+            Bsdf::MetallicRoughness(b) => b.pdf(wo, wi),
             Bsdf::Mirror { .. } | Bsdf::Dielectric { .. } | Bsdf::SmoothConductor { .. } => 0.0,
         }
     }
@@ -151,6 +159,7 @@ impl Bsdf {
             Bsdf::Plastic { diffuse, eta, fdr } => plastic::sample(wo, u_lobe, u, diffuse, eta, fdr),
             Bsdf::RoughConductor { eta, k, alpha } => rough_conductor::sample(wo, u, eta, k, alpha),
             Bsdf::RoughDielectric { eta, alpha } => rough_dielectric::sample(wo, u_lobe, u, eta, alpha),
+            Bsdf::MetallicRoughness(b) => b.sample(wo, u_lobe, u),
         }
     }
 }
