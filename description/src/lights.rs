@@ -186,7 +186,10 @@ mod tests {
         let d = parse(tri, &crate::NoAssets).unwrap();
         assert_eq!(d.objects[0].emission, Some(glam::Vec3::new(1.0, 2.0, 3.0)));
         let e = parse(&format!("{tri}motion = {{ translate = [1, 0, 0] }}\n"), &crate::NoAssets).unwrap_err();
-        assert_eq!(e, "t.toml:9:1: triangle: lights cannot move (give `emission` or `motion`/`keys`, not both)");
+        assert_eq!(
+            e,
+            "t.toml:9:1: triangle: lights cannot move (give `emission` or `motion`/`keys`, not both)"
+        );
         let quad = One("q.obj", b"v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\n".to_vec());
         let d = parse("\n[[mesh]]\nfile = \"q.obj\"\nemission = 2\n", &quad).unwrap();
         assert_eq!(d.objects[0].emission, Some(glam::Vec3::splat(2.0)));

@@ -252,10 +252,9 @@ impl Validator<'_> {
         )?;
         // An emitting mesh is one light built in world space: it cannot move.
         if surface.1.is_some() && (place.1.is_some() || self.pending.is_some()) {
-            return Err(self.ctx.err(
-                span,
-                "triangle: lights cannot move (give `emission` or `motion`/`keys`, not both)",
-            ));
+            return Err(self
+                .ctx
+                .err(span, "triangle: lights cannot move (give `emission` or `motion`/`keys`, not both)"));
         }
         let extent = vertices.iter().fold(Vec3::ZERO, |e, v| e.max(v.abs()));
         self.check_reach(span, "triangle", extent, 0.0, &place)?;
@@ -295,10 +294,9 @@ impl Validator<'_> {
         )?;
         // An emitting mesh is one light built in world space: it cannot move.
         if surface.1.is_some() && (place.1.is_some() || self.pending.is_some()) {
-            return Err(self.ctx.err(
-                span,
-                "mesh: lights cannot move (give `emission` or `motion`/`keys`, not both)",
-            ));
+            return Err(self
+                .ctx
+                .err(span, "mesh: lights cannot move (give `emission` or `motion`/`keys`, not both)"));
         }
         self.check_reach(span, "mesh", extent, 0.0, &place)?;
         self.count_triangles(span, counts.triangles)?;

@@ -222,7 +222,9 @@ impl Material {
                 ((*eta - 1.0) * (*eta - 1.0) + k2) / ((*eta + 1.0) * (*eta + 1.0) + k2)
             }
             Material::Plastic { diffuse, .. } => diffuse.eval(textures, p, uv),
-            // New materials add their arm here (glTF metallic-roughness: base colour).
+            // glTF metallic-roughness: its base colour. The AOV ray knows the first texture
+            // coordinate set only, so a base colour on TEXCOORD_1 is looked up on set 0.
+            Material::Pbr(m) => pbr_base(m, textures, &[uv, uv]).truncate(),
         };
         a.clamp(Vec3::ZERO, Vec3::ONE)
     }
