@@ -164,8 +164,11 @@ pub async fn fetch(
     client: &mut Client,
     job: JobId,
     frame: Option<u32>,
+    args: &AovArgs,
 ) -> Result<(u32, u32, Vec<f32>, Resolved)> {
-    let request = pb::FetchImageRequest { job_id: job.0, aovs: true, frame };
+    // The layers travel only when something is written or denoised with them.
+    let aovs = args.denoise || args.written() != Aovs::default();
+    let request = pb::FetchImageRequest { job_id: job.0, aovs, frame };
     let mut stream = client.fetch_image(request).await.map_err(crate::remote::status_error)?.into_inner();
     let mut size = None;
     let (mut rgb, mut layers) = (Vec::new(), Resolved::default());

@@ -425,7 +425,8 @@ fn write_frame(
     frame: u32,
     layers: &crate::layers::AovArgs,
 ) -> Result<()> {
-    let image = service.frame_image(job, Some(frame)).ok_or_else(|| anyhow!("{job} has no frame {frame}"))?;
+    let image =
+        service.frame_image(job, Some(frame), true).ok_or_else(|| anyhow!("{job} has no frame {frame}"))?;
     let path = crate::frames::frame_path(out, frame);
     crate::layers::write(&path, image.width, image.height, &image.rgb, image.layers, layers)?;
     Ok(())

@@ -368,7 +368,7 @@ async fn run(command: Command) -> Result<ExitCode> {
             check_output(&output)?;
             layers.check(Some(&output))?;
             let mut client = remote::connect(&conn).await?;
-            let (w, h, rgb, aov) = layers::fetch(&mut client, JobId(job), frame).await?;
+            let (w, h, rgb, aov) = layers::fetch(&mut client, JobId(job), frame, &layers).await?;
             let output = frame.map_or(output.clone(), |f| frames::frame_path(&output, f));
             layers::write(&output, w, h, &rgb, aov, &layers)?;
             eprintln!("wrote {} ({w}x{h}) of job {job}", output.display());

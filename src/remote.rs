@@ -375,13 +375,14 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
     if let (Some(out), Some((first, last))) = (&args.output, frames) {
         for frame in first..=last {
             let path = crate::frames::frame_path(out, frame);
-            let (w, h, rgb, layers) = crate::layers::fetch(&mut client, job, Some(frame)).await?;
+            let (w, h, rgb, layers) =
+                crate::layers::fetch(&mut client, job, Some(frame), &args.layers).await?;
             crate::layers::write(&path, w, h, &rgb, layers, &args.layers)?;
         }
         let (a, b) = (crate::frames::frame_path(out, first), crate::frames::frame_path(out, last));
         eprintln!("wrote frames {first}-{last} ({} .. {}), {job} {}", a.display(), b.display(), state.name());
     } else if let Some(out) = &args.output {
-        let (w, h, rgb, layers) = crate::layers::fetch(&mut client, job, None).await?;
+        let (w, h, rgb, layers) = crate::layers::fetch(&mut client, job, None, &args.layers).await?;
         crate::layers::write(out, w, h, &rgb, layers, &args.layers)?;
         eprintln!("wrote {} ({w}x{h}), {job} {}", out.display(), state.name());
     }

@@ -3,7 +3,6 @@
 //! that merging, checkpoints, audits and repairs are those of a still; this module cuts
 //! one frame out again: its image (with its own mosaic) and its pixels for viewers.
 
-use tessera_film::aov::Resolved;
 use tessera_film::quadtree::mosaic_source;
 use tessera_film::{Framebuffer, PixelState};
 
@@ -38,20 +37,6 @@ impl FrameRows {
             }
         }
         out
-    }
-
-    /// The frame's rows of AOV layers resolved over the whole stack (`width` × `stacked`
-    /// pixels, top row first): the stack's top rows are its last frame's.
-    pub fn cut_layers(&self, width: u32, stacked: u32, layers: Resolved) -> Resolved {
-        let top = (stacked - self.row - self.height) as usize * width as usize;
-        let n = self.height as usize * width as usize;
-        let cut = |v: Vec<f32>, per: usize| -> Vec<f32> {
-            if v.is_empty() {
-                return v;
-            }
-            v[top * per..(top + n) * per].to_vec()
-        };
-        Resolved { albedo: cut(layers.albedo, 3), normal: cut(layers.normal, 3), depth: cut(layers.depth, 1) }
     }
 
     /// The pixels of `pixels` (stacked indices) that lie in this frame, re-indexed to it.

@@ -22,9 +22,10 @@ pub const UV_BYTES: u64 = 8;
 /// Bytes per image texel at the peak of decoding: the decoded 8-bit RGBA image, the
 /// linear floats and the texels kept.
 pub const TEXEL_BYTES: u64 = 4 + 12 + 12;
-/// Bytes per environment-map texel at the peak of building: the decoded float image, the
-/// linear radiance kept, and the sampling distribution's pdf and CDF entries.
-pub const ENVIRONMENT_TEXEL_BYTES: u64 = 16 + 12 + 8;
+/// Bytes per environment-map texel, bounding the peak of building from above: the decoded
+/// float image, the linear floats, the radiance kept, the luminance weights and the
+/// sampling distribution's pdf and CDF entries.
+pub const ENVIRONMENT_TEXEL_BYTES: u64 = 16 + 12 + 12 + 4 + 8;
 /// Bytes per pixel of the coordinator's framebuffer: sums of three channels in fixed
 /// point, a sample count and the version that last changed it (`Framebuffer::bytes_for`
 /// is the exact figure, tiles included; a coordinator test checks that they agree).

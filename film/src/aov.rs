@@ -176,6 +176,9 @@ impl AovLayers {
     /// The bytes the layers of a `width × height` image hold: what a job's memory estimate
     /// counts before they are allocated.
     pub fn bytes_for(layout: Layout, width: u32, height: u32) -> u64 {
+        if layout.is_empty() {
+            return 0;
+        }
         let n = u64::from(width) * u64::from(height);
         let per_chunk = (std::mem::size_of::<Vec<u64>>() + 2 * std::mem::size_of::<usize>()) as u64;
         n * layout.per_pixel() as u64 * 8 + n.div_ceil(CHUNK as u64) * per_chunk
@@ -287,7 +290,14 @@ impl AovLayers {
     /// sample count from `count(x, y)` (the framebuffer's). Pixels without samples are
     /// zero (infinitely far for depth).
     pub fn resolve(&self, count: impl Fn(u32, u32) -> u32) -> Resolved {
-        let (w, h) = (self.width, self.height);
+        self.resolve_rows(0, self.height, count)
+    }
+
+    /// As [`AovLayers::resolve`], rows `row0 .. row0 + h` only (y up, as the framebuffer
+    /// counts them): one frame of a sequence's stacked layers, top row first.
+    pub fn resolve_rows(&self, row0: u32, h: u32, count: impl Fn(u32, u32) -> u32) -> Resolved {
+        let w = self.width;
+        let h = h.min(self.height.saturating_sub(row0));
         let n = w as usize * h as usize;
         let mut out = Resolved {
             albedo: Vec::with_capacity(if self.layout.albedo { 3 * n } else { 0 }),
@@ -299,7 +309,7 @@ impl AovLayers {
             return out;
         }
         for row in 0..h {
-            let y = h - 1 - row;
+            let y = row0 + h - 1 - row;
             for x in 0..w {
                 let (c, i) = self.slot(x, y);
                 let s = &self.chunks[c][i..i + per];

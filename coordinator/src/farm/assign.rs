@@ -139,7 +139,12 @@ impl Farm {
             .service_order()
             .into_iter()
             .filter(|id| !self.jobs[id].fence.refused_by.contains(&identity))
-            .filter(|id| renders_frames || self.jobs[id].settings.frames.is_none())
+            // Frames and AOV layers came in one release: a worker that does not announce
+            // frames (`Hello.frames`) returns no AOV sums either, and gets neither kind of job.
+            .filter(|id| {
+                renders_frames
+                    || (self.jobs[id].settings.frames.is_none() && self.jobs[id].aov.layout().is_empty())
+            })
             .collect();
         let token = self.entropy.token();
         let extra = order.iter().find_map(|id| {

@@ -109,14 +109,14 @@ impl CoordinatorService {
         self.check_frame(id, frame)?;
         // A snapshot under the lock; the image is resolved outside it.
         let this = self.clone();
-        let image = tokio::task::spawn_blocking(move || this.frame_image(id, frame))
+        let image = tokio::task::spawn_blocking(move || this.frame_image(id, frame, with_layers))
             .await
             .map_err(|e| Status::internal(format!("resolving the image failed: {e}")))?
             .ok_or_else(|| Status::not_found(format!("no {id} on this coordinator")))?;
         let frame = frame.unwrap_or_else(|| self.farm().job(id).and_then(|j| j.frames()).map_or(0, |f| f.0));
         let (width, height, rgb, state) =
             (image.width, image.height, image.rgb, convert::state_to_wire(&image.state));
-        let layers = if with_layers { image.layers } else { Default::default() };
+        let layers = image.layers;
         // The same rows of a layer with `per` floats a pixel (empty if the job lacks it).
         let rows_of = |layer: &[f32], i: usize, rows: usize, per: usize| -> Vec<u8> {
             let (start, len) = (i * rows * width as usize * per, rows * width as usize * per);

@@ -217,13 +217,13 @@ impl CoordinatorService {
     /// A job's image now: a snapshot under the lock, resolved outside it. A sequence's
     /// is its first frame's.
     pub fn image(&self, job: JobId) -> Option<Image> {
-        self.frame_image(job, None)
+        self.frame_image(job, None, true)
     }
 
     /// The image of `frame` of a sequence now (`None`: its first; a still has only frame
     /// `None` or 0), with its AOV layers; `None` if there is no such job or frame.
     /// Finished frames are whole while later ones render.
-    pub fn frame_image(&self, job: JobId, frame: Option<u32>) -> Option<Image> {
+    pub fn frame_image(&self, job: JobId, frame: Option<u32>, with_layers: bool) -> Option<Image> {
         let (fb, aov, state, rows) = {
             let farm = self.farm();
             let j = farm.job(job)?;
@@ -231,7 +231,11 @@ impl CoordinatorService {
             let rows = crate::frames::FrameRows { row: index * j.frame_height(), height: j.frame_height() };
             (j.framebuffer().clone(), j.aov().clone(), j.state.clone(), rows)
         };
-        let layers = rows.cut_layers(fb.width(), fb.height(), aov.resolve(|x, y| fb.count(x, y)));
+        let layers = if with_layers {
+            aov.resolve_rows(rows.row, rows.height, |x, y| fb.count(x, rows.row + y))
+        } else {
+            Default::default()
+        };
         Some(Image { width: fb.width(), height: rows.height, rgb: rows.resolve(&fb), state, layers })
     }
 

@@ -413,7 +413,11 @@ impl Store {
         let time_limit =
             time_limit.filter(|t| t.is_finite() && *t > 0.0).map(std::time::Duration::from_secs_f64);
         let noise = noise.map(|n| n as f32);
-        let aov_bits: u32 = self.conn.query_row("SELECT aovs FROM jobs WHERE id = ?1", [id], |r| r.get(0))?;
+        // A salvaged copy of a database from before the column has none: no layers.
+        let aov_bits: u32 = match self.conn.prepare("SELECT aovs FROM jobs WHERE id = ?1") {
+            Ok(mut s) => s.query_row([id], |r| r.get(0))?,
+            Err(_) => 0,
+        };
         let Some(aovs) = tessera_proto::convert::aovs_from_wire(aov_bits) else {
             problems.push(format!(
                 "job {id}: its stored AOV layers {aov_bits:#x} name no known layer; it is lost"

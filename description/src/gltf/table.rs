@@ -59,7 +59,10 @@ impl Validator<'_> {
                 "gltf {:?}: nodes[{}] (meshes[{}].primitives[{}])",
                 d.file, inst.node, inst.mesh, inst.primitive
             );
-            let place = (inst.world, inst.motion);
+            let emission = (emissive != Vec3::ZERO).then_some(emissive);
+            // An emitter is a light built in world space: an animated one takes its pose at
+            // the shutter's opening, as keyed TOML emitters do.
+            let place = (inst.world, if emission.is_some() { None } else { inst.motion });
             self.check_reach(span, &what, inst.extent, 0.0, &place)?;
             self.count_triangles(span, inst.triangles as usize)?;
             let shape = Shape::GltfPrimitive {
@@ -69,7 +72,6 @@ impl Validator<'_> {
                 triangles: inst.triangles,
                 vertices: inst.vertices,
             };
-            let emission = (emissive != Vec3::ZERO).then_some(emissive);
             self.push(span, shape, (material, emission), place);
         }
         if self.gltf_camera.is_none() {

@@ -397,6 +397,15 @@ fn animation_is_sampled_over_the_shutter() {
     // Without a frame: the node's rest pose.
     let d = Description::parse(&b).unwrap();
     assert_eq!((d.objects[0].transform.translate, d.objects[0].motion), (Vec3::ZERO, None));
+    // In a TOML scene with an [animation], each frame plays the file's animation at the
+    // frame's time (frame f starts at f / fps seconds).
+    let text =
+        format!("{RENDER}{CAMERA}[animation]\nfps = 2\nframes = [1, 4]\n[[gltf]]\nfile = \"m.gltf\"\n");
+    let animated = Bundle { text, ..b.clone() };
+    for (frame, x) in [(1, 1.0), (3, 3.0)] {
+        let d = Description::parse_frame(&animated, frame).unwrap();
+        assert_eq!(d.objects[0].transform.translate, Vec3::new(x, 0.0, 0.0), "frame {frame}");
+    }
     // Times that go backwards are refused with the sampler's path.
     let mut bad = doc.clone();
     bad["accessors"][2]["bufferView"] = json!(3);

@@ -140,6 +140,7 @@ fn environment(
             let img = materials::decode_image(bytes)
                 .map_err(|e| err(at, format!("environment.file: {file:?} is not a readable image: {e}")))?;
             let (width, height, values) = crate::render::texture::linear_rgb(&img);
+            drop(img);
             let texels = values
                 .chunks_exact(3)
                 .map(|c| {
