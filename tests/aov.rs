@@ -201,3 +201,21 @@ fn denoise_runs_where_open_image_denoise_is_found_and_says_why_not_otherwise() {
     let mean = |v: &[f32]| v.iter().sum::<f32>() / v.len() as f32;
     assert!((mean(nr) - mean(dr)).abs() < 0.1 * mean(nr).max(0.05), "{} vs {}", mean(nr), mean(dr));
 }
+
+/// A sequence's layers are cut per frame: frame 2 of a two-frame job has the same bytes,
+/// layers included, as frame 2 rendered as a job of its own.
+#[test]
+fn each_frame_of_a_sequence_gets_its_own_layers() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = root().join("scenes/bouncing_ball.toml");
+    let small = ["--aov", LAYERS, "--size", "32x20", "--spp", "2"];
+    let both = dir.path().join("both_#.exr");
+    render_local(&scene, &both, 2, &[&small[..], &["--frames", "1-2"]].concat());
+    let alone = dir.path().join("alone_#.exr");
+    render_local(&scene, &alone, 1, &[&small[..], &["--frames", "2-2"]].concat());
+    let (a, b) = (dir.path().join("both_2.exr"), dir.path().join("alone_2.exr"));
+    assert!(read(&a) == read(&b), "frame 2's file differs between the sequence and the frame alone");
+    let z = channels(&a);
+    assert!(channel(&z, "Z").iter().any(|d| d.is_finite()), "frame 2 has depth");
+    assert!(read(&dir.path().join("both_1.exr")) != read(&a), "frames 1 and 2 differ");
+}

@@ -294,7 +294,8 @@ impl AovLayers {
     }
 
     /// As [`AovLayers::resolve`], rows `row0 .. row0 + h` only (y up, as the framebuffer
-    /// counts them): one frame of a sequence's stacked layers, top row first.
+    /// counts them): one frame of a sequence's stacked layers, top row first. `count`
+    /// takes the stacked (absolute) coordinates.
     pub fn resolve_rows(&self, row0: u32, h: u32, count: impl Fn(u32, u32) -> u32) -> Resolved {
         let w = self.width;
         let h = h.min(self.height.saturating_sub(row0));

@@ -232,7 +232,7 @@ impl CoordinatorService {
             (j.framebuffer().clone(), j.aov().clone(), j.state.clone(), rows)
         };
         let layers = if with_layers {
-            aov.resolve_rows(rows.row, rows.height, |x, y| fb.count(x, rows.row + y))
+            aov.resolve_rows(rows.row, rows.height, |x, y| fb.count(x, y))
         } else {
             Default::default()
         };
