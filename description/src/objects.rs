@@ -237,6 +237,23 @@ impl Validator<'_> {
         Ok(())
     }
 
+    /// An emitting triangle or mesh is one light built in world space: it cannot move.
+    fn check_still_light(
+        &self,
+        span: &Range<usize>,
+        what: &str,
+        surface: &(u32, Option<Vec3>),
+        place: &(Trs, Option<Trs>),
+    ) -> R<()> {
+        if surface.1.is_some() && (place.1.is_some() || self.pending.is_some()) {
+            return Err(self.ctx.err(
+                span,
+                format!("{what}: lights cannot move (give `emission` or `motion`/`keys`, not both)"),
+            ));
+        }
+        Ok(())
+    }
+
     pub(crate) fn triangle(&mut self, span: &Range<usize>, d: &TriangleDef) -> R<()> {
         let mut vertices = [Vec3::ZERO; 3];
         for (i, (slot, v)) in vertices.iter_mut().zip(&d.vertices).enumerate() {
@@ -250,12 +267,7 @@ impl Validator<'_> {
             &d.motion,
             KeysDef { keys: &d.keys, interpolation: &d.interpolation },
         )?;
-        // An emitting mesh is one light built in world space: it cannot move.
-        if surface.1.is_some() && (place.1.is_some() || self.pending.is_some()) {
-            return Err(self
-                .ctx
-                .err(span, "triangle: lights cannot move (give `emission` or `motion`/`keys`, not both)"));
-        }
+        self.check_still_light(span, "triangle", &surface, &place)?;
         let extent = vertices.iter().fold(Vec3::ZERO, |e, v| e.max(v.abs()));
         self.check_reach(span, "triangle", extent, 0.0, &place)?;
         self.count_triangles(span, 1)?;
@@ -292,12 +304,7 @@ impl Validator<'_> {
             &d.motion,
             KeysDef { keys: &d.keys, interpolation: &d.interpolation },
         )?;
-        // An emitting mesh is one light built in world space: it cannot move.
-        if surface.1.is_some() && (place.1.is_some() || self.pending.is_some()) {
-            return Err(self
-                .ctx
-                .err(span, "mesh: lights cannot move (give `emission` or `motion`/`keys`, not both)"));
-        }
+        self.check_still_light(span, "mesh", &surface, &place)?;
         self.check_reach(span, "mesh", extent, 0.0, &place)?;
         self.count_triangles(span, counts.triangles)?;
         self.push(span, Shape::Mesh { file: path, counts }, surface, place);
