@@ -10,6 +10,7 @@ pub mod exr_layers;
 pub mod fixed;
 pub mod framebuffer;
 pub mod output;
+pub mod preview;
 pub mod quadtree;
 
 pub use framebuffer::{Framebuffer, MergeError, PixelState};

@@ -290,9 +290,43 @@ pub fn mosaic_source(
     }
 }
 
+/// The pass-one block that pixel `(px, py)` paints: the largest quadrant whose computed
+/// (lower-left) pixel it is, the walk's [`Quad`] for that pixel. O(log N). Viewers' previews
+/// use it to know which pixels show a pixel as their mosaic.
+pub fn block_of(width: u32, height: u32, px: u32, py: u32) -> Quad {
+    let mut quad = Quad { x: 0, y: 0, w: width, h: height };
+    loop {
+        if (quad.x, quad.y) == (px, py) || (quad.w <= 1 && quad.h <= 1) {
+            return quad;
+        }
+        // The same descent as `mosaic_source`: the lower-left child keeps its parent's
+        // computed pixel, so the first quadrant met with `(px, py)` at its corner is the
+        // largest.
+        let children = quad.split();
+        let next = children
+            .iter()
+            .enumerate()
+            .find(|(i, c)| (c.computed || *i == 3) && c.quad.contains(px, py))
+            .map(|(_, c)| c.quad);
+        match next {
+            Some(q) if q != quad => quad = q,
+            _ => return Quad { x: px, y: py, w: 1, h: 1 },
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn block_of_is_the_walks_quadrant_of_each_pixel() {
+        for (w, h) in [(1, 1), (5, 3), (16, 16), (37, 21), (64, 7)] {
+            for q in Walk::new(w, h) {
+                assert_eq!(block_of(w, h, q.x, q.y), q, "{w}x{h}");
+            }
+        }
+    }
 
     fn check_exactly_once(width: u32, height: u32, order: &[Quad]) {
         let mut seen = vec![false; (width * height) as usize];

@@ -1,0 +1,363 @@
+//! Previews: what viewers are shown of a framebuffer while its job renders, when exact
+//! replicas would need more bytes than viewers may be sent.
+//!
+//! An exact replica needs a pixel's whole state (three fixed-point sums and a count, about
+//! 17 bytes on the wire) every time the pixel changes. A farm of 256 workers changes some
+//! 400 000 pixels a second, 6.5 MB/s per viewer; a hundred viewers would need 650 MB/s,
+//! twenty times what the coordinator spends on viewers without slowing the workers. A
+//! preview instead paints display values (linear RGB, 6 bytes as half floats) over
+//! square blocks of `2^shift` pixels a side: each tick, every pixel that changed is
+//! painted, in blocks as coarse as the byte budget requires (so a preview is never stale,
+//! only blurred while the image changes fast), and what the budget leaves over refines
+//! the pixels last painted coarsely, one pixel at a time, in scan order. When the job is
+//! over, viewers receive the exact state, so their final image has the coordinator's bits.
+//!
+//! [`Publisher`] decides, per tick, what every viewer in step is sent (the same blocks for
+//! all); [`keyframe`] is a joining viewer's full picture; [`Overlay`] is a viewer's side,
+//! painted over its replica's resolved image.
+
+use crate::framebuffer::Framebuffer;
+use crate::quadtree::{block_of, mosaic_source};
+
+/// The coarsest block: 256 pixels a side (a 4K frame in 15 × 9 blocks).
+pub const MAX_SHIFT: u8 = 8;
+/// What one painted block is reckoned to cost on the wire: three half floats and its
+/// share of a run. Only used to choose the block size, so an estimate is enough.
+pub const BLOCK_BYTES: usize = 8;
+
+/// `Publisher::shown` for a pixel that changed since it was last painted.
+const DIRTY: u8 = u8::MAX;
+
+/// Blocks of one size painted with their display values.
+#[derive(Debug, Clone, PartialEq, Default)]
+pub struct Blocks {
+    /// Blocks are `2^shift` pixels a side; those at the right and top edges are cut off
+    /// by the image.
+    pub shift: u8,
+    /// Runs `(first, count)` of consecutive block indices `by · grid width + bx` (paper
+    /// coordinates: row 0 at the bottom), in no particular order.
+    pub runs: Vec<(u32, u32)>,
+    /// Linear RGB of each block, in the order of the runs.
+    pub rgb: Vec<[f32; 3]>,
+}
+
+impl Blocks {
+    fn new(shift: u8) -> Self {
+        Blocks { shift, ..Default::default() }
+    }
+
+    fn push(&mut self, block: u32, rgb: [f32; 3]) {
+        match self.runs.last_mut() {
+            Some((first, count)) if *first + *count == block => *count += 1,
+            _ => self.runs.push((block, 1)),
+        }
+        self.rgb.push(rgb);
+    }
+
+    /// Blocks painted.
+    pub fn len(&self) -> usize {
+        self.rgb.len()
+    }
+
+    /// Whether nothing is painted.
+    pub fn is_empty(&self) -> bool {
+        self.rgb.is_empty()
+    }
+}
+
+/// Columns and rows of blocks of `2^shift` pixels covering a `width × height` image.
+pub fn grid(width: u32, height: u32, shift: u8) -> (u32, u32) {
+    let side = 1u32 << shift;
+    (width.div_ceil(side), height.div_ceil(side))
+}
+
+/// The pixel rectangle `(x0, y0, x1, y1)` (ends excluded) of block `index` at `shift`.
+fn block_rect(width: u32, height: u32, shift: u8, index: u32) -> (u32, u32, u32, u32) {
+    let (gw, _) = grid(width, height, shift);
+    let (bx, by) = (index % gw, index / gw);
+    let (x0, y0) = (bx << shift, by << shift);
+    (x0, y0, (x0 + (1 << shift)).min(width), (y0 + (1 << shift)).min(height))
+}
+
+/// What pixel `(x, y)` shows: its mean, or before its first sample the mosaic (exactly
+/// as `Framebuffer::resolve`).
+fn display(fb: &Framebuffer, x: u32, y: u32) -> [f32; 3] {
+    fb.mean(x, y)
+        .or_else(|| {
+            mosaic_source(fb.width(), fb.height(), x, y, |sx, sy| fb.count(sx, sy) > 0)
+                .and_then(|(sx, sy)| fb.mean(sx, sy))
+        })
+        .unwrap_or([0.0; 3])
+}
+
+/// A block's display value: the mean of its pixels that have samples, or the mosaic of
+/// its lower-left pixel when none has.
+fn block_value(fb: &Framebuffer, (x0, y0, x1, y1): (u32, u32, u32, u32)) -> [f32; 3] {
+    if x1 - x0 == 1 && y1 - y0 == 1 {
+        return display(fb, x0, y0);
+    }
+    let mut sum = [0.0f64; 3];
+    let mut n = 0u32;
+    for y in y0..y1 {
+        for x in x0..x1 {
+            if let Some(m) = fb.mean(x, y) {
+                for (s, v) in sum.iter_mut().zip(m) {
+                    *s += f64::from(v);
+                }
+                n += 1;
+            }
+        }
+    }
+    if n == 0 {
+        return display(fb, x0, y0);
+    }
+    sum.map(|s| (s / f64::from(n)) as f32)
+}
+
+/// A joining viewer's full picture of `fb`: every pixel's display value, in runs of at
+/// most `chunk` pixels (one message each).
+pub fn keyframe(fb: &Framebuffer, chunk: usize) -> Vec<Blocks> {
+    let (w, h) = (fb.width(), fb.height());
+    let n = w as usize * h as usize;
+    let chunk = chunk.max(1);
+    let mut out = Vec::with_capacity(n.div_ceil(chunk));
+    let mut start = 0;
+    while start < n {
+        let end = (start + chunk).min(n);
+        let mut b = Blocks::new(0);
+        for i in start..end {
+            b.push(i as u32, display(fb, i as u32 % w, i as u32 / w));
+        }
+        out.push(b);
+        start = end;
+    }
+    out
+}
+
+/// The publisher's model of what every viewer in step with it shows, and the choice of
+/// each tick's blocks.
+#[derive(Debug)]
+pub struct Publisher {
+    width: u32,
+    height: u32,
+    /// Per pixel (paper index): 0 painted alone since it last changed; `1..=MAX_SHIFT`
+    /// painted as part of a block of that shift; `DIRTY` changed since it was painted.
+    shown: Vec<u8>,
+    /// Pixels whose `shown` is a block shift: what refinement has left to do.
+    coarse: usize,
+    /// Where refinement goes on scanning.
+    cursor: usize,
+    /// The previous tick's snapshot: which pixels had samples, and the version to scan from.
+    prev: Option<Framebuffer>,
+    /// The pixels marked `DIRTY` this tick.
+    dirty: Vec<u32>,
+    /// Scratch bitmap of the blocks a tick paints.
+    seen: Vec<u64>,
+}
+
+impl Publisher {
+    /// A publisher for a `width × height` framebuffer; its first tick only takes the
+    /// baseline (viewers that join get a keyframe of their own).
+    pub fn new(width: u32, height: u32) -> Self {
+        Publisher {
+            width,
+            height,
+            shown: vec![0; width as usize * height as usize],
+            coarse: 0,
+            cursor: 0,
+            prev: None,
+            dirty: Vec::new(),
+            seen: Vec::new(),
+        }
+    }
+
+    /// The framebuffer version the last tick brought viewers to (none before the first).
+    pub fn version(&self) -> Option<u64> {
+        self.prev.as_ref().map(Framebuffer::version)
+    }
+
+    /// Pixels painted only as part of a block, waiting to be refined.
+    pub fn coarse(&self) -> usize {
+        self.coarse
+    }
+
+    fn set_shown(&mut self, i: usize, to: u8) {
+        let was = self.shown[i];
+        self.coarse -= usize::from((1..=MAX_SHIFT).contains(&was));
+        self.coarse += usize::from((1..=MAX_SHIFT).contains(&to));
+        self.shown[i] = to;
+    }
+
+    fn mark(&mut self, i: usize) {
+        if self.shown[i] != DIRTY {
+            self.set_shown(i, DIRTY);
+            self.dirty.push(i as u32);
+        }
+    }
+
+    /// Marks what changed from the previous snapshot to `fb`: the pixels merged since, and
+    /// where a pixel gained its first sample (or lost its samples to a repair), the pixels
+    /// of its pass-one block that show it as their mosaic.
+    fn mark_changes(&mut self, prev: &Framebuffer, fb: &Framebuffer) {
+        let (w, h) = (self.width, self.height);
+        for chunk in fb.changes(prev.version(), 1 << 16) {
+            for p in chunk {
+                let (x, y) = (p.index % w, p.index / w);
+                self.mark(p.index as usize);
+                if (prev.count(x, y) == 0) != (p.count == 0) {
+                    let q = block_of(w, h, x, y);
+                    for qy in q.y..q.y + q.h {
+                        for qx in q.x..q.x + q.w {
+                            if fb.count(qx, qy) == 0 {
+                                self.mark((qy * w + qx) as usize);
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// Blocks of `2^shift` pixels that hold a dirty pixel, counted into `self.seen`.
+    fn count_blocks(&mut self, shift: u8) -> usize {
+        let (gw, gh) = grid(self.width, self.height, shift);
+        let words = (gw as usize * gh as usize).div_ceil(64);
+        self.seen.clear();
+        self.seen.resize(words, 0);
+        let mut n = 0;
+        for &i in &self.dirty {
+            let (x, y) = (i % self.width, i / self.width);
+            let b = ((y >> shift) * gw + (x >> shift)) as usize;
+            let (word, bit) = (b / 64, 1u64 << (b % 64));
+            n += usize::from(self.seen[word] & bit == 0);
+            self.seen[word] |= bit;
+        }
+        n
+    }
+
+    /// One tick: what changed from the previous snapshot to `fb`, painted in blocks as
+    /// fine as `budget` bytes allow (each changed pixel is painted every tick, coarsely if
+    /// need be), then with what is left, pixels painted coarsely before, refined one by
+    /// one. Empty when nothing is to be painted.
+    pub fn tick(&mut self, fb: &Framebuffer, budget: usize) -> Vec<Blocks> {
+        assert_eq!((fb.width(), fb.height()), (self.width, self.height), "one publisher per image size");
+        let Some(prev) = self.prev.replace(fb.clone()) else { return Vec::new() };
+        self.dirty.clear();
+        self.mark_changes(&prev, fb);
+        let mut out = Vec::new();
+        let mut spent = 0;
+        if !self.dirty.is_empty() {
+            let shift = (0..=MAX_SHIFT)
+                .find(|&s| self.count_blocks(s) * BLOCK_BYTES <= budget)
+                .unwrap_or_else(|| {
+                    self.count_blocks(MAX_SHIFT);
+                    MAX_SHIFT
+                });
+            let news = self.paint(fb, shift);
+            spent = news.len() * BLOCK_BYTES;
+            out.push(news);
+        }
+        if self.coarse > 0 && spent + BLOCK_BYTES <= budget {
+            let fine = self.refine(fb, (budget - spent) / BLOCK_BYTES);
+            if !fine.is_empty() {
+                out.push(fine);
+            }
+        }
+        out
+    }
+
+    /// Paints the blocks counted in `self.seen` (the last `count_blocks`, at `shift`).
+    fn paint(&mut self, fb: &Framebuffer, shift: u8) -> Blocks {
+        let mut b = Blocks::new(shift);
+        let seen = std::mem::take(&mut self.seen);
+        for (word, &bits) in seen.iter().enumerate() {
+            let mut bits = bits;
+            while bits != 0 {
+                let index = (word * 64 + bits.trailing_zeros() as usize) as u32;
+                bits &= bits - 1;
+                let rect = block_rect(self.width, self.height, shift, index);
+                b.push(index, block_value(fb, rect));
+                for y in rect.1..rect.3 {
+                    for x in rect.0..rect.2 {
+                        self.set_shown((y * self.width + x) as usize, shift);
+                    }
+                }
+            }
+        }
+        self.seen = seen;
+        b
+    }
+
+    /// Paints up to `most` coarsely painted pixels alone, scanning on from the cursor.
+    fn refine(&mut self, fb: &Framebuffer, most: usize) -> Blocks {
+        let mut b = Blocks::new(0);
+        let n = self.shown.len();
+        let mut scanned = 0;
+        while b.len() < most && self.coarse > 0 && scanned < n {
+            let i = self.cursor;
+            if (1..=MAX_SHIFT).contains(&self.shown[i]) {
+                b.push(i as u32, display(fb, i as u32 % self.width, i as u32 / self.width));
+                self.set_shown(i, 0);
+            }
+            self.cursor = (i + 1) % n;
+            scanned += 1;
+        }
+        b
+    }
+}
+
+/// A viewer's preview: display values painted over its replica's image until exact
+/// states replace them.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Overlay {
+    width: u32,
+    height: u32,
+    /// Per pixel (paper index), the painted value, if any.
+    rgb: Vec<Option<[f32; 3]>>,
+}
+
+impl Overlay {
+    /// An empty overlay of a `width × height` image.
+    pub fn new(width: u32, height: u32) -> Self {
+        Overlay { width, height, rgb: vec![None; width as usize * height as usize] }
+    }
+
+    /// Paints blocks (checked against this size when they were decoded).
+    pub fn paint(&mut self, b: &Blocks) {
+        let mut values = b.rgb.iter();
+        for &(first, count) in &b.runs {
+            for index in first..first + count {
+                let Some(&rgb) = values.next() else { return };
+                let (x0, y0, x1, y1) = block_rect(self.width, self.height, b.shift, index);
+                for y in y0..y1 {
+                    let row = (y * self.width) as usize;
+                    self.rgb[row + x0 as usize..row + x1 as usize].fill(Some(rgb));
+                }
+            }
+        }
+    }
+
+    /// Pixel `index` (paper index) now has its exact state: the replica shows it.
+    pub fn clear(&mut self, index: u32) {
+        if let Some(p) = self.rgb.get_mut(index as usize) {
+            *p = None;
+        }
+    }
+
+    /// Paints the overlay over `image` (linear RGB, top row first, as `resolve` makes it).
+    pub fn over(&self, image: &mut [f32]) {
+        let w = self.width as usize;
+        for (i, p) in self.rgb.iter().enumerate() {
+            if let Some(rgb) = p {
+                let (x, y) = (i % w, i / w);
+                let at = ((self.height as usize - 1 - y) * w + x) * 3;
+                if let Some(dst) = image.get_mut(at..at + 3) {
+                    dst.copy_from_slice(rgb);
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,115 @@
+use super::*;
+use crate::fixed;
+use crate::quadtree::{Quad, Walk};
+
+/// A small deterministic generator, so that failures replay.
+struct Lcg(u64);
+
+impl Lcg {
+    fn next(&mut self) -> u64 {
+        self.0 = self.0.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
+        self.0 >> 33
+    }
+}
+
+fn merge(fb: &mut Framebuffer, pixels: &[(u32, u32)], samples: u32, rng: &mut Lcg) {
+    let quads: Vec<Quad> = pixels.iter().map(|&(x, y)| Quad { x, y, w: 1, h: 1 }).collect();
+    let max = fixed::max_sum(samples);
+    let sums: Vec<u64> = (0..quads.len() * 3).map(|_| rng.next() % max).collect();
+    fb.merge(&quads, samples, &sums, None).unwrap();
+}
+
+fn shown(overlay: &Overlay, w: u32, h: u32) -> Vec<f32> {
+    let mut img = vec![f32::NAN; w as usize * h as usize * 3];
+    overlay.over(&mut img);
+    img
+}
+
+fn paint(overlay: &mut Overlay, blocks: &[Blocks]) {
+    for b in blocks {
+        overlay.paint(b);
+    }
+}
+
+#[test]
+fn a_keyframe_shows_what_resolve_makes() {
+    let (w, h) = (37, 21);
+    let mut fb = Framebuffer::new(w, h);
+    let mut rng = Lcg(1);
+    let walk: Vec<(u32, u32)> = Walk::new(w, h).take(40).map(|q| (q.x, q.y)).collect();
+    merge(&mut fb, &walk, 1, &mut rng);
+    let mut o = Overlay::new(w, h);
+    let frames = keyframe(&fb, 100);
+    assert_eq!(frames.len(), (w * h).div_ceil(100) as usize);
+    paint(&mut o, &frames);
+    assert_eq!(shown(&o, w, h), fb.resolve());
+}
+
+/// With bytes to spare, every tick paints each changed pixel alone, so a viewer in step
+/// shows exactly the resolved image: through pass one (where a pixel's first sample
+/// repaints its block's mosaic), pass two, and a repair that empties pixels again.
+#[test]
+fn with_enough_bytes_a_viewer_in_step_shows_the_exact_image() {
+    let (w, h) = (37, 21);
+    let mut fb = Framebuffer::new(w, h);
+    let mut rng = Lcg(2);
+    let mut p = Publisher::new(w, h);
+    assert!(p.tick(&fb, usize::MAX).is_empty(), "the first tick is the baseline");
+    let mut o = Overlay::new(w, h);
+    paint(&mut o, &keyframe(&fb, 1 << 16));
+    let walk: Vec<(u32, u32)> = Walk::new(w, h).map(|q| (q.x, q.y)).collect();
+    for part in walk.chunks(53) {
+        merge(&mut fb, part, 1, &mut rng);
+        let blocks = p.tick(&fb, usize::MAX);
+        assert!(blocks.iter().all(|b| b.shift == 0));
+        paint(&mut o, &blocks);
+        assert_eq!(shown(&o, w, h), fb.resolve());
+    }
+    for part in walk.chunks(97) {
+        merge(&mut fb, part, 16, &mut rng);
+        paint(&mut o, &p.tick(&fb, usize::MAX));
+        assert_eq!(shown(&o, w, h), fb.resolve());
+    }
+    fb.reset(0, 0);
+    fb.reset(20, 10);
+    paint(&mut o, &p.tick(&fb, usize::MAX));
+    assert_eq!(shown(&o, w, h), fb.resolve());
+    assert_eq!(p.coarse(), 0);
+}
+
+/// With few bytes, a tick paints every change in blocks coarse enough to fit, and ticks
+/// with nothing new refine those blocks pixel by pixel until the image is exact again.
+#[test]
+fn a_tight_budget_paints_coarsely_then_refines_to_the_exact_image() {
+    let (w, h) = (64, 48);
+    let mut fb = Framebuffer::new(w, h);
+    let mut rng = Lcg(3);
+    let mut p = Publisher::new(w, h);
+    p.tick(&fb, 0);
+    let mut o = Overlay::new(w, h);
+    paint(&mut o, &keyframe(&fb, 1 << 16));
+    let all: Vec<(u32, u32)> = Walk::new(w, h).map(|q| (q.x, q.y)).collect();
+    merge(&mut fb, &all, 4, &mut rng);
+    let budget = 40 * BLOCK_BYTES;
+    let blocks = p.tick(&fb, budget);
+    let news = &blocks[0];
+    assert!(news.shift > 0, "3072 changed pixels cannot be painted one by one in 40 blocks");
+    assert!(news.len() * BLOCK_BYTES <= budget, "{} blocks", news.len());
+    // Coarse enough to fit, and no coarser.
+    let (gw, gh) = grid(w, h, news.shift - 1);
+    assert!((gw * gh) as usize * BLOCK_BYTES > budget);
+    paint(&mut o, &blocks);
+    assert!(shown(&o, w, h).iter().all(|v| v.is_finite()), "every changed pixel is painted");
+    assert_ne!(shown(&o, w, h), fb.resolve());
+    let mut ticks = 0;
+    while p.coarse() > 0 {
+        let fine = p.tick(&fb, budget);
+        assert!(fine.iter().all(|b| b.shift == 0 && b.len() <= 40));
+        paint(&mut o, &fine);
+        ticks += 1;
+        assert!(ticks < 100, "refinement stalls");
+    }
+    assert_eq!(ticks, (w * h).div_ceil(40) as usize);
+    assert_eq!(shown(&o, w, h), fb.resolve());
+    assert!(p.tick(&fb, budget).is_empty(), "nothing left to send");
+}
