@@ -8,7 +8,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let fds = protox::compile(["tessera.proto"], ["proto"])?;
     let out = std::path::PathBuf::from(std::env::var("OUT_DIR")?);
     std::fs::write(out.join("tessera_descriptor.bin"), fds.encode_to_vec())?;
-    // A `bytes::Bytes`, so that cloning an update shares its encoded pixels.
-    tonic_prost_build::configure().bytes(".tessera.v1.FramebufferUpdate.pixels").compile_fds(fds)?;
+    // `bytes::Bytes`, so that cloning an update shares its encoded pixels and preview.
+    tonic_prost_build::configure()
+        .bytes(".tessera.v1.FramebufferUpdate.pixels")
+        .bytes(".tessera.v1.FramebufferUpdate.preview")
+        .compile_fds(fds)?;
     Ok(())
 }

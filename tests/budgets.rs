@@ -359,12 +359,14 @@ async fn the_coordinator_stays_within_its_budget_under_attack() {
             let c = client(&url).await;
             let mut streams = Vec::new();
             let mut refused = 0;
-            for _ in 0..100 {
+            for k in 0..100 {
                 let req = pb::WatchRequest {
                     job_id: watched,
                     max_rate: 0.0,
                     protocol_version: pb::ProtocolVersion::Current as i32,
                     frame: None,
+                    // Both kinds of viewer: exact replicas and previews.
+                    previews: k % 2 == 0,
                 };
                 match c.clone().watch(req).await {
                     Ok(s) => streams.push(s.into_inner()),
@@ -414,6 +416,7 @@ async fn the_coordinator_stays_within_its_budget_under_attack() {
             max_rate: 0.0,
             protocol_version: pb::ProtocolVersion::Current as i32,
             frame: None,
+            previews: false,
         })
         .await;
     assert!(ok.is_ok(), "a viewer is accepted after the others left");

@@ -340,6 +340,7 @@ fn refused_calls_are_refused_with_no_side_effect() {
             max_rate: 0.0,
             protocol_version: pb::ProtocolVersion::Current as i32,
             frame: None,
+            previews: false,
         };
         let (code, _) = status_code(bob.watch(watch).await);
         assert_eq!(code, Code::PermissionDenied);

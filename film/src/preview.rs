@@ -13,8 +13,10 @@
 //! over, viewers receive the exact state, so their final image has the coordinator's bits.
 //!
 //! [`Publisher`] decides, per tick, what every viewer in step is sent (the same blocks for
-//! all); [`keyframe`] is a joining viewer's full picture; [`Overlay`] is a viewer's side,
-//! painted over its replica's resolved image.
+//! all); [`Overlay`] is a viewer's side, painted over its replica's resolved image. A
+//! joining viewer starts from the exact states of the pixels that have samples (few in
+//! pass one, where most viewers join; its replica paints the mosaic itself), not from a
+//! picture of every pixel.
 
 use crate::framebuffer::Framebuffer;
 use crate::quadtree::{block_of, mosaic_source};
@@ -114,26 +116,6 @@ fn block_value(fb: &Framebuffer, (x0, y0, x1, y1): (u32, u32, u32, u32)) -> [f32
     sum.map(|s| (s / f64::from(n)) as f32)
 }
 
-/// A joining viewer's full picture of `fb`: every pixel's display value, in runs of at
-/// most `chunk` pixels (one message each).
-pub fn keyframe(fb: &Framebuffer, chunk: usize) -> Vec<Blocks> {
-    let (w, h) = (fb.width(), fb.height());
-    let n = w as usize * h as usize;
-    let chunk = chunk.max(1);
-    let mut out = Vec::with_capacity(n.div_ceil(chunk));
-    let mut start = 0;
-    while start < n {
-        let end = (start + chunk).min(n);
-        let mut b = Blocks::new(0);
-        for i in start..end {
-            b.push(i as u32, display(fb, i as u32 % w, i as u32 / w));
-        }
-        out.push(b);
-        start = end;
-    }
-    out
-}
-
 /// The publisher's model of what every viewer in step with it shows, and the choice of
 /// each tick's blocks.
 #[derive(Debug)]
@@ -157,7 +139,7 @@ pub struct Publisher {
 
 impl Publisher {
     /// A publisher for a `width × height` framebuffer; its first tick only takes the
-    /// baseline (viewers that join get a keyframe of their own).
+    /// baseline (viewers that join start from a snapshot of their own).
     pub fn new(width: u32, height: u32) -> Self {
         Publisher {
             width,

@@ -1,11 +1,14 @@
-//! A fake viewer: one `Watch` stream, its updates applied to a `Framebuffer` replica (or
-//! only counted, for benchmarks with many viewers).
+//! A fake viewer: one `Watch` stream, its updates applied to a `Framebuffer` replica and,
+//! for a viewer of previews, an `Overlay` (or only counted, for benchmarks with many
+//! viewers).
 
 use std::time::{Duration, Instant};
 
 use tessera_film::framebuffer::Framebuffer;
+use tessera_film::preview::Overlay;
 use tessera_proto::connect::Channel;
 use tessera_proto::convert::pixels_from_wire;
+use tessera_proto::preview::preview_from_wire;
 use tessera_proto::v1 as pb;
 use tonic::Streaming;
 
@@ -16,6 +19,11 @@ pub struct FakeViewer {
     stream: Streaming<pb::FramebufferUpdate>,
     keep_replica: bool,
     replica: Option<Framebuffer>,
+    overlay: Option<Overlay>,
+    /// Updates that carried a preview.
+    pub previews: u64,
+    /// Updates that carried exact pixel states.
+    pub exact: u64,
     /// The version of the last complete update (its last chunk arrived).
     pub version: u64,
     /// Updates received.
@@ -36,7 +44,18 @@ impl FakeViewer {
     /// Watches job `job` at up to `max_rate` updates a second (0: the coordinator's
     /// default), keeping a replica if `keep_replica`.
     pub async fn watch(channel: &Channel, job: u64, max_rate: f64, keep_replica: bool) -> Result<FakeViewer> {
-        Self::watch_frame(channel, job, None, max_rate, keep_replica).await
+        Self::open(channel, job, None, max_rate, keep_replica, false).await
+    }
+
+    /// As `watch`, reading previews while the job renders (`WatchRequest.previews`), as
+    /// `tessera view` does.
+    pub async fn watch_previews(
+        channel: &Channel,
+        job: u64,
+        max_rate: f64,
+        keep_replica: bool,
+    ) -> Result<FakeViewer> {
+        Self::open(channel, job, None, max_rate, keep_replica, true).await
     }
 
     /// As `watch`, of frame `frame` of a sequence (`None`: its first).
@@ -47,12 +66,24 @@ impl FakeViewer {
         max_rate: f64,
         keep_replica: bool,
     ) -> Result<FakeViewer> {
+        Self::open(channel, job, frame, max_rate, keep_replica, false).await
+    }
+
+    async fn open(
+        channel: &Channel,
+        job: u64,
+        frame: Option<u32>,
+        max_rate: f64,
+        keep_replica: bool,
+        previews: bool,
+    ) -> Result<FakeViewer> {
         let stream = client(channel)
             .watch(pb::WatchRequest {
                 job_id: job,
                 max_rate,
                 protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
                 frame,
+                previews,
             })
             .await?
             .into_inner();
@@ -60,6 +91,9 @@ impl FakeViewer {
             stream,
             keep_replica,
             replica: None,
+            overlay: None,
+            previews: 0,
+            exact: 0,
             version: 0,
             updates: 0,
             versions_seen: 0,
@@ -85,6 +119,7 @@ impl FakeViewer {
             }
             self.resets += 1;
             self.replica = None;
+            self.overlay = None;
             self.version = 0;
         }
         if self.keep_replica {
@@ -94,10 +129,26 @@ impl FakeViewer {
             if (fb.width(), fb.height()) != (u.width, u.height) {
                 return Err(HarnessError::Protocol("the image size changed mid-stream".into()));
             }
+            let preview = preview_from_wire(&u.preview, u.width, u.height)
+                .map_err(|e| HarnessError::Protocol(e.to_string()))?;
             for p in pixels {
                 fb.set(&p);
+                if let Some(o) = self.overlay.as_mut() {
+                    o.clear(p.index);
+                }
+            }
+            if !preview.is_empty() {
+                let o = self.overlay.get_or_insert_with(|| Overlay::new(u.width, u.height));
+                for b in &preview {
+                    o.paint(b);
+                }
+            }
+            if u.r#final {
+                self.overlay = None;
             }
         }
+        self.previews += u64::from(!u.preview.is_empty());
+        self.exact += u64::from(!u.pixels.is_empty());
         if u.chunk_end {
             self.version = u.version;
             self.versions_seen += 1;
@@ -136,6 +187,18 @@ impl FakeViewer {
     /// The replica (with `keep_replica`, once the first update arrived).
     pub fn replica(&self) -> Option<&Framebuffer> {
         self.replica.as_ref()
+    }
+
+    /// What the viewer shows (with `keep_replica`): the replica's image, preview values
+    /// painted over it where newer; linear RGB, top row first.
+    pub fn shown(&self) -> Option<Vec<f32>> {
+        self.replica.as_ref().map(|fb| {
+            let mut img = fb.resolve();
+            if let Some(o) = &self.overlay {
+                o.over(&mut img);
+            }
+            img
+        })
     }
 
     /// The replica's image as `FetchImage` sends it: linear RGB f32 little-endian, top

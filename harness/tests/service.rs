@@ -347,3 +347,47 @@ async fn an_oversized_request_of_another_call_is_refused_from_its_prefix() {
         }
     }
 }
+
+/// Invariant: a viewer of previews is sent display values while the job renders (the
+/// shared deltas), no exact pixel state until the job is over, then the exact state of
+/// every pixel: it ends with the coordinator's bytes. One that joins mid-render starts
+/// from an exact snapshot of its own and ends the same.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn preview_viewers_see_previews_while_rendering_and_end_with_the_exact_image() {
+    let h = Harness::start().await.unwrap();
+    let (w, hgt, spp) = (64, 64, 64);
+    let job = h.submit_small(w, hgt, spp).await.unwrap();
+    let mut early = FakeViewer::watch_previews(&h.channel(), job.0, 0.0, true).await.unwrap();
+    let first = early.next_within(Duration::from_secs(10)).await.unwrap();
+    assert!(first.reset && first.pixels.is_empty() && first.preview.is_empty(), "an empty snapshot first");
+    let mut workers = Vec::new();
+    for name in ["a", "b"] {
+        let fw = FakeWorker::connect(&h.channel(), name, 2).await.unwrap();
+        workers.push(tokio::spawn(fw.serve(Duration::from_millis(100), Arc::new(ServeStats::new(false)))));
+    }
+    // A delta painted with pass two's first results, then a viewer joins.
+    let mut deltas = 0;
+    while deltas == 0 {
+        let u = early.next_within(Duration::from_secs(20)).await.unwrap();
+        assert!(u.pixels.is_empty() || u.r#final || early.finished, "exact states before the end");
+        deltas += u64::from(!u.reset && !u.preview.is_empty());
+    }
+    let mut late = FakeViewer::watch_previews(&h.channel(), job.0, 0.0, true).await.unwrap();
+    let joined = late.next_within(Duration::from_secs(10)).await.unwrap();
+    assert!(
+        joined.reset && !joined.pixels.is_empty(),
+        "a viewer that joins starts from a snapshot of its own"
+    );
+    h.wait_over(job).await.unwrap();
+    let image = h.fetch_image(job).await.unwrap();
+    for v in [&mut early, &mut late] {
+        v.until_final().await.unwrap();
+        assert_eq!(v.resets, 1);
+        assert!(v.image_bytes().unwrap() == image.bytes, "the final replica differs from FetchImage");
+        let shown: Vec<u8> = v.shown().unwrap().iter().flat_map(|f| f.to_le_bytes()).collect();
+        assert!(shown == image.bytes, "the final picture still shows a preview");
+    }
+    assert_eq!(early.exact, 1, "exact states come once, in the final update (4096 pixels, one chunk)");
+    assert!(late.exact >= 2, "its snapshot, then the final update");
+    assert!(early.previews >= 2, "{} previews", early.previews);
+}

@@ -11,6 +11,7 @@
 pub mod connect;
 pub mod convert;
 pub mod credentials;
+pub mod preview;
 
 /// Version 1 of the protocol.
 #[allow(missing_docs, clippy::large_enum_variant)]

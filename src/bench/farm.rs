@@ -39,6 +39,8 @@ pub struct FarmOptions {
     pub credit: u32,
     /// Updates per second each viewer asks for.
     pub viewer_rate: f64,
+    /// Viewers keep exact replicas instead of reading previews.
+    pub exact_viewers: bool,
 }
 
 /// One case's figures.
@@ -150,7 +152,11 @@ async fn case(
     let mut counts = Vec::new();
     for v in 0..viewers {
         let ch = tessera_harness::connect(&url).await?;
-        let mut viewer = FakeViewer::watch(&ch, job.0, opts.viewer_rate, false).await?;
+        let mut viewer = if opts.exact_viewers {
+            FakeViewer::watch(&ch, job.0, opts.viewer_rate, false).await?
+        } else {
+            FakeViewer::watch_previews(&ch, job.0, opts.viewer_rate, false).await?
+        };
         let count = Arc::new(ViewerCount::default());
         counts.push(count.clone());
         let (stats, merge_micros) = (stats.clone(), merge_micros.clone());
@@ -165,7 +171,8 @@ async fn case(
                 count.updates.fetch_add(u64::from(u.chunk_end), Ordering::Relaxed);
                 count.bytes.fetch_add(viewer.bytes - before, Ordering::Relaxed);
                 // The first viewer times merges: when it first sees the first pixel of a
-                // pass-two batch with more than its pass-one sample.
+                // pass-two batch with more than its pass-one sample, or a preview block
+                // painted over it.
                 if v == 0 {
                     let now = Instant::now();
                     let mut sent = stats.sent.lock().unwrap_or_else(|e| e.into_inner());
@@ -175,6 +182,25 @@ async fn case(
                     for p in pixels.filter(|p| p.count > 1) {
                         if let Some(t) = sent.remove(&(job.0, p.index % width, p.index / width)) {
                             lat.push(now.duration_since(t).as_micros() as u64);
+                        }
+                    }
+                    if !u.reset {
+                        let Ok(blocks) =
+                            tessera_proto::preview::preview_from_wire(&u.preview, u.width, u.height)
+                        else {
+                            return;
+                        };
+                        for b in &blocks {
+                            let painted = painted_blocks(b);
+                            let (gw, _) = tessera_film::preview::grid(u.width, u.height, b.shift);
+                            sent.retain(|&(j, x, y), t| {
+                                let hit =
+                                    j == job.0 && painted.contains(&((y >> b.shift) * gw + (x >> b.shift)));
+                                if hit {
+                                    lat.push(now.duration_since(*t).as_micros() as u64);
+                                }
+                                !hit
+                            });
                         }
                     }
                 }
@@ -292,6 +318,11 @@ fn real_batch_time(spp: u32) -> Result<Duration> {
     Ok(t.elapsed())
 }
 
+/// The block indices a preview group paints.
+fn painted_blocks(b: &tessera_film::preview::Blocks) -> std::collections::HashSet<u32> {
+    b.runs.iter().flat_map(|&(first, count)| first..first + count).collect()
+}
+
 fn ms(v: Option<(f64, f64)>) -> String {
     v.map_or("-".into(), |(a, b)| format!("{a:.2}/{b:.2}"))
 }
@@ -309,8 +340,13 @@ pub async fn run(opts: FarmOptions) -> Result<()> {
     println!(
         "coordinator: a child process on loopback; fake workers: 1 thread, credit {}, a pass-two batch of {} \
          samples answered after --batch-ms (smaller batches proportionally sooner); {} spp; {:.1} s measured \
-         per case after pass one; viewers ask for {} updates/s",
-        opts.credit, REFERENCE_BATCH_SAMPLES, opts.spp, opts.seconds, opts.viewer_rate
+         per case after pass one; viewers ask for {} updates/s and read {}",
+        opts.credit,
+        REFERENCE_BATCH_SAMPLES,
+        opts.spp,
+        opts.seconds,
+        opts.viewer_rate,
+        if opts.exact_viewers { "exact pixel states (--exact-viewers)" } else { "previews" }
     );
     println!(
         "for scale: one real pass-two batch ({} samples) of the trivial test scene takes {:.2} ms on one thread \

@@ -155,6 +155,10 @@ pub enum BenchCommand {
         /// Updates per second each viewer asks for [default: 10, the coordinator's].
         #[arg(long, default_value_t = 10.0)]
         viewer_rate: f64,
+        /// Viewers keep exact replicas (the web dashboard's kind) instead of reading
+        /// previews while the job renders (`tessera view`'s kind).
+        #[arg(long)]
+        exact_viewers: bool,
     },
     /// A huge scene submitted while another client polls Status: submit time, Status
     /// latency during it, client-side validation time and the coordinator's peak memory.
@@ -230,12 +234,31 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         BenchCommand::Rays { dir, mesh, repeats } => rays::run(&dir, mesh.as_deref(), repeats.max(1)),
-        BenchCommand::Farm { sizes, workers, viewers, seconds, batch_ms, spp, credit, viewer_rate } => {
+        BenchCommand::Farm {
+            sizes,
+            workers,
+            viewers,
+            seconds,
+            batch_ms,
+            spp,
+            credit,
+            viewer_rate,
+            exact_viewers,
+        } => {
             if spp < 2 || credit == 0 || workers.contains(&0) {
                 anyhow::bail!("--spp must be at least 2, --credit and every --workers at least 1");
             }
-            let opts =
-                farm::FarmOptions { sizes, workers, viewers, seconds, batch_ms, spp, credit, viewer_rate };
+            let opts = farm::FarmOptions {
+                sizes,
+                workers,
+                viewers,
+                seconds,
+                batch_ms,
+                spp,
+                credit,
+                viewer_rate,
+                exact_viewers,
+            };
             farm::run(opts).await?;
             Ok(ExitCode::SUCCESS)
         }

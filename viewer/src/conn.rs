@@ -66,6 +66,8 @@ impl Watch {
                 max_rate,
                 protocol_version: tessera_proto::PROTOCOL_VERSION as i32,
                 frame,
+                // Display values while the job renders, the exact state at its end.
+                previews: true,
             })
             .await
             .map_err(|s| ConnectError::Refused(s.message().to_string()))?

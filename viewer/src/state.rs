@@ -3,7 +3,9 @@
 
 use tessera_description::ids::JobId;
 use tessera_film::framebuffer::Framebuffer;
+use tessera_film::preview::Overlay;
 use tessera_proto::convert::{job_from_wire, pixels_from_wire, state_name, PixelsError};
+use tessera_proto::preview::{preview_from_wire, PreviewError};
 use tessera_proto::v1 as pb;
 
 /// Why an update could not be applied (a coordinator speaking nonsense).
@@ -20,6 +22,9 @@ pub enum UpdateError {
     /// The pixel payload does not decode, or a run in it does not fit the image.
     #[error(transparent)]
     Pixels(#[from] PixelsError),
+    /// The preview payload does not decode, or a block in it does not fit the image.
+    #[error(transparent)]
+    Preview(#[from] PreviewError),
     /// The stream's first update names another protocol (one of version 1 names none).
     #[error("the coordinator speaks protocol version {0}, this viewer {current}", current = tessera_proto::PROTOCOL_VERSION as i32)]
     Protocol(i32),
@@ -29,6 +34,8 @@ pub enum UpdateError {
 #[derive(Debug, Default)]
 pub struct Replica {
     fb: Option<Framebuffer>,
+    /// Preview values painted over `fb`'s image where newer than its exact states.
+    overlay: Option<Overlay>,
     /// The job, once an update named it.
     pub job: Option<JobId>,
     /// The version of the last complete update.
@@ -62,14 +69,30 @@ impl Replica {
             return Err(UpdateError::Size { was, now: size });
         }
         let pixels = pixels_from_wire(&u.pixels, n)?;
+        let preview = preview_from_wire(&u.preview, u.width, u.height)?;
         if u.reset {
             self.fb = None;
+            self.overlay = None;
             self.version = 0;
             self.finished = false;
         }
         let fb = self.fb.get_or_insert_with(|| Framebuffer::new(u.width, u.height));
+        let overlay = &mut self.overlay;
         for p in pixels {
             fb.set(&p);
+            if let Some(o) = overlay.as_mut() {
+                o.clear(p.index);
+            }
+        }
+        if !preview.is_empty() {
+            let o = overlay.get_or_insert_with(|| Overlay::new(u.width, u.height));
+            for b in &preview {
+                o.paint(b);
+            }
+        }
+        if u.r#final {
+            // The final update's exact states are every pixel's: nothing of a preview stays.
+            *overlay = None;
         }
         self.job = job_from_wire(u.job_id);
         if u.chunk_end {
@@ -87,9 +110,15 @@ impl Replica {
     }
 
     /// The current image: linear RGB, top row first, the mosaic where pass one has not
-    /// reached yet.
+    /// reached yet, preview values where they are newer than the exact states.
     pub fn image(&self) -> Option<(u32, u32, Vec<f32>)> {
-        self.fb.as_ref().map(|fb| (fb.width(), fb.height(), fb.resolve()))
+        self.fb.as_ref().map(|fb| {
+            let mut img = fb.resolve();
+            if let Some(o) = &self.overlay {
+                o.over(&mut img);
+            }
+            (fb.width(), fb.height(), img)
+        })
     }
 
     /// Percent of the job's samples done.
@@ -180,6 +209,35 @@ mod tests {
         assert!(matches!(err, UpdateError::Pixels(PixelsError::Decode(_))), "{err:?}");
         assert!(err.to_string().contains("does not decode"), "{err}");
         assert_eq!((r.image(), r.version, r.job, r.finished), before);
+    }
+
+    /// Previews paint over the exact image; exact pixels that come later replace them; the
+    /// final update leaves only exact states; a bad preview changes nothing.
+    #[test]
+    fn previews_paint_over_until_exact_states_replace_them() {
+        use tessera_film::preview::Blocks;
+        use tessera_proto::preview::preview_to_wire;
+        let mut r = Replica::new();
+        let mut u = update(Vec::new());
+        // One 2x2 block (shift 1) covers the whole 2x2 image.
+        u.preview = preview_to_wire(&[Blocks { shift: 1, runs: vec![(0, 1)], rgb: vec![[0.5, 0.25, 1.0]] }]);
+        r.apply(u).unwrap();
+        let (_, _, img) = r.image().unwrap();
+        assert!(img.chunks(3).all(|p| p == [0.5, 0.25, 1.0]), "{img:?}");
+        let exact = PixelState { index: 0, sums: [1 << 24, 0, 0], count: 1 };
+        r.apply(update(pixels_to_wire(&[exact]))).unwrap();
+        let (_, _, img) = r.image().unwrap();
+        // Pixel 0 (bottom left) is exact; image rows are top first.
+        assert_eq!(&img[6..9], &[1.0, 0.0, 0.0]);
+        assert_eq!(&img[0..3], &[0.5, 0.25, 1.0]);
+        let mut bad = update(Vec::new());
+        bad.preview = preview_to_wire(&[Blocks { shift: 0, runs: vec![(3, 2)], rgb: vec![[1.0; 3]; 2] }]);
+        assert!(matches!(r.apply(bad), Err(UpdateError::Preview(_))));
+        let mut last = update(Vec::new());
+        last.r#final = true;
+        r.apply(last).unwrap();
+        let (_, _, img) = r.image().unwrap();
+        assert!(img.chunks(3).all(|p| p == [1.0, 0.0, 0.0]), "the mosaic of the exact pixel: {img:?}");
     }
 
     #[test]

@@ -131,6 +131,8 @@ async fn subscribe(
         max_rate: 10.0,
         protocol_version: pb::ProtocolVersion::Current as i32,
         frame,
+        // The hub keeps an exact replica: its PNGs are the coordinator's bits.
+        previews: false,
     };
     let updates = Coordinator::watch(&state.service, request(&caller.0, watch_req)).await?.into_inner();
     let mut all = lock(&state.hubs);

@@ -90,6 +90,7 @@ impl CoordinatorService {
                         reset: first,
                         protocol_version: if first { tessera_proto::PROTOCOL_VERSION as i32 } else { 0 },
                         frame,
+                        preview: Default::default(),
                     };
                     self.within_budget(&u).await;
                     if tx.send(Ok(u)).await.is_err() {

@@ -17,6 +17,7 @@ mod clients;
 mod durability;
 mod frame_viewers;
 mod gate;
+mod previews;
 pub mod probes;
 mod rpc;
 mod scan;

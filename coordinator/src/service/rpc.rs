@@ -78,6 +78,7 @@ impl Coordinator for CoordinatorService {
                 Some(((first, _), index)) => {
                     this.feed_frame_viewer(job, first + index, index, interval, tx).await
                 }
+                None if req.previews => this.feed_preview_viewer(job, interval, tx).await,
                 None => this.feed_viewer(job, interval, tx).await,
             }
         });

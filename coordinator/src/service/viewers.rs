@@ -40,15 +40,15 @@ pub const WATCH_DEFAULT_RATE: f64 = 10.0;
 /// the commits (at 128 MB/s they cost up to 80 %; docs/farm.md).
 pub const VIEWER_BYTES_PER_SECOND: f64 = 32e6;
 /// The most viewers of one job at once; a further `Watch` is `RESOURCE_EXHAUSTED`.
-pub const MAX_VIEWERS_PER_JOB: usize = 32;
+pub const MAX_VIEWERS_PER_JOB: usize = 128;
 /// The most viewers at once in all. A viewer holds at most a chunk or two of its own
 /// (catching up) and the HTTP/2 buffers of its stream: a few MB at worst here. The web
 /// dashboard's live image is one such viewer per watched job, whatever its number of
 /// sockets, with a replica of the job's framebuffer in the web crate (`web/src/live.rs`:
 /// about 52 bytes a pixel per watched job).
-pub const MAX_VIEWERS: usize = 128;
+pub const MAX_VIEWERS: usize = 256;
 /// A publisher with nothing new still sends the status this often (samples/s, workers).
-const STATUS_REFRESH: Duration = Duration::from_secs(1);
+pub(super) const STATUS_REFRESH: Duration = Duration::from_secs(1);
 
 /// One delta of a job's framebuffer, encoded once and shared by every viewer at `from`:
 /// cloning an update clones its status and a pointer to its pixels.
@@ -71,11 +71,13 @@ pub(super) struct Feeds {
     /// The bytes all viewers may still be sent now.
     budget: Budget,
     /// Updates sent from a publisher's shared delta.
-    shared: AtomicU64,
+    pub(super) shared: AtomicU64,
     /// Updates a viewer's task made from a snapshot of its own (joining, or behind).
-    own: AtomicU64,
+    pub(super) own: AtomicU64,
     /// Viewers now, by job.
     viewers: Arc<Mutex<HashMap<JobId, usize>>>,
+    /// The preview publishers of jobs with viewers that read previews (previews.rs).
+    pub(super) previews: Mutex<HashMap<JobId, Arc<super::previews::PreviewFeed>>>,
 }
 
 /// A viewer's place among `MAX_VIEWERS`, held by its task and given back when it ends.
@@ -137,18 +139,18 @@ pub struct ViewerUpdates {
 }
 
 /// A job's framebuffer and status at one moment, taken under the lock.
-struct ViewSnapshot {
-    fb: Framebuffer,
-    status: pb::JobStatus,
-    workers: u32,
-    over: bool,
+pub(super) struct ViewSnapshot {
+    pub(super) fb: Framebuffer,
+    pub(super) status: pb::JobStatus,
+    pub(super) workers: u32,
+    pub(super) over: bool,
 }
 
 impl ViewSnapshot {
     /// The updates bringing a replica at version `since` to this snapshot, one chunk at a
     /// time, each chunk's pixels encoded once; at least one update, so that a viewer always
     /// hears the status. The first update with `reset` also names the protocol version.
-    fn updates(
+    pub(super) fn updates(
         &self,
         job: JobId,
         since: u64,
@@ -175,6 +177,7 @@ impl ViewSnapshot {
                 reset: reset && first,
                 protocol_version: if reset && first { tessera_proto::PROTOCOL_VERSION as i32 } else { 0 },
                 frame: 0,
+                preview: Bytes::new(),
             };
             first = false;
             Some(update)
@@ -225,7 +228,7 @@ impl CoordinatorService {
     }
 
     /// A snapshot of what viewers see of `job`, or `None` if there is no such job.
-    fn view_snapshot(&self, job: JobId) -> Option<ViewSnapshot> {
+    pub(super) fn view_snapshot(&self, job: JobId) -> Option<ViewSnapshot> {
         let farm = self.farm();
         let j = farm.job(job)?;
         Some(ViewSnapshot {
@@ -497,13 +500,13 @@ mod tests {
             (0..MAX_VIEWERS_PER_JOB).map(|_| service.viewer_slot(JobId(1)).unwrap()).collect();
         let e = service.viewer_slot(JobId(1)).err().unwrap();
         assert_eq!(e.code(), tonic::Code::ResourceExhausted);
-        assert_eq!(e.message(), "job 1 has 32 viewers, the limit per job (32); try again when one leaves");
+        assert_eq!(e.message(), "job 1 has 128 viewers, the limit per job (128); try again when one leaves");
         let mut others: Vec<ViewerSlot> = (0..MAX_VIEWERS - MAX_VIEWERS_PER_JOB)
             .map(|i| service.viewer_slot(JobId(2 + i as u64 % 7)).unwrap())
             .collect();
         let e = service.viewer_slot(JobId(99)).err().unwrap();
         assert!(
-            e.message().starts_with("the coordinator has 128 viewers, its limit (128)"),
+            e.message().starts_with("the coordinator has 256 viewers, its limit (256)"),
             "{}",
             e.message()
         );

@@ -19,8 +19,9 @@ fn merge(fb: &mut Framebuffer, pixels: &[(u32, u32)], samples: u32, rng: &mut Lc
     fb.merge(&quads, samples, &sums, None).unwrap();
 }
 
-fn shown(overlay: &Overlay, w: u32, h: u32) -> Vec<f32> {
-    let mut img = vec![f32::NAN; w as usize * h as usize * 3];
+/// What a viewer shows: the image of the replica it joined with, the overlay over it.
+fn shown(overlay: &Overlay, joined: &Framebuffer) -> Vec<f32> {
+    let mut img = joined.resolve();
     overlay.over(&mut img);
     img
 }
@@ -29,20 +30,6 @@ fn paint(overlay: &mut Overlay, blocks: &[Blocks]) {
     for b in blocks {
         overlay.paint(b);
     }
-}
-
-#[test]
-fn a_keyframe_shows_what_resolve_makes() {
-    let (w, h) = (37, 21);
-    let mut fb = Framebuffer::new(w, h);
-    let mut rng = Lcg(1);
-    let walk: Vec<(u32, u32)> = Walk::new(w, h).take(40).map(|q| (q.x, q.y)).collect();
-    merge(&mut fb, &walk, 1, &mut rng);
-    let mut o = Overlay::new(w, h);
-    let frames = keyframe(&fb, 100);
-    assert_eq!(frames.len(), (w * h).div_ceil(100) as usize);
-    paint(&mut o, &frames);
-    assert_eq!(shown(&o, w, h), fb.resolve());
 }
 
 /// With bytes to spare, every tick paints each changed pixel alone, so a viewer in step
@@ -55,25 +42,25 @@ fn with_enough_bytes_a_viewer_in_step_shows_the_exact_image() {
     let mut rng = Lcg(2);
     let mut p = Publisher::new(w, h);
     assert!(p.tick(&fb, usize::MAX).is_empty(), "the first tick is the baseline");
+    let joined = fb.clone();
     let mut o = Overlay::new(w, h);
-    paint(&mut o, &keyframe(&fb, 1 << 16));
     let walk: Vec<(u32, u32)> = Walk::new(w, h).map(|q| (q.x, q.y)).collect();
     for part in walk.chunks(53) {
         merge(&mut fb, part, 1, &mut rng);
         let blocks = p.tick(&fb, usize::MAX);
         assert!(blocks.iter().all(|b| b.shift == 0));
         paint(&mut o, &blocks);
-        assert_eq!(shown(&o, w, h), fb.resolve());
+        assert_eq!(shown(&o, &joined), fb.resolve());
     }
     for part in walk.chunks(97) {
         merge(&mut fb, part, 16, &mut rng);
         paint(&mut o, &p.tick(&fb, usize::MAX));
-        assert_eq!(shown(&o, w, h), fb.resolve());
+        assert_eq!(shown(&o, &joined), fb.resolve());
     }
     fb.reset(0, 0);
     fb.reset(20, 10);
     paint(&mut o, &p.tick(&fb, usize::MAX));
-    assert_eq!(shown(&o, w, h), fb.resolve());
+    assert_eq!(shown(&o, &joined), fb.resolve());
     assert_eq!(p.coarse(), 0);
 }
 
@@ -86,8 +73,8 @@ fn a_tight_budget_paints_coarsely_then_refines_to_the_exact_image() {
     let mut rng = Lcg(3);
     let mut p = Publisher::new(w, h);
     p.tick(&fb, 0);
+    let joined = fb.clone();
     let mut o = Overlay::new(w, h);
-    paint(&mut o, &keyframe(&fb, 1 << 16));
     let all: Vec<(u32, u32)> = Walk::new(w, h).map(|q| (q.x, q.y)).collect();
     merge(&mut fb, &all, 4, &mut rng);
     let budget = 40 * BLOCK_BYTES;
@@ -99,8 +86,10 @@ fn a_tight_budget_paints_coarsely_then_refines_to_the_exact_image() {
     let (gw, gh) = grid(w, h, news.shift - 1);
     assert!((gw * gh) as usize * BLOCK_BYTES > budget);
     paint(&mut o, &blocks);
-    assert!(shown(&o, w, h).iter().all(|v| v.is_finite()), "every changed pixel is painted");
-    assert_ne!(shown(&o, w, h), fb.resolve());
+    let mut bare = vec![f32::NAN; w as usize * h as usize * 3];
+    o.over(&mut bare);
+    assert!(bare.iter().all(|v| v.is_finite()), "every changed pixel is painted");
+    assert_ne!(shown(&o, &joined), fb.resolve());
     let mut ticks = 0;
     while p.coarse() > 0 {
         let fine = p.tick(&fb, budget);
@@ -110,6 +99,6 @@ fn a_tight_budget_paints_coarsely_then_refines_to_the_exact_image() {
         assert!(ticks < 100, "refinement stalls");
     }
     assert_eq!(ticks, (w * h).div_ceil(40) as usize);
-    assert_eq!(shown(&o, w, h), fb.resolve());
+    assert_eq!(shown(&o, &joined), fb.resolve());
     assert!(p.tick(&fb, budget).is_empty(), "nothing left to send");
 }

@@ -1,0 +1,364 @@
+//! Watch streams of viewers that read previews (`WatchRequest.previews`): while the job
+//! renders they are sent display values of blocks (`tessera_film::preview`), as coarse as
+//! the viewers' byte budget needs, instead of exact pixel states; when it is over, the
+//! exact state of every pixel, so that their final image has the coordinator's bits.
+//!
+//! One publisher task per job ticks at the default rate: it takes a snapshot under the
+//! farm's lock (a pointer per tile), and outside it chooses and encodes the tick's blocks
+//! once for every viewer, sized to this tick's share of the budget (`budget / viewers /
+//! rate`). Its deltas go into a short history, so that a viewer that read slowly or asked
+//! for fewer updates is sent the ones it missed (each is small); one that fell further
+//! behind, and one that joins, starts again from a snapshot of its own, the exact states
+//! of the pixels that have samples, as an exact viewer joins (few bytes in pass one, where
+//! viewers of a render join; its replica paints the mosaic), and rejoins the shared
+//! deltas. Exact replicas need about 17 bytes a pixel each time it
+//! changes; previews need 6 bytes a block, so a hundred viewers of a farm of 256 workers
+//! stay within the budget (docs/farm.md has the figures).
+
+use std::collections::VecDeque;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+use tessera_description::ids::JobId;
+use tessera_film::preview::{Blocks, Publisher};
+use tessera_proto::preview::preview_to_wire;
+use tessera_proto::v1 as pb;
+use tokio::sync::{mpsc, watch};
+use tonic::Status;
+
+use super::viewers::{ViewSnapshot, STATUS_REFRESH, VIEWER_BYTES_PER_SECOND, WATCH_DEFAULT_RATE};
+use super::{lock, CoordinatorService};
+
+/// A tick's blocks for each viewer are at least this many bytes (a 1080p frame in
+/// 64-pixel blocks), however many viewers share the budget, so that a preview stays
+/// recognisable; more viewers than the budget affords then get fewer updates instead.
+const MIN_TICK_BYTES: usize = 4 << 10;
+/// And at most this many (a message stays small and a tick quick to encode).
+const MAX_TICK_BYTES: usize = 1 << 20;
+/// The history of deltas a viewer that fell behind catches up from, in bytes.
+const HISTORY_BYTES: usize = 8 << 20;
+
+/// One tick of a job's previews, encoded once, shared by every viewer.
+#[derive(Debug)]
+pub(super) struct PreviewDelta {
+    /// Its place in the publisher's sequence (from 1).
+    seq: u64,
+    /// The framebuffer version a viewer must show at least for this delta to follow on.
+    from: u64,
+    /// The version it brings a viewer to.
+    to: u64,
+    /// The messages (one per tick; the final state in chunks).
+    updates: Vec<pb::FramebufferUpdate>,
+    /// The job is over: these are exact pixels and the last of them is `final`.
+    over: bool,
+    bytes: usize,
+}
+
+/// A job's preview publisher, as its viewers see it.
+#[derive(Debug)]
+pub(super) struct PreviewFeed {
+    /// Recent deltas, oldest first, at most `HISTORY_BYTES` together.
+    history: Mutex<VecDeque<Arc<PreviewDelta>>>,
+    /// The newest delta's `seq`; every viewer holds a receiver, so the publisher knows how
+    /// many share the budget and when the last one left.
+    newest: watch::Sender<u64>,
+}
+
+impl PreviewFeed {
+    fn push(&self, d: PreviewDelta) {
+        let seq = d.seq;
+        {
+            let mut h = lock(&self.history);
+            h.push_back(Arc::new(d));
+            let mut total: usize = h.iter().map(|d| d.bytes).sum();
+            while total > HISTORY_BYTES && h.len() > 1 {
+                total -= h.pop_front().map_or(0, |d| d.bytes);
+            }
+        }
+        self.newest.send_replace(seq);
+    }
+
+    /// The deltas after `seq`, oldest first.
+    fn after(&self, seq: u64) -> Vec<Arc<PreviewDelta>> {
+        lock(&self.history).iter().filter(|d| d.seq > seq).cloned().collect()
+    }
+}
+
+fn delta(seq: u64, from: u64, to: u64, updates: Vec<pb::FramebufferUpdate>, over: bool) -> PreviewDelta {
+    use prost::Message;
+    let bytes = updates.iter().map(|u| u.encoded_len()).sum();
+    PreviewDelta { seq, from, to, updates, over, bytes }
+}
+
+impl ViewSnapshot {
+    /// One message carrying `preview` (already encoded) and this snapshot's status.
+    fn preview_update(&self, job: JobId, preview: bytes::Bytes, chunk_end: bool) -> pb::FramebufferUpdate {
+        pb::FramebufferUpdate {
+            job_id: job.0,
+            width: self.fb.width(),
+            height: self.fb.height(),
+            version: self.fb.version(),
+            chunk_end,
+            preview,
+            status: Some(self.status.clone()),
+            workers: self.workers,
+            ..Default::default()
+        }
+    }
+}
+
+impl CoordinatorService {
+    /// `job`'s preview feed and a receiver of it, starting its publisher if it has none.
+    /// Subscribing under the table's lock means a publisher never leaves a viewer behind:
+    /// it ends only when, under the same lock, it sees no receiver.
+    fn preview_feed(&self, job: JobId) -> (Arc<PreviewFeed>, watch::Receiver<u64>) {
+        let mut feeds = lock(&self.feeds.previews);
+        if let Some(feed) = feeds.get(&job) {
+            return (feed.clone(), feed.newest.subscribe());
+        }
+        let (newest, rx) = watch::channel(0);
+        let feed = Arc::new(PreviewFeed { history: Mutex::default(), newest });
+        feeds.insert(job, feed.clone());
+        tokio::spawn(self.clone().publish_previews(job, feed.clone()));
+        (feed, rx)
+    }
+
+    /// Ticks `job`'s previews while it has viewers; publishes its exact final state and
+    /// ends when it is over, or at shutdown.
+    async fn publish_previews(self, job: JobId, feed: Arc<PreviewFeed>) {
+        let interval = Duration::from_secs_f64(1.0 / WATCH_DEFAULT_RATE);
+        let mut changed = self.subscribe();
+        let mut stop = self.shutting_down();
+        let mut publisher: Option<Publisher> = None;
+        let mut seq = 0;
+        let mut last_status: Option<(pb::JobStatus, u32, Instant)> = None;
+        loop {
+            let tick = Instant::now();
+            let Some(snap) = self.view_snapshot(job) else { break };
+            let from = publisher.as_ref().and_then(Publisher::version).unwrap_or(0);
+            if snap.over {
+                let work = tokio::task::spawn_blocking(move || {
+                    let updates: Vec<_> = snap.updates(job, 0, false).collect();
+                    (snap.fb.version(), updates)
+                });
+                let Ok((to, updates)) = work.await else { break };
+                seq += 1;
+                // Exact states of every pixel: they follow on from any picture.
+                feed.push(delta(seq, 0, to, updates, true));
+                break;
+            }
+            let viewers = feed.newest.receiver_count().max(1);
+            let budget = ((VIEWER_BYTES_PER_SECOND / WATCH_DEFAULT_RATE) as usize / viewers)
+                .clamp(MIN_TICK_BYTES, MAX_TICK_BYTES);
+            let mut p = publisher.take().unwrap_or_else(|| Publisher::new(snap.fb.width(), snap.fb.height()));
+            let baseline = p.version().is_none();
+            let work = tokio::task::spawn_blocking(move || {
+                let blocks: Vec<Blocks> = p.tick(&snap.fb, budget);
+                let wire = preview_to_wire(&blocks);
+                (p, snap, wire)
+            });
+            let Ok((p, snap, wire)) = work.await else { break };
+            publisher = Some(p);
+            let status_due = last_status.as_ref().is_none_or(|(s, w, at)| {
+                *s != snap.status || *w != snap.workers || at.elapsed() >= STATUS_REFRESH
+            });
+            if !baseline && (!wire.is_empty() || status_due) {
+                seq += 1;
+                let to = snap.fb.version();
+                feed.push(delta(seq, from, to, vec![snap.preview_update(job, wire, true)], false));
+                last_status = Some((snap.status.clone(), snap.workers, Instant::now()));
+            }
+            {
+                let mut feeds = lock(&self.feeds.previews);
+                if feed.newest.receiver_count() == 0 {
+                    feeds.remove(&job);
+                    return;
+                }
+            }
+            tokio::select! {
+                _ = changed.changed() => {}
+                _ = tokio::time::sleep(STATUS_REFRESH) => {}
+                _ = stop.changed() => break,
+            }
+            tokio::time::sleep(interval.saturating_sub(tick.elapsed())).await;
+        }
+        let mut feeds = lock(&self.feeds.previews);
+        if feeds.get(&job).is_some_and(|f| Arc::ptr_eq(f, &feed)) {
+            feeds.remove(&job);
+        }
+    }
+
+    /// Sends `updates` in order within the viewers' budget; false if the viewer left.
+    async fn send_all(
+        &self,
+        updates: &[pb::FramebufferUpdate],
+        tx: &mpsc::Sender<Result<pb::FramebufferUpdate, Status>>,
+    ) -> bool {
+        for u in updates {
+            self.within_budget(u).await;
+            if tx.send(Ok(u.clone())).await.is_err() {
+                return false;
+            }
+        }
+        true
+    }
+
+    /// Feeds one preview viewer: a snapshot of its own, then the shared deltas (those it missed, in
+    /// order, when it fell behind), at most `1 / interval` rounds a second, until the
+    /// job's exact final state.
+    pub(super) async fn feed_preview_viewer(
+        self,
+        job: JobId,
+        interval: Duration,
+        tx: mpsc::Sender<Result<pb::FramebufferUpdate, Status>>,
+    ) {
+        let (mut feed, mut newest) = self.preview_feed(job);
+        let mut stop = self.shutting_down();
+        // The version the viewer's picture is current through (`None`: nothing yet), and
+        // the last delta of this feed it has dealt with.
+        let mut at: Option<u64> = None;
+        let mut seen = 0;
+        loop {
+            let round = Instant::now();
+            if self.farm().job(job).is_none() {
+                return;
+            }
+            newest.borrow_and_update();
+            let pending = feed.after(seen);
+            let mut next: Vec<Arc<PreviewDelta>> = Vec::new();
+            if let Some(v) = at {
+                next = pending.iter().filter(|d| d.to > v || d.over).cloned().collect();
+                if next.first().is_some_and(|d| d.from > v) {
+                    // Fell behind the history: it starts afresh.
+                    next.clear();
+                    at = None;
+                }
+            }
+            seen = pending.last().map_or(seen, |d| d.seq);
+            if at.is_none() {
+                let Some(snap) = self.view_snapshot(job) else { return };
+                let version = snap.fb.version();
+                let over = snap.over;
+                let Ok(updates) =
+                    tokio::task::spawn_blocking(move || snap.updates(job, 0, true).collect::<Vec<_>>()).await
+                else {
+                    return;
+                };
+                if !self.send_all(&updates, &tx).await || over {
+                    return;
+                }
+                self.feeds.own.fetch_add(updates.len() as u64, Ordering::Relaxed);
+                at = Some(version);
+                // Deltas published meanwhile that go past the snapshot are sent next round.
+                seen = feed
+                    .after(0)
+                    .iter()
+                    .filter(|d| d.to <= version && !d.over)
+                    .map(|d| d.seq)
+                    .max()
+                    .unwrap_or(0);
+            }
+            for d in next {
+                if !self.send_all(&d.updates, &tx).await {
+                    return;
+                }
+                self.feeds.shared.fetch_add(d.updates.len() as u64, Ordering::Relaxed);
+                if d.over {
+                    return;
+                }
+                at = Some(d.to);
+            }
+            tokio::select! {
+                r = newest.changed() => if r.is_err() {
+                    (feed, newest) = self.preview_feed(job);
+                    seen = 0;
+                },
+                // A publisher ends without a word when its job is gone from the farm.
+                _ = tokio::time::sleep(2 * STATUS_REFRESH) => {
+                    if !lock(&self.feeds.previews).get(&job).is_some_and(|f| Arc::ptr_eq(f, &feed)) {
+                        (feed, newest) = self.preview_feed(job);
+                        seen = 0;
+                    }
+                },
+                _ = tx.closed() => return,
+                _ = stop.changed() => return,
+            }
+            tokio::time::sleep(interval.saturating_sub(round.elapsed())).await;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Timing;
+    use tessera_description::job::JobSettings;
+    use tessera_description::Bundle;
+
+    type Rx = mpsc::Receiver<Result<pb::FramebufferUpdate, Status>>;
+
+    /// Reads one viewer's updates until one carries a delta's preview.
+    async fn next_delta(rx: &mut Rx) -> pb::FramebufferUpdate {
+        loop {
+            let u = rx.recv().await.expect("the stream stays open").expect("no error");
+            if !u.reset && !u.preview.is_empty() {
+                return u;
+            }
+        }
+    }
+
+    /// Two viewers in step with the publisher receive the same encoded preview: one
+    /// encoding, the same buffer behind both copies; it paints what was merged.
+    #[tokio::test]
+    async fn preview_viewers_in_step_share_the_encoded_delta() {
+        let service = CoordinatorService::new(Timing::default());
+        let bundle = Bundle {
+            name: "small.toml".into(),
+            text: include_str!("../../../tests/scenes/small.toml").into(),
+            assets: vec![],
+            refused: vec![],
+        };
+        let job = service.submit(bundle, JobSettings::sized(Some(2), Some((8, 8))), 0).await.unwrap();
+        let interval = Duration::from_millis(10);
+        let (tx_a, mut a) = mpsc::channel(1);
+        let (tx_b, mut b) = mpsc::channel(1);
+        tokio::spawn(service.clone().feed_preview_viewer(job, interval, tx_a));
+        tokio::spawn(service.clone().feed_preview_viewer(job, interval, tx_b));
+        for rx in [&mut a, &mut b] {
+            let u = rx.recv().await.unwrap().unwrap();
+            assert!(u.reset && u.chunk_end && u.pixels.is_empty(), "an empty snapshot first");
+            assert_eq!(u.protocol_version, tessera_proto::PROTOCOL_VERSION as i32);
+        }
+        // Past the publisher's baseline tick.
+        tokio::time::sleep(Duration::from_millis(300)).await;
+        let w = service.farm().add_worker("w".into(), 1, Instant::now());
+        let lease = service.farm().assign(w, Instant::now()).unwrap();
+        let sums = vec![1 << 24; lease.batch.quads.len() * 3];
+        let r = crate::farm::BatchResult {
+            job,
+            batch: lease.batch.id,
+            sums: &sums,
+            even: None,
+            aov: &[],
+            nonfinite: 0,
+            attempt: lease.attempt,
+            lease: &lease.token.0,
+        };
+        service.farm().complete(w, &r, Instant::now()).unwrap();
+        service.notify();
+        let (ua, ub) = tokio::join!(next_delta(&mut a), next_delta(&mut b));
+        assert_eq!(ua.preview.as_ptr(), ub.preview.as_ptr(), "one encoding for both");
+        assert!(ua.pixels.is_empty(), "no exact states while the job renders");
+        let blocks = tessera_proto::preview::preview_from_wire(&ua.preview, 8, 8).unwrap();
+        // The first batch holds the root pixel: its sample paints the whole frame white.
+        let mut overlay = tessera_film::preview::Overlay::new(8, 8);
+        for b in &blocks {
+            overlay.paint(b);
+        }
+        let mut img = vec![0.0; 8 * 8 * 3];
+        overlay.over(&mut img);
+        assert!(img.iter().all(|&v| v == 1.0), "{img:?}");
+        service.shutdown();
+    }
+}
