@@ -92,22 +92,31 @@ fn display(fb: &Framebuffer, x: u32, y: u32) -> [f32; 3] {
         .unwrap_or([0.0; 3])
 }
 
-/// A block's display value: the mean of its pixels that have samples, or the mosaic of
-/// its lower-left pixel when none has.
+/// Pixels a side a block's value is read from: coarse blocks are painted while the whole
+/// image changes, and reading every pixel of each would cost the coordinator a full
+/// image per tick; a 4 × 4 grid of pixels is a fair preview of a block's colour.
+const SAMPLES_PER_SIDE: u32 = 4;
+
+/// A block's display value: the mean of those of its pixels on a 4 × 4 grid (and its
+/// lower-left, pass one's computed pixel) that have samples, or the mosaic of its
+/// lower-left pixel when none has.
 fn block_value(fb: &Framebuffer, (x0, y0, x1, y1): (u32, u32, u32, u32)) -> [f32; 3] {
     if x1 - x0 == 1 && y1 - y0 == 1 {
         return display(fb, x0, y0);
     }
+    let (w, h) = (x1 - x0, y1 - y0);
+    let (nx, ny) = (w.min(SAMPLES_PER_SIDE), h.min(SAMPLES_PER_SIDE));
+    let grid = (0..ny).flat_map(|j| {
+        (0..nx).map(move |i| (x0 + (2 * i + 1) * w / (2 * nx), y0 + (2 * j + 1) * h / (2 * ny)))
+    });
     let mut sum = [0.0f64; 3];
     let mut n = 0u32;
-    for y in y0..y1 {
-        for x in x0..x1 {
-            if let Some(m) = fb.mean(x, y) {
-                for (s, v) in sum.iter_mut().zip(m) {
-                    *s += f64::from(v);
-                }
-                n += 1;
+    for (x, y) in std::iter::once((x0, y0)).chain(grid) {
+        if let Some(m) = fb.mean(x, y) {
+            for (s, v) in sum.iter_mut().zip(m) {
+                *s += f64::from(v);
             }
+            n += 1;
         }
     }
     if n == 0 {
@@ -168,6 +177,20 @@ impl Publisher {
         self.coarse -= usize::from((1..=MAX_SHIFT).contains(&was));
         self.coarse += usize::from((1..=MAX_SHIFT).contains(&to));
         self.shown[i] = to;
+    }
+
+    /// `set_shown` for a rectangle, a row at a time.
+    fn set_rect(&mut self, (x0, y0, x1, y1): (u32, u32, u32, u32), to: u8) {
+        let coarse = |v: &u8| (1..=MAX_SHIFT).contains(v);
+        for y in y0..y1 {
+            let row = (y * self.width) as usize;
+            let span = &mut self.shown[row + x0 as usize..row + x1 as usize];
+            self.coarse -= span.iter().filter(|v| coarse(v)).count();
+            span.fill(to);
+            if coarse(&to) {
+                self.coarse += span.len();
+            }
+        }
     }
 
     fn mark(&mut self, i: usize) {
@@ -259,11 +282,7 @@ impl Publisher {
                 bits &= bits - 1;
                 let rect = block_rect(self.width, self.height, shift, index);
                 b.push(index, block_value(fb, rect));
-                for y in rect.1..rect.3 {
-                    for x in rect.0..rect.2 {
-                        self.set_shown((y * self.width + x) as usize, shift);
-                    }
-                }
+                self.set_rect(rect, shift);
             }
         }
         self.seen = seen;

@@ -142,17 +142,26 @@ impl Farm {
         n
     }
 
+    /// The workers connected now that may render `job` (heard from, not quarantined, not
+    /// refusing its scene).
+    fn able_workers(&self, job: JobId) -> impl Iterator<Item = &str> + '_ {
+        let refused = self.jobs.get(&job).map(|j| &j.fence.refused_by);
+        self.workers
+            .values()
+            .filter(|w| !w.silent && self.standing.get(&w.identity).is_none_or(|s| s.quarantined.is_none()))
+            .filter(move |w| refused.is_none_or(|r| !r.contains(&w.identity)))
+            .map(|w| w.identity.as_str())
+    }
+
+    /// Whether a connected identity other than `identity` may render `job`.
+    pub(super) fn able_other_than(&self, job: JobId, identity: &str) -> bool {
+        self.able_workers(job).any(|i| i != identity)
+    }
+
     /// The identities connected now that may render `job` (heard from, not quarantined,
     /// not refusing its scene).
     pub(super) fn able_identities(&self, job: JobId) -> Vec<String> {
-        let refused = self.jobs.get(&job).map(|j| &j.fence.refused_by);
-        let mut v: Vec<String> = self
-            .workers
-            .values()
-            .filter(|w| !w.silent && self.standing.get(&w.identity).is_none_or(|s| s.quarantined.is_none()))
-            .filter(|w| refused.is_none_or(|r| !r.contains(&w.identity)))
-            .map(|w| w.identity.clone())
-            .collect();
+        let mut v: Vec<String> = self.able_workers(job).map(str::to_owned).collect();
         v.sort();
         v.dedup();
         v

@@ -221,9 +221,6 @@ impl CoordinatorService {
         let mut seen = 0;
         loop {
             let round = Instant::now();
-            if self.farm().job(job).is_none() {
-                return;
-            }
             newest.borrow_and_update();
             let pending = feed.after(seen);
             let mut next: Vec<Arc<PreviewDelta>> = Vec::new();
@@ -276,6 +273,9 @@ impl CoordinatorService {
                 },
                 // A publisher ends without a word when its job is gone from the farm.
                 _ = tokio::time::sleep(2 * STATUS_REFRESH) => {
+                    if self.farm().job(job).is_none() {
+                        return;
+                    }
                     if !lock(&self.feeds.previews).get(&job).is_some_and(|f| Arc::ptr_eq(f, &feed)) {
                         (feed, newest) = self.preview_feed(job);
                         seen = 0;
