@@ -138,8 +138,12 @@ pub struct Publisher {
     coarse: usize,
     /// Where refinement goes on scanning.
     cursor: usize,
-    /// The previous tick's snapshot: which pixels had samples, and the version to scan from.
-    prev: Option<Framebuffer>,
+    /// The framebuffer version of the previous tick (none before the first).
+    version: Option<u64>,
+    /// Per pixel, one bit: it had samples at the previous tick. Kept here rather than the
+    /// previous snapshot, because a snapshot held makes every merge copy the tiles it
+    /// touches.
+    sampled: Vec<u64>,
     /// The pixels marked `DIRTY` this tick.
     dirty: Vec<u32>,
     /// Scratch bitmap of the blocks a tick paints.
@@ -156,7 +160,8 @@ impl Publisher {
             shown: vec![0; width as usize * height as usize],
             coarse: 0,
             cursor: 0,
-            prev: None,
+            version: None,
+            sampled: vec![0; (width as usize * height as usize).div_ceil(64)],
             dirty: Vec::new(),
             seen: Vec::new(),
         }
@@ -164,7 +169,7 @@ impl Publisher {
 
     /// The framebuffer version the last tick brought viewers to (none before the first).
     pub fn version(&self) -> Option<u64> {
-        self.prev.as_ref().map(Framebuffer::version)
+        self.version
     }
 
     /// Pixels painted only as part of a block, waiting to be refined.
@@ -200,16 +205,23 @@ impl Publisher {
         }
     }
 
-    /// Marks what changed from the previous snapshot to `fb`: the pixels merged since, and
+    /// Marks what changed since version `since` in `fb`: the pixels merged since, and
     /// where a pixel gained its first sample (or lost its samples to a repair), the pixels
     /// of its pass-one block that show it as their mosaic.
-    fn mark_changes(&mut self, prev: &Framebuffer, fb: &Framebuffer) {
+    fn mark_changes(&mut self, since: u64, fb: &Framebuffer) {
         let (w, h) = (self.width, self.height);
-        for chunk in fb.changes(prev.version(), 1 << 16) {
+        for chunk in fb.changes(since, 1 << 16) {
             for p in chunk {
                 let (x, y) = (p.index % w, p.index / w);
                 self.mark(p.index as usize);
-                if (prev.count(x, y) == 0) != (p.count == 0) {
+                let (word, bit) = (p.index as usize / 64, 1u64 << (p.index % 64));
+                let had = self.sampled[word] & bit != 0;
+                if p.count > 0 {
+                    self.sampled[word] |= bit;
+                } else {
+                    self.sampled[word] &= !bit;
+                }
+                if had != (p.count > 0) {
                     let q = block_of(w, h, x, y);
                     for qy in q.y..q.y + q.h {
                         for qx in q.x..q.x + q.w {
@@ -246,9 +258,16 @@ impl Publisher {
     /// one. Empty when nothing is to be painted.
     pub fn tick(&mut self, fb: &Framebuffer, budget: usize) -> Vec<Blocks> {
         assert_eq!((fb.width(), fb.height()), (self.width, self.height), "one publisher per image size");
-        let Some(prev) = self.prev.replace(fb.clone()) else { return Vec::new() };
+        let Some(since) = self.version.replace(fb.version()) else {
+            for chunk in fb.changes(0, 1 << 16) {
+                for p in chunk.iter().filter(|p| p.count > 0) {
+                    self.sampled[p.index as usize / 64] |= 1u64 << (p.index % 64);
+                }
+            }
+            return Vec::new();
+        };
         self.dirty.clear();
-        self.mark_changes(&prev, fb);
+        self.mark_changes(since, fb);
         let mut out = Vec::new();
         let mut spent = 0;
         if !self.dirty.is_empty() {
