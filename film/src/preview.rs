@@ -271,7 +271,13 @@ impl Publisher {
         let mut out = Vec::new();
         let mut spent = 0;
         if !self.dirty.is_empty() {
-            let shift = (0..=MAX_SHIFT)
+            // A block holds at most 4^shift dirty pixels, so no shift below `first` can fit:
+            // the bitmaps of the finest shifts (the largest) are never filled for nothing.
+            let fits = budget / BLOCK_BYTES;
+            let first = (0..=MAX_SHIFT)
+                .find(|&s| self.dirty.len().div_ceil(1 << (2 * s)) <= fits)
+                .unwrap_or(MAX_SHIFT);
+            let shift = (first..=MAX_SHIFT)
                 .find(|&s| self.count_blocks(s) * BLOCK_BYTES <= budget)
                 .unwrap_or_else(|| {
                     self.count_blocks(MAX_SHIFT);
