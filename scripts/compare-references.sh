@@ -9,13 +9,16 @@
 #   rmse[0,1] the rmse with both images clamped to [0, 1], as a display shows them (a few
 #             pixels seeing the light, at radiance 200, otherwise dominate the rmse)
 # Usage: scripts/compare-references.sh [SPP] (default 256). The references are in
-# docs/references (or REFS=path/to/refs).
+# docs/references (or REFS=path/to/refs). BIN=path/to/tessera uses that build instead of
+# building target/release/tessera (e.g. to compare two builds, docs/determinism.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 spp=${1:-256}
 refs=${REFS:-docs/references}
-cargo build --release --quiet
-bin=target/release/tessera
+if [ -z "${BIN:-}" ]; then
+  cargo build --release --quiet
+fi
+bin=${BIN:-target/release/tessera}
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 printf '%-8s %5s %10s %10s %10s %10s %10s\n' scene spp rmse noise "ref noise" bias "rmse[0,1]"

@@ -23,6 +23,7 @@ mod lights;
 pub mod limits;
 pub mod machine;
 mod materials;
+pub mod math;
 pub mod model;
 pub mod obj;
 mod objects;

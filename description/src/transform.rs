@@ -1,7 +1,9 @@
 //! Object transforms as their parts (translate, rotate, scale): what a scene gives, and
 //! what the renderer interpolates over the shutter.
 
-use glam::{Affine3A, EulerRot, Quat, Vec3};
+use glam::{Affine3A, Quat, Vec3};
+
+use crate::math;
 
 /// A transform as its parts: scale, then rotation, then translation.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -24,7 +26,7 @@ impl Trs {
     /// A transform from Euler angles in degrees, applied about x, then y, then z.
     pub fn new(translate: Vec3, rotate_degrees: Vec3, scale: Vec3) -> Trs {
         let r = rotate_degrees * (std::f32::consts::PI / 180.0);
-        Trs { translate, rotate: Quat::from_euler(EulerRot::ZYX, r.z, r.y, r.x), scale }
+        Trs { translate, rotate: math::quat_from_euler_zyx(r.z, r.y, r.x), scale }
     }
 
     /// The matrix `world_from_object`.
@@ -37,11 +39,12 @@ impl Trs {
         *self == Trs::default()
     }
 
-    /// Interpolates at `t` in [0, 1]: linear in translation and scale, spherical in rotation.
+    /// Interpolates at `t` in [0, 1]: linear in translation and scale, spherical in rotation
+    /// (along the shorter arc; `math::slerp`, the same bits on every machine).
     pub fn lerp(&self, end: &Trs, t: f32) -> Trs {
         Trs {
             translate: self.translate.lerp(end.translate, t),
-            rotate: self.rotate.slerp(end.rotate, t),
+            rotate: math::slerp(self.rotate, end.rotate, t),
             scale: self.scale.lerp(end.scale, t),
         }
     }

@@ -53,7 +53,7 @@ impl Format {
 /// The sRGB transfer function of a linear value, quantised to 8 bits.
 pub fn srgb8(linear: f32) -> u8 {
     let v = if linear.is_nan() { 0.0 } else { linear.clamp(0.0, 1.0) };
-    let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+    let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * libm::powf(v, 1.0 / 2.4) - 0.055 };
     (s * 255.0 + 0.5) as u8
 }
 

@@ -467,8 +467,10 @@ fn bvh(max: usize) -> Result<ExitCode> {
                     std::f32::consts::PI * i as f32 / rings as f32,
                     2.0 * std::f32::consts::PI * j as f32 / rings as f32,
                 );
-                let r = 1.0 + 0.05 * (7.0 * th).sin() * (5.0 * ph).cos();
-                mesh.p.push(glam::Vec3::new(th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin()) * r);
+                // libm's, as the renderer's: the benchmark mesh is the same on every machine.
+                use tessera_description::math::{cos, sin};
+                let r = 1.0 + 0.05 * sin(7.0 * th) * cos(5.0 * ph);
+                mesh.p.push(glam::Vec3::new(sin(th) * cos(ph), cos(th), sin(th) * sin(ph)) * r);
             }
         }
         let idx = |i: u32, j: u32| [i * (rings + 1) + j, u32::MAX, u32::MAX];

@@ -4,6 +4,7 @@
 //! renderer must trace a scene of only those things as fast as this does.
 
 use glam::{UVec2, Vec3};
+use tessera_description::math;
 use tessera_worker::render::geometry::{offset_ray_origin, Hit, Plane, Ray, Sphere};
 use tessera_worker::render::integrator::{reflect, refract};
 use tessera_worker::render::light::Light;
@@ -119,7 +120,7 @@ impl<'a> Whitted<'a> {
             }
             let mut f = color * (m.diffuse * cos);
             if m.specular > 0.0 {
-                f += Vec3::splat(m.specular * reflect(wi, n).dot(wo).max(0.0).powf(m.shininess));
+                f += Vec3::splat(m.specular * math::powf(reflect(wi, n).dot(wo).max(0.0), m.shininess));
             }
             l += intensity / dist2 * tr * f;
         }

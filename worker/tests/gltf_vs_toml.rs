@@ -13,6 +13,7 @@ use std::path::Path;
 
 use glam::{UVec2, Vec3, Vec4};
 use tessera_description::bundle::{Assets, Bundle};
+use tessera_description::math;
 use tessera_description::model::{AlphaMode, Description, Material, Object, Pbr, Shape, TexRef, TextureKind};
 use tessera_film::fixed;
 use tessera_worker::batch::{render_batch, Sums};
@@ -217,7 +218,7 @@ fn the_emissive_texture_multiplies_the_emission() {
     let (w, h) = (toml.render.width as usize, toml.render.height as usize);
     let decode = |c: u8| {
         let v = f32::from(c) / 255.0;
-        ((v + 0.055) / 1.055).powf(2.4)
+        math::powf((v + 0.055) / 1.055, 2.4)
     };
     // Pixels at the quadrants' centres (±0.5): bilinear lookups there blend only texels
     // of the quadrant's own colour.

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 
 use glam::UVec2;
 use tessera_description::bundle::Bundle;
+use tessera_description::math;
 use tessera_film::fixed;
 use tessera_worker::batch::{render_batch, Sums};
 
@@ -14,7 +15,7 @@ const SPP: u32 = 8;
 
 fn srgb8(v: f32) -> u8 {
     let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
-    let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+    let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * math::powf(v, 1.0 / 2.4) - 0.055 };
     (s * 255.0 + 0.5) as u8
 }
 

@@ -5,6 +5,7 @@
 mod common;
 
 use common::{lum, render};
+use tessera_description::math;
 
 /// The lit extent (first and last pixel above `threshold`) of row `row`.
 fn lit_extent(w: u32, img: &[[f32; 3]], row: u32, threshold: f32) -> Option<(u32, u32)> {
@@ -34,7 +35,7 @@ center = [0, 0, {center}]
 radius = 0.05
 emission = 10
 "#,
-        fov = 2.0 * 0.1f32.atan().to_degrees(),
+        fov = 2.0 * math::atan(0.1).to_degrees(),
         center = -z
     )
 }
@@ -146,7 +147,7 @@ radius = 0.5
 material = "white"
 motion = {{ translate = [{end}, 0, 0] }} # object space: the centre goes from -1 to -1 + dx
 "#,
-        fov = 2.0 * 0.4f32.atan().to_degrees(),
+        fov = 2.0 * math::atan(0.4).to_degrees(),
         end = dx
     )
 }
@@ -292,8 +293,11 @@ emission = 10
     };
     let (_, _, reference) = render(&scene(1024));
     let rmse = |img: &[[f32; 3]]| {
-        let se: f32 =
-            img.iter().zip(&reference).map(|(a, b)| (0..3).map(|c| (a[c] - b[c]).powi(2)).sum::<f32>()).sum();
+        let se: f32 = img
+            .iter()
+            .zip(&reference)
+            .map(|(a, b)| (0..3).map(|c| (a[c] - b[c]) * (a[c] - b[c])).sum::<f32>())
+            .sum();
         (se / (img.len() * 3) as f32).sqrt()
     };
     let errors: Vec<f32> = [1u32, 4, 16, 64].iter().map(|&spp| rmse(&render(&scene(spp)).2)).collect();

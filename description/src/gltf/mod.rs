@@ -34,6 +34,7 @@ pub use nodes::SceneRef;
 
 use crate::animation::FrameTime;
 use crate::bundle::Assets;
+use crate::math;
 use crate::model::{Light, Pbr};
 use crate::transform::Trs;
 
@@ -216,8 +217,8 @@ pub fn framing_camera(bounds: (Vec3, Vec3), fov: f32, aspect: f32) -> GltfCamera
     let centre = (lo + hi) * 0.5;
     let radius = ((hi - lo).length() * 0.5).max(1e-3);
     // The bounding sphere fits the narrower of the two angles, with a 10 % margin.
-    let half = (fov * 0.5).min((aspect * (fov * 0.5).tan()).atan());
-    let distance = 1.1 * radius / half.sin();
+    let half = (fov * 0.5).min(math::atan(aspect * math::tan(fov * 0.5)));
+    let distance = 1.1 * radius / math::sin(half);
     let direction = Vec3::new(0.0, 0.35, 1.0).normalize();
     GltfCamera {
         position: centre + direction * distance,

@@ -2,12 +2,13 @@
 //! parents), walked from a scene's roots with each node's world transform composed
 //! (parent × local, glTF §3.5.3), decomposed into Tessera's translate/rotate/scale.
 
-use glam::{Mat4, Quat, Vec3};
+use glam::{Mat3, Mat4, Quat, Vec3};
 use gltf::json::Root;
 use serde::Deserialize;
 
 use super::animation::{Poses, When};
 use super::{at, GltfError};
+use crate::math;
 use crate::transform::Trs;
 
 /// Which scene of a glTF file: by index or by name.
@@ -96,9 +97,22 @@ pub(crate) fn decompose(m: &Mat4) -> Result<Trs, String> {
     if !m.is_finite() {
         return Err("its world transform is not finite".into());
     }
-    let (scale, rotate, translate) = m.to_scale_rotation_translation();
-    let linear = m.determinant();
-    if !(linear.abs() > 1e-30) || !scale.is_finite() || !rotate.is_finite() {
+    // Glam's `to_scale_rotation_translation` and `determinant` sum in another order on
+    // its SIMD paths than on its scalar one; on the columns as `Vec3`/`Mat3` (one
+    // implementation on every target) the bits are every machine's.
+    let axes = Mat3::from_mat4(*m);
+    let linear = axes.determinant();
+    let scale = Vec3::new(axes.x_axis.length() * linear.signum(), axes.y_axis.length(), axes.z_axis.length());
+    if !(linear.abs() > 1e-30) || !scale.is_finite() {
+        return Err("its world transform collapses an axis (a scale of zero)".into());
+    }
+    let rotate = Quat::from_mat3(&Mat3::from_cols(
+        axes.x_axis / scale.x,
+        axes.y_axis / scale.y,
+        axes.z_axis / scale.z,
+    ));
+    let translate = m.w_axis.truncate();
+    if !rotate.is_finite() {
         return Err("its world transform collapses an axis (a scale of zero)".into());
     }
     let back = Mat4::from_scale_rotation_translation(scale, rotate, translate);
@@ -110,7 +124,7 @@ pub(crate) fn decompose(m: &Mat4) -> Result<Trs, String> {
                 .into(),
         );
     }
-    Ok(Trs { translate, rotate: rotate.normalize(), scale })
+    Ok(Trs { translate, rotate: math::quat_normalize(rotate), scale })
 }
 
 /// The node's own transform at `when`: its matrix, or its TRS with animation applied.
@@ -131,7 +145,7 @@ fn local(file: &str, root: &Root, poses: &Poses, i: usize, when: When) -> Result
         node.rotation.map_or(Quat::IDENTITY, |q| Quat::from_array(q.0)),
         node.scale.map_or(Vec3::ONE, Vec3::from),
     ));
-    let r = if r.length_squared() > 0.0 { r.normalize() } else { Quat::IDENTITY };
+    let r = if math::quat_dot(r, r) > 0.0 { math::quat_normalize(r) } else { Quat::IDENTITY };
     Ok(Mat4::from_scale_rotation_translation(s, r, t))
 }
 

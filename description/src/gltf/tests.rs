@@ -121,7 +121,7 @@ fn a_rotated_scaled_child_nodes_world_position() {
 fn a_shearing_hierarchy_is_refused() {
     let mut doc = triangle();
     // 45° about z under a scale of 3 along y.
-    let (s, c) = (std::f32::consts::FRAC_PI_8.sin(), std::f32::consts::FRAC_PI_8.cos());
+    let (s, c) = crate::math::sin_cos(std::f32::consts::FRAC_PI_8);
     doc["nodes"] = json!([
         {"children": [1], "scale": [1, 3, 1]},
         {"mesh": 0, "rotation": [0, 0, s, c]}
@@ -438,7 +438,7 @@ fn the_framing_camera_sees_the_whole_box() {
     assert_eq!(c.look_at, Vec3::ZERO);
     // The bounding sphere (radius √3) fits within the half-angle with its margin.
     let d = c.position.length();
-    assert!(((3f32).sqrt() * 1.1 / d - 0.4f32.sin()).abs() < 1e-5, "{d}");
+    assert!(((3f32).sqrt() * 1.1 / d - crate::math::sin(0.4)).abs() < 1e-5, "{d}");
 }
 
 #[test]

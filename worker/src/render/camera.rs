@@ -2,6 +2,7 @@
 //! field), with a shutter interval (motion blur).
 
 use glam::{Vec2, Vec3};
+use tessera_description::math;
 
 use super::bsdf::concentric_disk;
 use super::geometry::Ray;
@@ -44,7 +45,7 @@ impl Camera {
         let right = forward.cross(up).normalize();
         let true_up = right.cross(forward);
         let aspect = width as f32 / height as f32;
-        let t = (fov * 0.5).tan();
+        let t = math::tan(fov * 0.5);
         let (tan_half_w, tan_half_h) = match axis {
             FovAxis::Vertical => (t * aspect, t),
             FovAxis::Horizontal => (t, t / aspect),
@@ -123,7 +124,7 @@ mod tests {
         let fov = 1.0f32;
         let cam = Camera::new(Vec3::ZERO, Vec3::NEG_Z, Vec3::Y, fov, FovAxis::Horizontal, 200, 100);
         let edge = cam.generate_ray(Vec2::new(200.0, 50.0), Vec2::ZERO).dir;
-        assert!((edge.x.atan2(-edge.z) - fov / 2.0).abs() < 1e-5);
+        assert!((math::atan2(edge.x, -edge.z) - fov / 2.0).abs() < 1e-5);
     }
 
     /// Rays from any lens point through one film point meet on the plane of focus.

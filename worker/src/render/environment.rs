@@ -18,6 +18,7 @@
 use std::f32::consts::PI;
 
 use glam::{Vec2, Vec3};
+use tessera_description::math;
 
 use super::distribution::Distribution2D;
 
@@ -55,7 +56,7 @@ pub fn luminance(c: Vec3) -> f32 {
 impl Environment {
     /// The same radiance from every direction.
     pub fn uniform(radiance: Vec3, rotation: f32) -> Environment {
-        Environment { radiance: Radiance::Uniform(radiance), rotation: rotation.sin_cos() }
+        Environment { radiance: Radiance::Uniform(radiance), rotation: math::sin_cos(rotation) }
     }
 
     /// An equirectangular map, row-major from the top row, already scaled by its strength.
@@ -63,13 +64,13 @@ impl Environment {
         assert_eq!(texels.len(), width * height, "a map of width × height texels");
         let mut weights = Vec::with_capacity(texels.len());
         for y in 0..height {
-            let sin_theta = (PI * (y as f32 + 0.5) / height as f32).sin();
+            let sin_theta = math::sin(PI * (y as f32 + 0.5) / height as f32);
             weights.extend(texels[y * width..(y + 1) * width].iter().map(|&t| luminance(t) * sin_theta));
         }
         let distribution = Distribution2D::new(&weights, width, height);
         Environment {
             radiance: Radiance::Map { width, height, texels, distribution },
-            rotation: rotation.sin_cos(),
+            rotation: math::sin_cos(rotation),
         }
     }
 
@@ -104,7 +105,7 @@ impl Environment {
                 let z = 1.0 - 2.0 * u.x;
                 let r = (1.0 - z * z).max(0.0).sqrt();
                 let phi = 2.0 * PI * u.y;
-                let wi = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+                let wi = Vec3::new(r * math::cos(phi), r * math::sin(phi), z);
                 Some(EnvironmentSample { wi, radiance: *l, pdf: 1.0 / (4.0 * PI) })
             }
             Radiance::Map { width, height, texels, distribution } => {
@@ -147,7 +148,7 @@ impl Environment {
                 // The sin θ weights integrate the sphere: mean = Σ L sin θ ΔΩ / 4π.
                 let mut sum = 0f64;
                 for y in 0..*height {
-                    let sin_theta = (PI * (y as f32 + 0.5) / *height as f32).sin();
+                    let sin_theta = math::sin(PI * (y as f32 + 0.5) / *height as f32);
                     let row: f64 =
                         texels[y * width..(y + 1) * width].iter().map(|&t| f64::from(luminance(t))).sum();
                     sum += row * f64::from(sin_theta);
@@ -162,8 +163,8 @@ impl Environment {
 
 /// Image coordinates in [0, 1]² of a unit direction in the environment's frame.
 pub fn direction_to_uv(d: Vec3) -> Vec2 {
-    let theta = d.y.clamp(-1.0, 1.0).acos();
-    let phi = d.x.atan2(-d.z);
+    let theta = math::acos(d.y.clamp(-1.0, 1.0));
+    let phi = math::atan2(d.x, -d.z);
     Vec2::new(0.5 + phi / (2.0 * PI), theta / PI)
 }
 
@@ -171,8 +172,8 @@ pub fn direction_to_uv(d: Vec3) -> Vec2 {
 pub fn uv_to_direction(uv: Vec2) -> (Vec3, f32) {
     let theta = uv.y * PI;
     let phi = (uv.x - 0.5) * 2.0 * PI;
-    let (sin_t, cos_t) = theta.sin_cos();
-    let (sin_p, cos_p) = phi.sin_cos();
+    let (sin_t, cos_t) = math::sin_cos(theta);
+    let (sin_p, cos_p) = math::sin_cos(phi);
     (Vec3::new(sin_t * sin_p, cos_t, -sin_t * cos_p), sin_t)
 }
 
@@ -230,7 +231,7 @@ mod tests {
         for rotation in [0.0, 1.0] {
             let env = one_bright(w, h, at, 1000.0, rotation);
             // The predicted fraction: the texel's weight over all weights.
-            let sin = |y: usize| (PI * (y as f32 + 0.5) / h as f32).sin();
+            let sin = |y: usize| math::sin(PI * (y as f32 + 0.5) / h as f32);
             let total: f32 =
                 (0..h).map(|y| sin(y) * 0.01 * w as f32).sum::<f32>() + sin(at.1) * (1000.0 - 0.01);
             let predicted = sin(at.1) * 1000.0 / total;
@@ -258,7 +259,7 @@ mod tests {
         // A smooth map: the chi-square of a histogram over texels against the pdf.
         let (w, h) = (12, 6);
         let texels: Vec<Vec3> = (0..w * h)
-            .map(|i| Vec3::splat(0.2 + ((i % w) as f32 * 0.5).sin().abs() + (i / w) as f32 * 0.3))
+            .map(|i| Vec3::splat(0.2 + math::sin((i % w) as f32 * 0.5).abs() + (i / w) as f32 * 0.3))
             .collect();
         let env = Environment::map(w, h, texels, 0.3);
         let n = 50_000u32;
@@ -283,9 +284,10 @@ mod tests {
                 // The pdf is constant over a texel in (u, v); in solid angle it follows 1/sin θ,
                 // so integrate it over the texel exactly: p_uv × Δu Δv.
                 let p_uv =
-                    env.pdf(env.to_world(d)) * 2.0 * PI * PI * (PI * (y as f32 + 0.5) / h as f32).sin();
+                    env.pdf(env.to_world(d)) * 2.0 * PI * PI * math::sin(PI * (y as f32 + 0.5) / h as f32);
                 let expected = f64::from(p_uv) / (w * h) as f64 * f64::from(n);
-                chi2 += (hist[y * w + x] - expected).powi(2) / expected;
+                let d = hist[y * w + x] - expected;
+                chi2 += d * d / expected;
             }
         }
         // 71 degrees of freedom: the 99.9th percentile is about 112.
@@ -301,10 +303,10 @@ mod tests {
         let mut integral = 0f64;
         for i in 0..nt {
             let theta = PI * (i as f32 + 0.5) / nt as f32;
-            let (sin_t, cos_t) = theta.sin_cos();
+            let (sin_t, cos_t) = math::sin_cos(theta);
             for j in 0..nphi {
                 let phi = 2.0 * PI * (j as f32 + 0.5) / nphi as f32;
-                let d = Vec3::new(sin_t * phi.cos(), cos_t, sin_t * phi.sin());
+                let d = Vec3::new(sin_t * math::cos(phi), cos_t, sin_t * math::sin(phi));
                 integral += f64::from(env.pdf(d) * sin_t);
             }
         }
@@ -332,7 +334,7 @@ mod tests {
             let r = (1.0 - z * z).sqrt();
             for j in 0..nphi {
                 let phi = 2.0 * PI * (j as f32 + 0.5) / nphi as f32;
-                let d = Vec3::new(r * phi.cos(), z, r * phi.sin());
+                let d = Vec3::new(r * math::cos(phi), z, r * math::sin(phi));
                 exact += f64::from(luminance(env.radiance(d)) * z);
             }
         }

@@ -1,6 +1,7 @@
 //! Rays, surface hits and the shapes of a Whitted scene.
 
 use glam::Vec3;
+use tessera_description::math;
 
 /// A ray `origin + t · dir`, `dir` of unit length.
 #[derive(Debug, Clone, Copy)]
@@ -162,8 +163,8 @@ impl Sphere {
 /// The texture coordinates of a point of a sphere with outward normal `n`: longitude
 /// and latitude, v = 1 at the top.
 pub fn sphere_uv(n: Vec3) -> glam::Vec2 {
-    let u = 0.5 + n.z.atan2(n.x) * (0.5 / std::f32::consts::PI);
-    let v = n.y.clamp(-1.0, 1.0).acos() * std::f32::consts::FRAC_1_PI;
+    let u = 0.5 + math::atan2(n.z, n.x) * (0.5 / std::f32::consts::PI);
+    let v = math::acos(n.y.clamp(-1.0, 1.0)) * std::f32::consts::FRAC_1_PI;
     glam::Vec2::new(u, 1.0 - v)
 }
 
@@ -228,7 +229,7 @@ mod tests {
                 let s = Sphere::new(c, scale);
                 for i in 0..200 {
                     let a = i as f32 * 0.37;
-                    let dir = Vec3::new(a.cos(), (a * 1.3).sin(), a.sin()).normalize();
+                    let dir = Vec3::new(math::cos(a), math::sin(a * 1.3), math::sin(a)).normalize();
                     let ray = Ray::new(c + dir * (3.0 * scale), -dir);
                     let Some(h) = s.intersect(&ray, f32::INFINITY) else { continue };
                     let w = (h.n + Vec3::new(0.3, 0.1, -0.2)).normalize();

@@ -6,6 +6,7 @@
 //! the reflected and the refracted ray are traced.
 
 use glam::{Vec2, Vec3};
+use tessera_description::math;
 
 use super::bsdf::{Frame, Lobe};
 use super::geometry::{offset_ray_origin, Hit, Ray};
@@ -172,7 +173,7 @@ fn blur(w: Vec3, n: Vec3, alpha: f32, u: Vec2, side: f32) -> Vec3 {
     let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
     let phi = 2.0 * std::f32::consts::PI * u.y;
     let frame = Frame::new(w);
-    let d = frame.to_world(Vec3::new(sin_t * phi.cos(), sin_t * phi.sin(), cos_t)).normalize();
+    let d = frame.to_world(Vec3::new(sin_t * math::cos(phi), sin_t * math::sin(phi), cos_t)).normalize();
     // A lobe that dips through the surface is folded back, as a blurred mirror would.
     if d.dot(n) * side < 0.0 {
         (d - 2.0 * d.dot(n) * n).normalize()
@@ -215,7 +216,7 @@ fn classic(
         }
         let mut f = color * (m.diffuse * cos);
         if m.specular > 0.0 {
-            f += Vec3::splat(m.specular * reflect(ls.wi, ns).dot(wo).max(0.0).powf(m.shininess));
+            f += Vec3::splat(m.specular * math::powf(reflect(ls.wi, ns).dot(wo).max(0.0), m.shininess));
         }
         l += ls.weighted * tr * f / pick;
     });

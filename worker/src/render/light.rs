@@ -12,6 +12,7 @@ use std::f32::consts::PI;
 use std::sync::Arc;
 
 use glam::{Vec2, Vec3};
+use tessera_description::math;
 
 use super::bsdf::Frame;
 use super::distribution::Distribution1D;
@@ -151,7 +152,7 @@ impl Light {
 
     /// A spot light from its cones' half-angles in radians (inner < outer).
     pub fn spot(position: Vec3, direction: Vec3, intensity: Vec3, inner_cone: f32, outer_cone: f32) -> Light {
-        let (ci, co) = (inner_cone.cos(), outer_cone.cos());
+        let (ci, co) = (math::cos(inner_cone), math::cos(outer_cone));
         let scale = 1.0 / (ci - co).max(1e-3);
         Light::Spot { position, direction, intensity, scale, offset: -co * scale }
     }
@@ -354,7 +355,7 @@ fn sample_sphere_cone(sphere: &Sphere, p: Vec3, u: Vec2) -> Option<(Vec3, f32)> 
         let z = 1.0 - 2.0 * u.x;
         let r = (1.0 - z * z).max(0.0).sqrt();
         let phi = 2.0 * PI * u.y;
-        return Some((Vec3::new(r * phi.cos(), r * phi.sin(), z), 1.0 / (4.0 * PI)));
+        return Some((Vec3::new(r * math::cos(phi), r * math::sin(phi), z), 1.0 / (4.0 * PI)));
     }
     // Work with 1 − cos θ, not cos θ: for a small or far sphere cos θmax rounds to 1 and
     // the cone would vanish, with an infinite density.
@@ -363,7 +364,7 @@ fn sample_sphere_cone(sphere: &Sphere, p: Vec3, u: Vec2) -> Option<(Vec3, f32)> 
     let (cos_t, sin_t) = (1.0 - k, (k * (2.0 - k)).max(0.0).sqrt());
     let phi = 2.0 * PI * u.y;
     let frame = Frame::new(to_c / d2.sqrt());
-    let wi = frame.to_world(Vec3::new(sin_t * phi.cos(), sin_t * phi.sin(), cos_t));
+    let wi = frame.to_world(Vec3::new(sin_t * math::cos(phi), sin_t * math::sin(phi), cos_t));
     Some((wi.normalize(), 1.0 / (2.0 * PI * cone)))
 }
 

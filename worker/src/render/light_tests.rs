@@ -16,7 +16,7 @@ fn the_spot_falls_off_smoothly_between_its_cones() {
     // A point at angle θ off the axis at distance 2 (not on a plane: the distance stays 2).
     let at = |deg: f32| {
         let t = deg.to_radians();
-        Vec3::new(0.0, 2.0, 0.0) + 2.0 * Vec3::new(t.sin(), -t.cos(), 0.0)
+        Vec3::new(0.0, 2.0, 0.0) + 2.0 * Vec3::new(math::sin(t), -math::cos(t), 0.0)
     };
     let e = |deg: f32| spot.sample(at(deg), Vec2::ZERO).map_or(0.0, |s| s.weighted.x);
     // Inside the inner cone: the full I / d².
@@ -24,7 +24,7 @@ fn the_spot_falls_off_smoothly_between_its_cones() {
     // Past the outer cone: nothing (no sample at all).
     assert!(spot.sample(at(31.0), Vec2::ZERO).is_none());
     // Between: KHR_lights_punctual's recommended t², t linear in cos θ.
-    let t = (20f32.to_radians().cos() - outer.cos()) / (inner.cos() - outer.cos());
+    let t = (math::cos(20f32.to_radians()) - math::cos(outer)) / (math::cos(inner) - math::cos(outer));
     assert!((e(20.0) - 2.0 * t * t).abs() < 1e-5, "{} vs {}", e(20.0), 2.0 * t * t);
     assert!(e(25.0) < e(20.0) && e(20.0) < e(15.0));
     let s = spot.sample(at(5.0), Vec2::ZERO).unwrap();

@@ -288,7 +288,10 @@ fn to_world(hit: &Hit, m: &Affine3A) -> Hit {
     let abs_m = glam::Mat3A::from_cols(a.x_axis.abs(), a.y_axis.abs(), a.z_axis.abs());
     let p_error = Vec3::from(abs_m * glam::Vec3A::from(hit.p_error)) * (1.0 + gamma(3))
         + (Vec3::from(abs_m * glam::Vec3A::from(hit.p.abs())) + Vec3::from(m.translation.abs())) * gamma(3);
-    let n = (normal_matrix * glam::Vec3A::from(hit.n)).normalize().into();
-    let ns = (normal_matrix * glam::Vec3A::from(hit.ns)).normalize().into();
+    // Normalised as `Vec3`: `Vec3A::normalize` divides by the length on SSE2 but multiplies
+    // by its reciprocal on the scalar path, so the bits would depend on the build
+    // (docs/determinism.md).
+    let n = Vec3::from(normal_matrix * glam::Vec3A::from(hit.n)).normalize();
+    let ns = Vec3::from(normal_matrix * glam::Vec3A::from(hit.ns)).normalize();
     Hit { t: hit.t, p, p_error, n, ns, uv: hit.uv, prim: hit.prim }
 }

@@ -2,6 +2,7 @@
 //! images with their sampler's wrap modes, read as sRGB-encoded colour or as linear data.
 
 use glam::{Vec2, Vec3, Vec4};
+use tessera_description::math;
 
 pub use tessera_description::model::CheckerSpace;
 
@@ -187,7 +188,7 @@ pub fn srgb_to_linear(v: f32) -> f32 {
     if v <= 0.04045 {
         v / 12.92
     } else {
-        ((v + 0.055) / 1.055).powf(2.4)
+        math::powf((v + 0.055) / 1.055, 2.4)
     }
 }
 

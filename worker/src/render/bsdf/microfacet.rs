@@ -4,6 +4,7 @@
 use std::f32::consts::PI;
 
 use glam::{Vec2, Vec3};
+use tessera_description::math;
 
 /// GGX (Trowbridge–Reitz) normal distribution.
 pub fn ggx_d(m: Vec3, alpha: f32) -> f32 {
@@ -33,7 +34,7 @@ pub(super) fn ggx_sample_normal(u: Vec2, alpha: f32) -> Vec3 {
     let cos_t = 1.0 / (1.0 + tan2).sqrt();
     let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
     let phi = 2.0 * PI * u.y;
-    Vec3::new(sin_t * phi.cos(), sin_t * phi.sin(), cos_t)
+    Vec3::new(sin_t * math::cos(phi), sin_t * math::sin(phi), cos_t)
 }
 
 #[cfg(test)]
@@ -52,7 +53,7 @@ mod tests {
                 let z = u.x;
                 let r = (1.0 - z * z).max(0.0).sqrt();
                 let phi = 2.0 * PI * u.y;
-                let m = Vec3::new(r * phi.cos(), r * phi.sin(), z);
+                let m = Vec3::new(r * math::cos(phi), r * math::sin(phi), z);
                 sum += f64::from(ggx_d(m, alpha) * m.z) * 2.0 * std::f64::consts::PI;
             }
             let est = sum / n as f64;

@@ -1,6 +1,7 @@
 //! Maps of the unit square onto disks and hemispheres, for diffuse sampling and the thin lens.
 
 use glam::{Vec2, Vec3};
+use tessera_description::math;
 
 /// Cosine-weighted hemisphere sample (Malley's method on a concentric disk).
 pub fn cosine_hemisphere(u: Vec2) -> Vec3 {
@@ -19,5 +20,5 @@ pub fn concentric_disk(u: Vec2) -> Vec2 {
     } else {
         (o.y, std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (o.x / o.y))
     };
-    Vec2::new(r * theta.cos(), r * theta.sin())
+    Vec2::new(r * math::cos(theta), r * math::sin(theta))
 }
