@@ -391,3 +391,40 @@ async fn preview_viewers_see_previews_while_rendering_and_end_with_the_exact_ima
     assert!(late.exact >= 2, "its snapshot, then the final update");
     assert!(early.previews >= 2, "{} previews", early.previews);
 }
+
+/// Invariant: a viewer of previews in step is sent the refinement of coarse blocks also
+/// while nothing is merged (a paused job), until it shows the image at pixel detail.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn preview_viewers_are_refined_while_the_job_is_paused() {
+    let h = Harness::start().await.unwrap();
+    // 65 536 pixels: more than one tick's blocks for one viewer, so pass one is painted
+    // in coarse blocks first.
+    let (w, hgt) = (256, 256);
+    let job = h.submit_small(w, hgt, 64).await.unwrap();
+    let mut v = FakeViewer::watch_previews(&h.channel(), job.0, 0.0, true).await.unwrap();
+    v.next_within(Duration::from_secs(10)).await.unwrap();
+    let fw = FakeWorker::connect(&h.channel(), "a", 2).await.unwrap();
+    let _serving = tokio::spawn(fw.serve(Duration::from_millis(400), Arc::new(ServeStats::new(false))));
+    let pixels = u64::from(w) * u64::from(hgt);
+    tessera_harness::wait_for(&h.channel(), job, Duration::from_secs(30), |j| j.pass_one_done >= pixels)
+        .await
+        .unwrap();
+    h.pause(job, true).await.unwrap();
+    // Leases out when it was paused are still answered and merged.
+    tokio::time::sleep(Duration::from_secs(1)).await;
+    let image = h.fetch_image(job).await.unwrap();
+    let exact: Vec<f32> =
+        image.bytes.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])).collect();
+    let start = std::time::Instant::now();
+    loop {
+        v.next_within(Duration::from_secs(10)).await.unwrap();
+        let shown = v.shown().unwrap();
+        // Half floats: within their precision of the exact value.
+        let off =
+            shown.iter().zip(&exact).filter(|(s, e)| (*s - *e).abs() > 1e-3 * e.abs().max(1e-3)).count();
+        if off == 0 {
+            break;
+        }
+        assert!(start.elapsed() < Duration::from_secs(20), "{off} pixels still coarse after 20 s paused");
+    }
+}

@@ -81,6 +81,11 @@ pub fn preview_from_wire(payload: &[u8], width: u32, height: u32) -> Result<Vec<
             total += u64::from(count);
             runs.push((first, count));
         }
+        if total > blocks {
+            // The publisher paints a block once per group; repeats would let a payload of a
+            // few bytes a block make the viewer paint 65 536 pixels for each.
+            return Err(bad("more blocks than the image has"));
+        }
         if total * 6 != g.rgb.len() as u64 {
             return Err(bad("not one value of 6 bytes per block"));
         }
@@ -130,6 +135,7 @@ mod tests {
             (group(0, vec![89, 2], one.repeat(2)), "a run extends past the image"),
             (group(0, vec![0, 2], one.clone()), "not one value of 6 bytes per block"),
             (group(0, vec![0, u32::MAX], one.clone()), "a run extends past the image"),
+            (group(8, vec![0, 1, 0, 1], one.repeat(2)), "more blocks than the image has"),
             (group(0, vec![0, 1], f16::NAN.to_le_bytes().repeat(3)), "not a finite"),
             (group(0, vec![0, 1], f16::from_f32(-1.0).to_le_bytes().repeat(3)), "not a finite"),
         ];

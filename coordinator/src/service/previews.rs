@@ -34,13 +34,16 @@ use super::{lock, CoordinatorService};
 /// 64-pixel blocks), however many viewers share the budget, so that a preview stays
 /// recognisable; more viewers than the budget affords then get fewer updates instead.
 const MIN_TICK_BYTES: usize = 4 << 10;
-/// And at most this many: a message within HTTP/2's initial window of 64 KiB goes out
-/// without waiting for the viewer's window updates, and a tick stays quick to encode
+/// And at most this many (as estimated by `BLOCK_BYTES`; scattered blocks' runs can take a
+/// message a third past it): a message about HTTP/2's initial window of 64 KiB goes out
+/// without waiting long for the viewer's window updates, and a tick stays quick to encode
 /// (`tessera bench farm` measured 320 KB ticks to 10 viewers costing 16 % of the commits,
 /// against 3 % for 100 viewers at 24 KB).
 const MAX_TICK_BYTES: usize = 60 << 10;
-/// The history of deltas a viewer that fell behind catches up from, in bytes.
+/// The history of deltas a viewer that fell behind catches up from, in bytes and in
+/// entries (a paused job's status-only deltas are tiny, and every viewer round scans it).
 const HISTORY_BYTES: usize = 8 << 20;
+const HISTORY_ENTRIES: usize = 256;
 
 /// One tick of a job's previews, encoded once, shared by every viewer.
 #[derive(Debug)]
@@ -75,7 +78,7 @@ impl PreviewFeed {
             let mut h = lock(&self.history);
             h.push_back(Arc::new(d));
             let mut total: usize = h.iter().map(|d| d.bytes).sum();
-            while total > HISTORY_BYTES && h.len() > 1 {
+            while (total > HISTORY_BYTES || h.len() > HISTORY_ENTRIES) && h.len() > 1 {
                 total -= h.pop_front().map_or(0, |d| d.bytes);
             }
         }
@@ -140,6 +143,11 @@ impl CoordinatorService {
             let tick = Instant::now();
             let Some(snap) = self.view_snapshot(job) else { break };
             let from = publisher.as_ref().and_then(Publisher::version).unwrap_or(0);
+            if snap.over && publisher.is_none() {
+                // Over before this publisher's first tick: its viewers joined after the end
+                // and take the final state from a snapshot of their own.
+                break;
+            }
             if snap.over {
                 let work = tokio::task::spawn_blocking(move || {
                     let updates: Vec<_> = snap.updates(job, 0, false).collect();
@@ -231,7 +239,9 @@ impl CoordinatorService {
             let pending = feed.after(seen);
             let mut next: Vec<Arc<PreviewDelta>> = Vec::new();
             if let Some(v) = at {
-                next = pending.iter().filter(|d| d.to > v || d.over).cloned().collect();
+                // `>=`: a tick without merges (refinement of coarse blocks, a status)
+                // brings no new version but must reach viewers in step.
+                next = pending.iter().filter(|d| d.to >= v || d.over).cloned().collect();
                 if next.first().is_some_and(|d| d.from > v) {
                     // Fell behind the history: it starts afresh.
                     next.clear();
@@ -242,16 +252,18 @@ impl CoordinatorService {
             if at.is_none() {
                 let Some(snap) = self.view_snapshot(job) else { return };
                 let version = snap.fb.version();
-                let over = snap.over;
-                let Ok(updates) =
-                    tokio::task::spawn_blocking(move || snap.updates(job, 0, true).collect::<Vec<_>>()).await
-                else {
-                    return;
-                };
-                if !self.send_all(&updates, &tx).await || over {
+                // Encoded and sent a chunk at a time, as an exact viewer's catch-up: a
+                // viewer holds one chunk, however large the image.
+                for u in snap.updates(job, 0, true) {
+                    if !self.send_all(std::slice::from_ref(&u), &tx).await {
+                        return;
+                    }
+                    self.feeds.own.fetch_add(1, Ordering::Relaxed);
+                }
+                if snap.over {
                     return;
                 }
-                self.feeds.own.fetch_add(updates.len() as u64, Ordering::Relaxed);
+                drop(snap);
                 at = Some(version);
                 // Deltas published meanwhile that go past the snapshot are sent next round.
                 seen = feed
@@ -273,18 +285,19 @@ impl CoordinatorService {
                 at = Some(d.to);
             }
             tokio::select! {
-                r = newest.changed() => if r.is_err() {
-                    (feed, newest) = self.preview_feed(job);
-                    seen = 0;
-                },
+                // Never an error: this task's `feed` holds the sender.
+                _ = newest.changed() => {}
                 // A publisher ends without a word when its job is gone from the farm.
                 _ = tokio::time::sleep(2 * STATUS_REFRESH) => {
                     if self.farm().job(job).is_none() {
                         return;
                     }
                     if !lock(&self.feeds.previews).get(&job).is_some_and(|f| Arc::ptr_eq(f, &feed)) {
+                        // The publisher ended: another one's blocks assume viewers that
+                        // joined it, so this one starts afresh.
                         (feed, newest) = self.preview_feed(job);
                         seen = 0;
+                        at = None;
                     }
                 },
                 _ = tx.closed() => return,
