@@ -263,14 +263,40 @@ pub fn mosaic_source(
     py: u32,
     mut is_computed: impl FnMut(u32, u32) -> bool,
 ) -> Option<(u32, u32)> {
-    let mut quad = Quad { x: 0, y: 0, w: width, h: height };
     let mut best = None;
-    loop {
+    descend(width, height, px, py, |quad| {
         if is_computed(quad.x, quad.y) {
             best = Some((quad.x, quad.y));
         }
-        if quad.w == 1 && quad.h == 1 {
-            return best;
+        true
+    });
+    best
+}
+
+/// The pass-one block that pixel `(px, py)` paints: the largest quadrant whose computed
+/// (lower-left) pixel it is, the walk's [`Quad`] for that pixel. O(log N). Viewers' previews
+/// use it to know which pixels show a pixel as their mosaic.
+pub fn block_of(width: u32, height: u32, px: u32, py: u32) -> Quad {
+    // The lower-left child keeps its parent's computed pixel, so the first quadrant met
+    // with `(px, py)` at its corner is the largest.
+    let mut found = Quad { x: px, y: py, w: 1, h: 1 };
+    descend(width, height, px, py, |quad| {
+        if (quad.x, quad.y) == (px, py) {
+            found = quad;
+            return false;
+        }
+        true
+    });
+    found
+}
+
+/// Visits the quadrants that contain pixel `(px, py)`, from the root down to a single
+/// pixel, while `visit` returns true.
+fn descend(width: u32, height: u32, px: u32, py: u32, mut visit: impl FnMut(Quad) -> bool) {
+    let mut quad = Quad { x: 0, y: 0, w: width, h: height };
+    loop {
+        if !visit(quad) || (quad.w <= 1 && quad.h <= 1) {
+            return;
         }
         // The block containing the pixel among the children; the lower-left child shares
         // this quadrant's computed pixel. Children that the appendix never computes nor
@@ -282,35 +308,10 @@ pub fn mosaic_source(
             .iter()
             .enumerate()
             .find(|(i, c)| (c.computed || *i == 3) && c.quad.contains(px, py))
-            .map(|(_, c)| c);
-        match next {
-            Some(c) if c.quad != quad => quad = c.quad,
-            _ => return best,
-        }
-    }
-}
-
-/// The pass-one block that pixel `(px, py)` paints: the largest quadrant whose computed
-/// (lower-left) pixel it is, the walk's [`Quad`] for that pixel. O(log N). Viewers' previews
-/// use it to know which pixels show a pixel as their mosaic.
-pub fn block_of(width: u32, height: u32, px: u32, py: u32) -> Quad {
-    let mut quad = Quad { x: 0, y: 0, w: width, h: height };
-    loop {
-        if (quad.x, quad.y) == (px, py) || (quad.w <= 1 && quad.h <= 1) {
-            return quad;
-        }
-        // The same descent as `mosaic_source`: the lower-left child keeps its parent's
-        // computed pixel, so the first quadrant met with `(px, py)` at its corner is the
-        // largest.
-        let children = quad.split();
-        let next = children
-            .iter()
-            .enumerate()
-            .find(|(i, c)| (c.computed || *i == 3) && c.quad.contains(px, py))
             .map(|(_, c)| c.quad);
         match next {
             Some(q) if q != quad => quad = q,
-            _ => return Quad { x: px, y: py, w: 1, h: 1 },
+            _ => return,
         }
     }
 }
