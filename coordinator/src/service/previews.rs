@@ -310,10 +310,8 @@ impl CoordinatorService {
 
 #[cfg(test)]
 mod tests {
+    use super::super::viewers::tests::{merge_first_batch, small_job};
     use super::*;
-    use crate::Timing;
-    use tessera_description::job::JobSettings;
-    use tessera_description::Bundle;
 
     type Rx = mpsc::Receiver<Result<pb::FramebufferUpdate, Status>>;
 
@@ -331,14 +329,7 @@ mod tests {
     /// encoding, the same buffer behind both copies; it paints what was merged.
     #[tokio::test]
     async fn preview_viewers_in_step_share_the_encoded_delta() {
-        let service = CoordinatorService::new(Timing::default());
-        let bundle = Bundle {
-            name: "small.toml".into(),
-            text: include_str!("../../../tests/scenes/small.toml").into(),
-            assets: vec![],
-            refused: vec![],
-        };
-        let job = service.submit(bundle, JobSettings::sized(Some(2), Some((8, 8))), 0).await.unwrap();
+        let (service, job) = small_job().await;
         let interval = Duration::from_millis(10);
         let (tx_a, mut a) = mpsc::channel(1);
         let (tx_b, mut b) = mpsc::channel(1);
@@ -351,21 +342,7 @@ mod tests {
         }
         // Past the publisher's baseline tick.
         tokio::time::sleep(Duration::from_millis(300)).await;
-        let w = service.farm().add_worker("w".into(), 1, Instant::now());
-        let lease = service.farm().assign(w, Instant::now()).unwrap();
-        let sums = vec![1 << 24; lease.batch.quads.len() * 3];
-        let r = crate::farm::BatchResult {
-            job,
-            batch: lease.batch.id,
-            sums: &sums,
-            even: None,
-            aov: &[],
-            nonfinite: 0,
-            attempt: lease.attempt,
-            lease: &lease.token.0,
-        };
-        service.farm().complete(w, &r, Instant::now()).unwrap();
-        service.notify();
+        merge_first_batch(&service, job);
         let (ua, ub) = tokio::join!(next_delta(&mut a), next_delta(&mut b));
         assert_eq!(ua.preview.as_ptr(), ub.preview.as_ptr(), "one encoding for both");
         assert!(ua.pixels.is_empty(), "no exact states while the job renders");

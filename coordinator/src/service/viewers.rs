@@ -420,26 +420,14 @@ impl CoordinatorService {
 }
 
 #[cfg(test)]
-mod tests {
+pub(super) mod tests {
     use super::*;
     use crate::Timing;
     use tessera_description::job::JobSettings;
     use tessera_description::Bundle;
 
-    /// Reads one viewer's updates until one carries pixels, and returns those.
-    async fn next_pixels(rx: &mut mpsc::Receiver<Result<pb::FramebufferUpdate, Status>>) -> Bytes {
-        loop {
-            let u = rx.recv().await.expect("the stream stays open").expect("no error");
-            if !u.pixels.is_empty() {
-                return u.pixels;
-            }
-        }
-    }
-
-    /// Two viewers in step with the publisher receive the same delta: one encoding, the
-    /// same buffer behind both copies.
-    #[tokio::test]
-    async fn viewers_in_step_share_the_encoded_delta() {
+    /// A service with one 8 × 8 job of the small test scene at 2 spp.
+    pub(in crate::service) async fn small_job() -> (CoordinatorService, JobId) {
         let service = CoordinatorService::new(Timing::default());
         let bundle = Bundle {
             name: "small.toml".into(),
@@ -448,18 +436,12 @@ mod tests {
             refused: vec![],
         };
         let job = service.submit(bundle, JobSettings::sized(Some(2), Some((8, 8))), 0).await.unwrap();
-        let interval = Duration::from_millis(10);
-        let (tx_a, mut a) = mpsc::channel(1);
-        let (tx_b, mut b) = mpsc::channel(1);
-        tokio::spawn(service.clone().feed_viewer(job, interval, tx_a));
-        tokio::spawn(service.clone().feed_viewer(job, interval, tx_b));
-        // Each viewer's own snapshot (nothing rendered yet), then the publisher's baseline.
-        for rx in [&mut a, &mut b] {
-            let u = rx.recv().await.unwrap().unwrap();
-            assert!(u.reset && u.chunk_end && u.pixels.is_empty());
-            assert_eq!(u.protocol_version, tessera_proto::PROTOCOL_VERSION as i32);
-        }
-        tokio::time::sleep(Duration::from_millis(200)).await;
+        (service, job)
+    }
+
+    /// Merges `job`'s first batch, every sum one (white), and tells the viewers; returns
+    /// its pixel count.
+    pub(in crate::service) fn merge_first_batch(service: &CoordinatorService, job: JobId) -> usize {
         let w = service.farm().add_worker("w".into(), 1, Instant::now());
         let lease = service.farm().assign(w, Instant::now()).unwrap();
         let sums = vec![1 << 24; lease.batch.quads.len() * 3];
@@ -475,10 +457,41 @@ mod tests {
         };
         service.farm().complete(w, &r, Instant::now()).unwrap();
         service.notify();
+        lease.batch.quads.len()
+    }
+
+    /// Reads one viewer's updates until one carries pixels, and returns those.
+    async fn next_pixels(rx: &mut mpsc::Receiver<Result<pb::FramebufferUpdate, Status>>) -> Bytes {
+        loop {
+            let u = rx.recv().await.expect("the stream stays open").expect("no error");
+            if !u.pixels.is_empty() {
+                return u.pixels;
+            }
+        }
+    }
+
+    /// Two viewers in step with the publisher receive the same delta: one encoding, the
+    /// same buffer behind both copies.
+    #[tokio::test]
+    async fn viewers_in_step_share_the_encoded_delta() {
+        let (service, job) = small_job().await;
+        let interval = Duration::from_millis(10);
+        let (tx_a, mut a) = mpsc::channel(1);
+        let (tx_b, mut b) = mpsc::channel(1);
+        tokio::spawn(service.clone().feed_viewer(job, interval, tx_a));
+        tokio::spawn(service.clone().feed_viewer(job, interval, tx_b));
+        // Each viewer's own snapshot (nothing rendered yet), then the publisher's baseline.
+        for rx in [&mut a, &mut b] {
+            let u = rx.recv().await.unwrap().unwrap();
+            assert!(u.reset && u.chunk_end && u.pixels.is_empty());
+            assert_eq!(u.protocol_version, tessera_proto::PROTOCOL_VERSION as i32);
+        }
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        let merged = merge_first_batch(&service, job);
         let (pa, pb) = tokio::join!(next_pixels(&mut a), next_pixels(&mut b));
         assert_eq!(pa.as_ptr(), pb.as_ptr());
         let pixels: Vec<_> = convert::pixels_from_wire(&pa, 64).unwrap().collect();
-        assert_eq!(pixels.len(), lease.batch.quads.len());
+        assert_eq!(pixels.len(), merged);
         service.shutdown();
     }
 
