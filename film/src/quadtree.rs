@@ -292,27 +292,30 @@ pub fn block_of(width: u32, height: u32, px: u32, py: u32) -> Quad {
 
 /// Visits the quadrants that contain pixel `(px, py)`, from the root down to a single
 /// pixel, while `visit` returns true.
+///
+/// The appendix's split halves each axis on its own (the first half `len / 2`, the second
+/// the rest; an axis one pixel long is not split), and the child holding the pixel is the
+/// one whose halves hold its coordinates, so a descent is two 1-D halvings side by side.
+/// Previews call this for every pixel that gains its first sample (a 4K frame's pass one:
+/// eight million times), which is why it does not build [`Quad::split`]'s four children
+/// per level; `tests::descend_follows_the_split` holds it to them.
 fn descend(width: u32, height: u32, px: u32, py: u32, mut visit: impl FnMut(Quad) -> bool) {
+    fn half(start: u32, len: u32, c: u32) -> (u32, u32) {
+        let first = len / 2;
+        match len {
+            0 | 1 => (start, len),
+            _ if c >= start + first => (start + first, len - first),
+            _ => (start, first),
+        }
+    }
     let mut quad = Quad { x: 0, y: 0, w: width, h: height };
     loop {
         if !visit(quad) || (quad.w <= 1 && quad.h <= 1) {
             return;
         }
-        // The block containing the pixel among the children; the lower-left child shares
-        // this quadrant's computed pixel. Children that the appendix never computes nor
-        // queues (single pixels) are computed pixels of their own.
-        // The existing children (computed ones and the lower-left) partition the quadrant;
-        // a child the appendix skips (h == 1 or w == 1) may overlap the lower-left one.
-        let children = quad.split();
-        let next = children
-            .iter()
-            .enumerate()
-            .find(|(i, c)| (c.computed || *i == 3) && c.quad.contains(px, py))
-            .map(|(_, c)| c.quad);
-        match next {
-            Some(q) if q != quad => quad = q,
-            _ => return,
-        }
+        let (x, w) = half(quad.x, quad.w, px);
+        let (y, h) = half(quad.y, quad.h, py);
+        quad = Quad { x, y, w, h };
     }
 }
 
@@ -320,9 +323,46 @@ fn descend(width: u32, height: u32, px: u32, py: u32, mut visit: impl FnMut(Quad
 mod tests {
     use super::*;
 
+    /// The descent as the split defines it: among the children in queue order, the first
+    /// that is computed (or the lower-left one) and holds the pixel.
+    fn descend_by_split(width: u32, height: u32, px: u32, py: u32) -> Vec<Quad> {
+        let mut quad = Quad { x: 0, y: 0, w: width, h: height };
+        let mut path = vec![quad];
+        while quad.w > 1 || quad.h > 1 {
+            let children = quad.split();
+            let next = children
+                .iter()
+                .enumerate()
+                .find(|(i, c)| (c.computed || *i == 3) && c.quad.contains(px, py))
+                .map(|(_, c)| c.quad);
+            match next {
+                Some(q) if q != quad => quad = q,
+                _ => break,
+            }
+            path.push(quad);
+        }
+        path
+    }
+
+    #[test]
+    fn descend_follows_the_split() {
+        for (w, h) in [(1, 1), (1, 9), (9, 1), (2, 3), (5, 3), (16, 16), (37, 21), (64, 7), (190, 108)] {
+            for py in 0..h {
+                for px in 0..w {
+                    let mut path = Vec::new();
+                    descend(w, h, px, py, |q| {
+                        path.push(q);
+                        true
+                    });
+                    assert_eq!(path, descend_by_split(w, h, px, py), "{w}x{h} at {px},{py}");
+                }
+            }
+        }
+    }
+
     #[test]
     fn block_of_is_the_walks_quadrant_of_each_pixel() {
-        for (w, h) in [(1, 1), (5, 3), (16, 16), (37, 21), (64, 7)] {
+        for (w, h) in [(1, 1), (1, 9), (9, 1), (5, 3), (16, 16), (37, 21), (64, 7), (190, 108)] {
             for q in Walk::new(w, h) {
                 assert_eq!(block_of(w, h, q.x, q.y), q, "{w}x{h}");
             }
