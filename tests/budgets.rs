@@ -95,7 +95,7 @@ async fn oversized_submissions_are_refused_with_one_line_errors() {
     let (code, m) = refuse(c.submit(request(bundle("small.toml", SMALL, vec![]), 16384, 16384)).await);
     assert_eq!(code, ResourceExhausted);
     assert!(
-        m.starts_with("\"small.toml\" needs 9798 MB of coordinator memory (16384x16384 framebuffer 9798 MB"),
+        m.starts_with("\"small.toml\" needs 9937 MB of coordinator memory (16384x16384 framebuffer 9937 MB"),
         "{m}"
     );
     // A scene text over 16 MiB, refused before the TOML parser sees it.

@@ -27,9 +27,10 @@ pub const TEXEL_BYTES: u64 = 4 + 12 + 12;
 /// sampling distribution's pdf and CDF entries.
 pub const ENVIRONMENT_TEXEL_BYTES: u64 = 16 + 12 + 12 + 4 + 8;
 /// Bytes per pixel of the coordinator's framebuffer: sums of three channels in fixed
-/// point, a sample count and the version that last changed it (`Framebuffer::bytes_for`
-/// is the exact figure, tiles included; a coordinator test checks that they agree).
-pub const FRAMEBUFFER_BYTES_PER_PIXEL: u64 = 36;
+/// point, a sample count and the version that last changed it, and a share of its tile's
+/// (`Framebuffer::bytes_for` is the exact figure; a coordinator test checks that they
+/// agree).
+pub const FRAMEBUFFER_BYTES_PER_PIXEL: u64 = 37;
 /// Extra bytes per pixel when the framebuffer also keeps the sums of even samples (for a
 /// noise target).
 pub const EVEN_SUMS_BYTES_PER_PIXEL: u64 = 8;

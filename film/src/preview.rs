@@ -18,7 +18,7 @@
 //! pass one, where most viewers join; its replica paints the mosaic itself), not from a
 //! picture of every pixel.
 
-use crate::framebuffer::Framebuffer;
+use crate::framebuffer::{Framebuffer, TILE};
 use crate::quadtree::{block_of, mosaic_source};
 
 /// The coarsest block: 256 pixels a side (a 4K frame in 15 × 9 blocks).
@@ -29,6 +29,10 @@ pub const BLOCK_BYTES: usize = 8;
 
 /// `Publisher::shown` for a pixel that changed since it was last painted.
 const DIRTY: u8 = u8::MAX;
+/// A framebuffer tile's side is `2^TILE_SHIFT` pixels.
+const TILE_SHIFT: u8 = TILE.trailing_zeros() as u8;
+/// Pass-one blocks larger than this are marked changed as rectangles, not pixel by pixel.
+const RECT_AREA: u64 = 16;
 
 /// Blocks of one size painted with their display values.
 #[derive(Debug, Clone, PartialEq, Default)]
@@ -94,10 +98,11 @@ fn display(fb: &Framebuffer, x: u32, y: u32) -> [f32; 3] {
 
 /// Pixels a side a block's value is read from: coarse blocks are painted while the whole
 /// image changes, and reading every pixel of each would cost the coordinator a full
-/// image per tick; a 4 × 4 grid of pixels is a fair preview of a block's colour.
-const SAMPLES_PER_SIDE: u32 = 4;
+/// image per tick; a 3 × 3 grid of pixels is a fair preview of a block's colour (each
+/// read is a few cache misses: a 4K tick's 2 000 blocks at 4 × 4 took 8 ms).
+const SAMPLES_PER_SIDE: u32 = 3;
 
-/// A block's display value: the mean of those of its pixels on a 4 × 4 grid (and its
+/// A block's display value: the mean of those of its pixels on a 3 × 3 grid (and its
 /// lower-left, pass one's computed pixel) that have samples, or the mosaic of its
 /// lower-left pixel when none has.
 fn block_value(fb: &Framebuffer, (x0, y0, x1, y1): (u32, u32, u32, u32)) -> [f32; 3] {
@@ -146,6 +151,15 @@ pub struct Publisher {
     sampled: Vec<u64>,
     /// The pixels marked `DIRTY` this tick.
     dirty: Vec<u32>,
+    /// Tiles changed this tick, when it paints blocks of a tile or larger (then `dirty`
+    /// stays empty).
+    tiles: Vec<u32>,
+    /// Per tile, one bit: every pixel of it had samples at the previous tick.
+    full: Vec<u64>,
+    /// Pass-one blocks `(x0, y0, x1, y1)` whose mosaic changed this tick, too large to
+    /// mark pixel by pixel: painted whole (their sampled pixels too, which costs nothing
+    /// at the coarse shifts a large changed area gets anyway).
+    rects: Vec<(u32, u32, u32, u32)>,
     /// Scratch bitmap of the blocks a tick paints.
     seen: Vec<u64>,
 }
@@ -163,6 +177,9 @@ impl Publisher {
             version: None,
             sampled: vec![0; (width as usize * height as usize).div_ceil(64)],
             dirty: Vec::new(),
+            rects: Vec::new(),
+            tiles: Vec::new(),
+            full: vec![0; (width.div_ceil(TILE) as usize * height.div_ceil(TILE) as usize).div_ceil(64)],
             seen: Vec::new(),
         }
     }
@@ -190,7 +207,11 @@ impl Publisher {
         for y in y0..y1 {
             let row = (y * self.width) as usize;
             let span = &mut self.shown[row + x0 as usize..row + x1 as usize];
-            self.coarse -= span.iter().filter(|v| coarse(v)).count();
+            // Written as a sum of comparisons, which the compiler vectorises: a busy farm's
+            // tick repaints most of a 4K frame, and a filtered count took a nanosecond a
+            // pixel.
+            let was: usize = span.iter().map(|&v| usize::from(v.wrapping_sub(1) < MAX_SHIFT)).sum();
+            self.coarse -= was;
             span.fill(to);
             if coarse(&to) {
                 self.coarse += span.len();
@@ -207,36 +228,65 @@ impl Publisher {
 
     /// Marks what changed since version `since` in `fb`: the pixels merged since, and
     /// where a pixel gained its first sample (or lost its samples to a repair), the pixels
-    /// of its pass-one block that show it as their mosaic.
-    fn mark_changes(&mut self, since: u64, fb: &Framebuffer) {
-        let (w, h) = (self.width, self.height);
-        for chunk in fb.changes(since, 1 << 16) {
-            for p in chunk {
-                let (x, y) = (p.index % w, p.index / w);
-                self.mark(p.index as usize);
-                let (word, bit) = (p.index as usize / 64, 1u64 << (p.index % 64));
-                let had = self.sampled[word] & bit != 0;
-                if p.count > 0 {
-                    self.sampled[word] |= bit;
-                } else {
-                    self.sampled[word] &= !bit;
+    /// of its pass-one block that show it as their mosaic. With `by_tile` (the tick can
+    /// only paint blocks of a tile or larger), changed tiles are marked whole instead of
+    /// their pixels, and a tile that had every sample and still has is not read at all:
+    /// pass two's ticks then cost a scan of the tile versions, not a read per pixel (at 4K,
+    /// 30 000 scattered pixels a tick were a microsecond each in cache misses).
+    fn mark_changes(&mut self, since: u64, fb: &Framebuffer, by_tile: bool) {
+        let (tiles, _) = fb.tiles();
+        for t in 0..tiles {
+            if !fb.tile_changed(t, since) {
+                continue;
+            }
+            let (word, bit) = (t / 64, 1u64 << (t % 64));
+            let (was, full) = (self.full[word] & bit != 0, fb.tile_full(t));
+            self.full[word] = if full { self.full[word] | bit } else { self.full[word] & !bit };
+            if by_tile {
+                self.tiles.push(t as u32);
+                if was && full {
+                    continue;
                 }
-                if had != (p.count > 0) {
-                    let q = block_of(w, h, x, y);
-                    for qy in q.y..q.y + q.h {
-                        for qx in q.x..q.x + q.w {
-                            if fb.count(qx, qy) == 0 {
-                                self.mark((qy * w + qx) as usize);
-                            }
-                        }
-                    }
+            }
+            fb.tile_changes(t, since, |index, count| self.changed(fb, index, count, by_tile));
+        }
+    }
+
+    /// Pixel `index` changed and has `count` samples now.
+    fn changed(&mut self, fb: &Framebuffer, index: u32, count: u32, by_tile: bool) {
+        let (w, h) = (self.width, self.height);
+        if !by_tile {
+            self.mark(index as usize);
+        }
+        let (word, bit) = (index as usize / 64, 1u64 << (index % 64));
+        let had = self.sampled[word] & bit != 0;
+        if count > 0 {
+            self.sampled[word] |= bit;
+        } else {
+            self.sampled[word] &= !bit;
+        }
+        if had == (count > 0) {
+            return;
+        }
+        let q = block_of(w, h, index % w, index / w);
+        if by_tile || q.area() > RECT_AREA {
+            // Pass one repaints every pixel once per level of the walk (a 4K frame: 11
+            // times), which pixel by pixel was most of a tick.
+            self.rects.push((q.x, q.y, q.x + q.w, q.y + q.h));
+            return;
+        }
+        for qy in q.y..q.y + q.h {
+            for qx in q.x..q.x + q.w {
+                if fb.count(qx, qy) == 0 {
+                    self.mark((qy * w + qx) as usize);
                 }
             }
         }
     }
 
-    /// Blocks of `2^shift` pixels that hold a dirty pixel, counted into `self.seen`.
-    fn count_blocks(&mut self, shift: u8) -> usize {
+    /// Blocks of `2^shift` pixels that hold a dirty pixel or meet a dirty rectangle,
+    /// marked in `self.seen`; stops early, with a count over `most`, once there are more.
+    fn count_blocks(&mut self, shift: u8, most: usize) -> usize {
         let (gw, gh) = grid(self.width, self.height, shift);
         let words = (gw as usize * gh as usize).div_ceil(64);
         self.seen.clear();
@@ -248,6 +298,30 @@ impl Publisher {
             let (word, bit) = (b / 64, 1u64 << (b % 64));
             n += usize::from(self.seen[word] & bit == 0);
             self.seen[word] |= bit;
+        }
+        if !self.tiles.is_empty() {
+            // Only asked at shifts of a tile or more (`tick`), so a tile lies in one block.
+            let tiles_x = self.width.div_ceil(TILE);
+            let up = shift - TILE_SHIFT;
+            for &t in &self.tiles {
+                let b = (((t / tiles_x) >> up) * gw + ((t % tiles_x) >> up)) as usize;
+                let (word, bit) = (b / 64, 1u64 << (b % 64));
+                n += usize::from(self.seen[word] & bit == 0);
+                self.seen[word] |= bit;
+            }
+        }
+        for &(x0, y0, x1, y1) in &self.rects {
+            for by in y0 >> shift..=(y1 - 1) >> shift {
+                for bx in x0 >> shift..=(x1 - 1) >> shift {
+                    let b = (by * gw + bx) as usize;
+                    let (word, bit) = (b / 64, 1u64 << (b % 64));
+                    n += usize::from(self.seen[word] & bit == 0);
+                    self.seen[word] |= bit;
+                }
+            }
+            if n > most {
+                return n;
+            }
         }
         n
     }
@@ -264,23 +338,35 @@ impl Publisher {
                     self.sampled[p.index as usize / 64] |= 1u64 << (p.index % 64);
                 }
             }
+            for t in 0..fb.tiles().0 {
+                if fb.tile_full(t) {
+                    self.full[t / 64] |= 1u64 << (t % 64);
+                }
+            }
             return Vec::new();
         };
         self.dirty.clear();
-        self.mark_changes(since, fb);
+        self.rects.clear();
+        self.tiles.clear();
+        // Each changed tile holds a changed pixel, so a block finer than a tile per changed
+        // tile at least: with more of those than the budget's blocks, only tiles matter.
+        let fits = budget / BLOCK_BYTES;
+        let by_tile = (0..fb.tiles().0).filter(|&t| fb.tile_changed(t, since)).count() > fits;
+        self.mark_changes(since, fb, by_tile);
         let mut out = Vec::new();
         let mut spent = 0;
-        if !self.dirty.is_empty() {
+        if !self.dirty.is_empty() || !self.rects.is_empty() || !self.tiles.is_empty() {
             // A block holds at most 4^shift dirty pixels, so no shift below `first` can fit:
             // the bitmaps of the finest shifts (the largest) are never filled for nothing.
-            let fits = budget / BLOCK_BYTES;
-            let first = (0..=MAX_SHIFT)
-                .find(|&s| self.dirty.len().div_ceil(1 << (2 * s)) <= fits)
-                .unwrap_or(MAX_SHIFT);
-            let shift = (first..=MAX_SHIFT)
-                .find(|&s| self.count_blocks(s) * BLOCK_BYTES <= budget)
-                .unwrap_or_else(|| {
-                    self.count_blocks(MAX_SHIFT);
+            // Rectangles may overlap each other and the pixels, so the largest one is what
+            // they surely add.
+            let area = |r: &(u32, u32, u32, u32)| (r.2 - r.0) as usize * (r.3 - r.1) as usize;
+            let least = self.dirty.len().max(self.rects.iter().map(area).max().unwrap_or(0));
+            let first = (0..=MAX_SHIFT).find(|&s| least.div_ceil(1 << (2 * s)) <= fits).unwrap_or(MAX_SHIFT);
+            let first = if by_tile { first.max(TILE_SHIFT) } else { first };
+            let shift =
+                (first..=MAX_SHIFT).find(|&s| self.count_blocks(s, fits) <= fits).unwrap_or_else(|| {
+                    self.count_blocks(MAX_SHIFT, usize::MAX);
                     MAX_SHIFT
                 });
             let news = self.paint(fb, shift);
@@ -309,6 +395,10 @@ impl Publisher {
             self.coarse = if shift > 0 { self.shown.len() } else { 0 };
         }
         let seen = std::mem::take(&mut self.seen);
+        // A run of blocks side by side in a row of blocks, marked shown as one rectangle:
+        // its pixel rows are then one span each, not one per block (at 4K, a block's 64
+        // rows were 64 cache misses).
+        let mut run: Option<(u32, u32, u32, u32)> = None;
         for (word, &bits) in seen.iter().enumerate() {
             let mut bits = bits;
             while bits != 0 {
@@ -316,10 +406,21 @@ impl Publisher {
                 bits &= bits - 1;
                 let rect = block_rect(self.width, self.height, shift, index);
                 b.push(index, block_value(fb, rect));
-                if !all {
-                    self.set_rect(rect, shift);
+                if all {
+                    continue;
                 }
+                run = match run {
+                    Some(r) if r.2 == rect.0 && r.1 == rect.1 => Some((r.0, r.1, rect.2, r.3)),
+                    Some(r) => {
+                        self.set_rect(r, shift);
+                        Some(rect)
+                    }
+                    None => Some(rect),
+                };
             }
+        }
+        if let Some(r) = run {
+            self.set_rect(r, shift);
         }
         self.seen = seen;
         b

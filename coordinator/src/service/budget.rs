@@ -157,12 +157,12 @@ mod tests {
         let a = budget.admit("job a", &job(1000, 1000)).unwrap();
         a.assign(JobId(1));
         let held = budget.held();
-        assert!(held > 36_000_000 && held < 37_000_000, "{held}");
+        assert!(held > 37_000_000 && held < 38_000_000, "{held}");
         let b = budget.admit("job b", &job(1000, 1000)).unwrap();
         let e = budget.admit("scene.toml", &job(1000, 1000)).unwrap_err().to_string();
         assert_eq!(
             e,
-            "scene.toml needs 37 MB of coordinator memory (1000x1000 framebuffer 37 MB, bundle 1 MB), but 27 MB of \
+            "scene.toml needs 38 MB of coordinator memory (1000x1000 framebuffer 38 MB, bundle 1 MB), but 26 MB of \
              the budget of 100 MB are free (the rest held by 1 jobs and submissions in progress); a smaller image, \
              or a coordinator with a larger --memory-budget"
         );

@@ -547,13 +547,13 @@ mod tests {
         assert_eq!(recovery.problems.len(), 1, "{:?}", recovery.problems);
         let p = &recovery.problems[0];
         assert!(
-            p.starts_with(&format!("{big} does not fit the memory budget, marked failed: {big} needs 74 MB")),
+            p.starts_with(&format!("{big} does not fit the memory budget, marked failed: {big} needs 75 MB")),
             "{p}"
         );
         let stored = lock(&store).load().jobs;
         let state = &stored.iter().find(|j| j.record.id == big).unwrap().record.state;
         assert!(
-            matches!(state, JobState::Failed(m) if m.starts_with("not taken up again at start: job 2 needs 74 MB")),
+            matches!(state, JobState::Failed(m) if m.starts_with("not taken up again at start: job 2 needs 75 MB")),
             "{state:?}"
         );
         // And a submission over what is left is refused, with nothing allocated.
@@ -562,7 +562,7 @@ mod tests {
         assert!(matches!(e, SubmitFailure::Invalid(SubmitError::OverBudget(_))), "{e}");
         assert!(
             e.to_string()
-                .starts_with("\"small.toml\" needs 74 MB of coordinator memory (2000x1000 framebuffer 74 MB"),
+                .starts_with("\"small.toml\" needs 75 MB of coordinator memory (2000x1000 framebuffer 75 MB"),
             "{e}"
         );
         assert_eq!(service.jobs().len(), 1);

@@ -27,9 +27,16 @@ use tessera_proto::v1 as pb;
 use tokio::sync::{mpsc, watch};
 use tonic::Status;
 
-use super::viewers::{ViewSnapshot, STATUS_REFRESH, VIEWER_BYTES_PER_SECOND, WATCH_DEFAULT_RATE};
+use super::viewers::{ViewSnapshot, STATUS_REFRESH, WATCH_DEFAULT_RATE};
 use super::{lock, CoordinatorService};
 
+/// What a job's preview viewers are sent together, at most, while it renders: half the
+/// viewers' budget (`VIEWER_BYTES_PER_SECOND`), because previews are most of what a
+/// coordinator with many viewers sends, and `tessera bench farm` measured 100 preview
+/// viewers of 256 workers sharing 23 MB/s costing 5–10 % of the commits (docs/farm.md).
+/// 100 viewers still get 16 KB an update, 2 000 blocks: a 4K frame in 64-pixel blocks
+/// while every tile changes, refined as soon as fewer do.
+const PREVIEW_BYTES_PER_SECOND: f64 = 16e6;
 /// A tick's blocks for each viewer are at least this many bytes (a 1080p frame in
 /// 64-pixel blocks), however many viewers share the budget, so that a preview stays
 /// recognisable; more viewers than the budget affords then get fewer updates instead.
@@ -160,7 +167,7 @@ impl CoordinatorService {
                 break;
             }
             let viewers = feed.newest.receiver_count().max(1);
-            let budget = ((VIEWER_BYTES_PER_SECOND / WATCH_DEFAULT_RATE) as usize / viewers)
+            let budget = ((PREVIEW_BYTES_PER_SECOND / WATCH_DEFAULT_RATE) as usize / viewers)
                 .clamp(MIN_TICK_BYTES, MAX_TICK_BYTES);
             let mut p = publisher.take().unwrap_or_else(|| Publisher::new(snap.fb.width(), snap.fb.height()));
             let baseline = p.version().is_none();
