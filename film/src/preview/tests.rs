@@ -102,3 +102,44 @@ fn a_tight_budget_paints_coarsely_then_refines_to_the_exact_image() {
     assert_eq!(shown(&o, &joined), fb.resolve());
     assert!(p.tick(&fb, budget).is_empty(), "nothing left to send");
 }
+
+/// A farm's pass two changes a pixel or two in every tile: with more changed tiles than
+/// the budget has blocks, a tick paints whole tiles (no pixel is read to mark them), in
+/// blocks of a tile or more, and a repair that empties pixels of a full tile still
+/// repaints their mosaic; ticks with nothing new then refine to the exact image.
+#[test]
+fn changes_in_more_tiles_than_blocks_are_painted_by_tile_then_refined() {
+    let (w, h) = (160, 96); // 10 × 6 tiles
+    let mut fb = Framebuffer::new(w, h);
+    let mut rng = Lcg(4);
+    let mut p = Publisher::new(w, h);
+    p.tick(&fb, 0);
+    let joined = fb.clone();
+    let mut o = Overlay::new(w, h);
+    let walk: Vec<(u32, u32)> = Walk::new(w, h).map(|q| (q.x, q.y)).collect();
+    merge(&mut fb, &walk, 1, &mut rng);
+    paint(&mut o, &p.tick(&fb, usize::MAX));
+    assert_eq!(shown(&o, &joined), fb.resolve(), "pass one, painted exactly");
+    let budget = 12 * BLOCK_BYTES;
+    let scattered: Vec<(u32, u32)> =
+        (0..6).flat_map(|ty| (0..10).map(move |tx| (tx * 16 + 5, ty * 16 + 9))).collect();
+    for round in 0..3 {
+        merge(&mut fb, &scattered, 4, &mut rng);
+        if round == 2 {
+            // A repair in a full tile: the pixel shows its block's mosaic again.
+            fb.reset(37, 21);
+        }
+        let blocks = p.tick(&fb, budget);
+        assert_eq!(blocks[0].shift, 6, "60 changed tiles in 12 blocks: 64-pixel blocks (3 × 2)");
+        assert!(blocks[0].len() * BLOCK_BYTES <= budget);
+        paint(&mut o, &blocks);
+        assert_ne!(shown(&o, &joined), fb.resolve());
+    }
+    let mut ticks = 0;
+    while p.coarse() > 0 {
+        paint(&mut o, &p.tick(&fb, budget));
+        ticks += 1;
+        assert!(ticks < 2000, "refinement stalls");
+    }
+    assert_eq!(shown(&o, &joined), fb.resolve());
+}
