@@ -14,6 +14,7 @@
 pub mod animation;
 pub mod bounds;
 pub mod bundle;
+mod ctx;
 pub mod error;
 pub mod gltf;
 pub mod ids;

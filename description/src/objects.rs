@@ -8,11 +8,13 @@ use std::ops::Range;
 use glam::Vec3;
 
 use crate::bundle::{check_asset_path, unreadable};
-use crate::keyframes::{object_tracks, KeysDef, TransformKey};
+use crate::keyframes::object_tracks;
 use crate::limits;
 use crate::model::{box_faces, placed_rect, Color, Location, Material, Object, Shape};
 use crate::obj::scan_obj_extent;
-use crate::schema::{BoxDef, MeshDef, RectangleDef, Rgb, SphereDef, TransformDef, TriangleDef};
+use crate::schema::{
+    BoxDef, KeysDef, MeshDef, RectangleDef, Rgb, SphereDef, TransformDef, TransformKey, TriangleDef,
+};
 use crate::transform::Trs;
 use crate::validate::{Validator, R};
 

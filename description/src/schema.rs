@@ -14,8 +14,6 @@ use serde::de::{self, Deserializer, SeqAccess, Visitor};
 use serde::Deserialize;
 use toml::Spanned;
 
-use crate::keyframes::{AnimationDef, CameraKey, DirectionalLightKey, PointLightKey, TransformKey};
-
 /// A colour given as one number (grey) or as `[r, g, b]`.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct Rgb(pub Vec3);
@@ -383,4 +381,67 @@ pub(crate) struct EnvironmentDef {
     pub(crate) strength: Option<f32>,
     /// Degrees about +y.
     pub(crate) rotation: Option<f32>,
+}
+
+/// The `[animation]` table.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct AnimationDef {
+    #[serde(default = "default_fps")]
+    pub(crate) fps: f32,
+    pub(crate) frames: [u32; 2],
+}
+
+fn default_fps() -> f32 {
+    24.0
+}
+
+/// A key of an object's transform.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct TransformKey {
+    pub(crate) frame: f64,
+    pub(crate) translate: Option<V3>,
+    pub(crate) rotate: Option<V3>,
+    pub(crate) scale: Option<Rgb>,
+}
+
+/// A key of the camera.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct CameraKey {
+    pub(crate) frame: f64,
+    pub(crate) position: Option<V3>,
+    pub(crate) look_at: Option<V3>,
+    pub(crate) up: Option<V3>,
+    pub(crate) fov: Option<f32>,
+    pub(crate) focus_distance: Option<f32>,
+    pub(crate) aperture: Option<f32>,
+}
+
+/// A key of a point light.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct PointLightKey {
+    pub(crate) frame: f64,
+    pub(crate) position: Option<V3>,
+    pub(crate) color: Option<Rgb>,
+    pub(crate) intensity: Option<f32>,
+}
+
+/// A key of a directional light.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub(crate) struct DirectionalLightKey {
+    pub(crate) frame: f64,
+    pub(crate) direction: Option<V3>,
+    pub(crate) color: Option<Rgb>,
+    pub(crate) irradiance: Option<f32>,
+}
+
+/// A table's keys as the schema holds them: `keys = [...]` (or `[[table.keys]]`) and the
+/// table's `interpolation`.
+pub(crate) struct KeysDef<'a, K> {
+    pub(crate) keys: &'a [Spanned<K>],
+    pub(crate) interpolation: &'a Option<Spanned<String>>,
 }

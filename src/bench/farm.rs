@@ -20,26 +20,40 @@ use tokio::task::JoinHandle;
 /// The longest pass one is waited for before a case is measured anyway.
 const WARM_UP_LIMIT: Duration = Duration::from_secs(15);
 
-/// What to measure.
-#[derive(Debug, Clone)]
+/// What to measure: `tessera bench farm`'s options.
+#[derive(Debug, Clone, clap::Args)]
+#[deny(missing_docs)]
 pub struct FarmOptions {
-    /// Image sizes.
+    /// Image sizes WIDTHxHEIGHT, comma-separated [default: 1920x1080,3840x2160].
+    #[arg(long, value_delimiter = ',', value_parser = crate::parse_size, default_value = "1920x1080,3840x2160")]
     pub sizes: Vec<(u32, u32)>,
-    /// Worker counts.
+    /// Worker counts, comma-separated [default: 16,64,256].
+    #[arg(long, value_delimiter = ',', default_value = "16,64,256")]
     pub workers: Vec<usize>,
-    /// Viewer counts.
+    /// Viewer counts, comma-separated; a 0 gives the rows after it their baseline
+    /// [default: 0,10,100].
+    #[arg(long, value_delimiter = ',', default_value = "0,10,100")]
     pub viewers: Vec<usize>,
-    /// Seconds measured per case, after the warm-up.
+    /// Seconds measured per case, after pass one [default: 2].
+    #[arg(long, default_value_t = 2.0)]
     pub seconds: f64,
-    /// Simulated render times of a full pass-two batch, in ms (0: answer at once).
+    /// Simulated render times of a pass-two batch (32768 samples) in ms, comma-separated;
+    /// 0 answers at once and finds the coordinator's ceiling [default: 20,0].
+    #[arg(long, value_delimiter = ',', default_value = "20,0")]
     pub batch_ms: Vec<f64>,
-    /// Samples per pixel of the job.
+    /// Samples per pixel of the job: pass two's batches are 32768 / (spp - 1) pixels
+    /// [default: 1024].
+    #[arg(long, default_value_t = 1024)]
     pub spp: u32,
-    /// Credit each worker keeps.
+    /// Credit each fake worker keeps (a real worker keeps 2 per thread) [default: 2].
+    #[arg(long, default_value_t = 2)]
     pub credit: u32,
-    /// Updates per second each viewer asks for.
+    /// Updates per second each viewer asks for [default: 10, the coordinator's].
+    #[arg(long, default_value_t = 10.0)]
     pub viewer_rate: f64,
-    /// Viewers keep exact replicas instead of reading previews.
+    /// Viewers keep exact replicas (the web dashboard's kind) instead of reading
+    /// previews while the job renders (`tessera view`'s kind).
+    #[arg(long)]
     pub exact_viewers: bool,
 }
 

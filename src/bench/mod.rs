@@ -127,39 +127,7 @@ pub enum BenchCommand {
     /// batch time) and viewers against a coordinator process on loopback; prints commits
     /// per second, the coordinator's CPU per batch and per viewer update, lease-grant and
     /// merge latencies and bytes per viewer, for each size × workers × viewers.
-    Farm {
-        /// Image sizes WIDTHxHEIGHT, comma-separated [default: 1920x1080,3840x2160].
-        #[arg(long, value_delimiter = ',', value_parser = crate::parse_size, default_value = "1920x1080,3840x2160")]
-        sizes: Vec<(u32, u32)>,
-        /// Worker counts, comma-separated [default: 16,64,256].
-        #[arg(long, value_delimiter = ',', default_value = "16,64,256")]
-        workers: Vec<usize>,
-        /// Viewer counts, comma-separated; a 0 gives the rows after it their baseline
-        /// [default: 0,10,100].
-        #[arg(long, value_delimiter = ',', default_value = "0,10,100")]
-        viewers: Vec<usize>,
-        /// Seconds measured per case, after pass one [default: 2].
-        #[arg(long, default_value_t = 2.0)]
-        seconds: f64,
-        /// Simulated render times of a pass-two batch (32768 samples) in ms, comma-separated;
-        /// 0 answers at once and finds the coordinator's ceiling [default: 20,0].
-        #[arg(long, value_delimiter = ',', default_value = "20,0")]
-        batch_ms: Vec<f64>,
-        /// Samples per pixel of the job: pass two's batches are 32768 / (spp - 1) pixels
-        /// [default: 1024].
-        #[arg(long, default_value_t = 1024)]
-        spp: u32,
-        /// Credit each fake worker keeps (a real worker keeps 2 per thread) [default: 2].
-        #[arg(long, default_value_t = 2)]
-        credit: u32,
-        /// Updates per second each viewer asks for [default: 10, the coordinator's].
-        #[arg(long, default_value_t = 10.0)]
-        viewer_rate: f64,
-        /// Viewers keep exact replicas (the web dashboard's kind) instead of reading
-        /// previews while the job renders (`tessera view`'s kind).
-        #[arg(long)]
-        exact_viewers: bool,
-    },
+    Farm(farm::FarmOptions),
     /// A huge scene submitted while another client polls Status: submit time, Status
     /// latency during it, client-side validation time and the coordinator's peak memory.
     Submit {
@@ -234,31 +202,10 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         BenchCommand::Rays { dir, mesh, repeats } => rays::run(&dir, mesh.as_deref(), repeats.max(1)),
-        BenchCommand::Farm {
-            sizes,
-            workers,
-            viewers,
-            seconds,
-            batch_ms,
-            spp,
-            credit,
-            viewer_rate,
-            exact_viewers,
-        } => {
-            if spp < 2 || credit == 0 || workers.contains(&0) {
+        BenchCommand::Farm(opts) => {
+            if opts.spp < 2 || opts.credit == 0 || opts.workers.contains(&0) {
                 anyhow::bail!("--spp must be at least 2, --credit and every --workers at least 1");
             }
-            let opts = farm::FarmOptions {
-                sizes,
-                workers,
-                viewers,
-                seconds,
-                batch_ms,
-                spp,
-                credit,
-                viewer_rate,
-                exact_viewers,
-            };
             farm::run(opts).await?;
             Ok(ExitCode::SUCCESS)
         }

@@ -10,7 +10,6 @@
 use std::path::{Path, PathBuf};
 
 use rusqlite::{params, Connection, OptionalExtension};
-use tessera_description::bundle::Bundle;
 use tracing::warn;
 
 use crate::checkpoint::{Checkpoint, Part};
@@ -19,17 +18,17 @@ use tessera_description::job::{JobSettings, JobState};
 
 pub use crate::persist::{JobRecord, JobStore, Loaded, LoadedJob, StoreError};
 
+mod encoding;
+mod errors;
+mod schema;
+
+use encoding::{blake3_of, decode_bundle, encode_bundle, state_columns, state_from_columns};
+use errors::{io_error, sqlite_error};
+
 /// The database file in a data directory.
 pub const DB_FILE: &str = "jobs.db";
 /// Checkpoints kept per job: the newest, and one to fall back on should it be damaged.
 const GENERATIONS_KEPT: i64 = 2;
-/// The layout version of the tables, in `PRAGMA user_version`. Layout 2 added the jobs'
-/// owners; a layout-1 file is migrated at open (its jobs get no owner). Layout 3 added a
-/// sequence's frames (`frame_first`, `frame_last`; NULL for a still), migrated alike.
-const SCHEMA_VERSION: i64 = 3;
-/// The columns layout 3 added.
-const FRAME_COLUMNS: &str = "ALTER TABLE jobs ADD COLUMN frame_first INTEGER;
-                 ALTER TABLE jobs ADD COLUMN frame_last INTEGER;";
 /// Test hook: a checkpoint write stops this many milliseconds before its commit, so a test
 /// can kill the coordinator in the middle of a write.
 pub const FAULT_STALL_ENV: &str = "TESSERA_FAULT_STALL_CHECKPOINT_MS";
@@ -59,98 +58,12 @@ impl Drop for Created<'_> {
     }
 }
 
-/// A full disk or an unwritable file as the error that says so, from the system's error.
-fn io_error(path: &Path, e: std::io::Error) -> StoreError {
-    match e.raw_os_error() {
-        Some(libc::ENOSPC) | Some(libc::EDQUOT) => StoreError::NoSpace { path: path.to_owned() },
-        Some(libc::EACCES) | Some(libc::EPERM) | Some(libc::EROFS) => {
-            StoreError::NotWritable { path: path.to_owned(), detail: e.to_string() }
-        }
-        _ => StoreError::Open { path: path.to_owned(), source: e.into() },
-    }
-}
-
-/// A full disk or an unwritable file as the error that says so, from SQLite's error;
-/// `None` for every other error.
-fn sqlite_error(path: &Path, e: &rusqlite::Error) -> Option<StoreError> {
-    let rusqlite::Error::SqliteFailure(f, _) = e else { return None };
-    match f.code {
-        rusqlite::ErrorCode::DiskFull => Some(StoreError::NoSpace { path: path.to_owned() }),
-        rusqlite::ErrorCode::ReadOnly | rusqlite::ErrorCode::PermissionDenied => {
-            Some(StoreError::NotWritable { path: path.to_owned(), detail: e.to_string() })
-        }
-        _ => None,
-    }
-}
-
 /// The open database.
 #[derive(Debug)]
 pub struct Store {
     conn: Connection,
     path: PathBuf,
     stall: Option<std::time::Duration>,
-}
-
-fn state_columns(s: &JobState) -> (&'static str, Option<&str>) {
-    match s {
-        JobState::Queued => ("queued", None),
-        JobState::Running => ("running", None),
-        JobState::Done => ("done", None),
-        JobState::Cancelled => ("cancelled", None),
-        JobState::Paused => ("paused", None),
-        JobState::Failed(e) => ("failed", Some(e)),
-    }
-}
-
-fn state_from_columns(name: &str, error: Option<String>) -> Option<JobState> {
-    Some(match name {
-        "queued" => JobState::Queued,
-        "running" => JobState::Running,
-        "done" => JobState::Done,
-        "cancelled" => JobState::Cancelled,
-        "paused" => JobState::Paused,
-        "failed" => JobState::Failed(error.unwrap_or_default()),
-        _ => return None,
-    })
-}
-
-/// A bundle as bytes: each field length-prefixed.
-fn encode_bundle(b: &Bundle) -> Vec<u8> {
-    let mut out = Vec::new();
-    let mut field = |bytes: &[u8]| {
-        out.extend_from_slice(&(bytes.len() as u64).to_le_bytes());
-        out.extend_from_slice(bytes);
-    };
-    field(b.name.as_bytes());
-    field(b.text.as_bytes());
-    field(&(b.assets.len() as u64).to_le_bytes());
-    for (path, data) in &b.assets {
-        field(path.as_bytes());
-        field(data);
-    }
-    out
-}
-
-fn decode_bundle(mut bytes: &[u8]) -> Option<Bundle> {
-    let mut field = || -> Option<&[u8]> {
-        let len = usize::try_from(u64::from_le_bytes(bytes.get(..8)?.try_into().ok()?)).ok()?;
-        let data = bytes.get(8..8usize.checked_add(len)?)?;
-        bytes = &bytes[8 + len..];
-        Some(data)
-    };
-    let name = String::from_utf8(field()?.to_vec()).ok()?;
-    let text = String::from_utf8(field()?.to_vec()).ok()?;
-    let n = u64::from_le_bytes(field()?.try_into().ok()?);
-    let mut assets = Vec::new();
-    for _ in 0..n {
-        let path = String::from_utf8(field()?.to_vec()).ok()?;
-        assets.push((path, field()?.to_vec()));
-    }
-    Some(Bundle { name, text, assets, refused: Vec::new() })
-}
-
-fn blake3_of(bytes: &[u8]) -> Vec<u8> {
-    blake3::hash(bytes).as_bytes().to_vec()
 }
 
 impl Store {
@@ -249,60 +162,7 @@ impl Store {
                 return Ok(None);
             }
         }
-        let write_err = |source: rusqlite::Error| {
-            sqlite_error(path, &source)
-                .unwrap_or_else(|| StoreError::Write { path: path.to_owned(), source: Box::new(source) })
-        };
-        let version: i64 = conn.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(write_err)?;
-        if version == 0 {
-            conn.execute_batch(&format!(
-                "CREATE TABLE IF NOT EXISTS jobs (
-                    id INTEGER PRIMARY KEY,
-                    priority INTEGER NOT NULL,
-                    spp INTEGER, width INTEGER, height INTEGER, time_limit REAL, noise REAL,
-                    state TEXT NOT NULL, error TEXT, owner TEXT NOT NULL DEFAULT '',
-                    frame_first INTEGER, frame_last INTEGER);
-                 CREATE TABLE IF NOT EXISTS scenes (
-                    job INTEGER PRIMARY KEY, bundle BLOB NOT NULL, bundle_sum BLOB NOT NULL);
-                 CREATE TABLE IF NOT EXISTS checkpoint_parts (
-                    job INTEGER NOT NULL, generation INTEGER NOT NULL, part INTEGER NOT NULL,
-                    data BLOB NOT NULL, sum BLOB NOT NULL,
-                    PRIMARY KEY (job, generation, part));
-                 PRAGMA user_version = {SCHEMA_VERSION};"
-            ))
-            .map_err(write_err)?;
-        } else if version == 1 {
-            // One transaction: a coordinator killed here leaves a layout-1 file to migrate again.
-            conn.execute_batch(&format!(
-                "BEGIN; ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT '';
-                 {FRAME_COLUMNS}
-                 PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
-            ))
-            .map_err(write_err)?;
-        } else if version == 2 {
-            conn.execute_batch(&format!(
-                "BEGIN; {FRAME_COLUMNS}
-                 PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
-            ))
-            .map_err(write_err)?;
-        } else if version != SCHEMA_VERSION {
-            return Err(StoreError::Version {
-                expected: SCHEMA_VERSION,
-                path: path.to_owned(),
-                found: version,
-            });
-        }
-        // The jobs' AOV layers: a column added where it is missing, whatever the layout
-        // version (older files, and older Tessera versions, which name their columns and
-        // so ignore it; a job without it keeps no layers).
-        let has_aovs = conn
-            .prepare("SELECT 1 FROM pragma_table_info('jobs') WHERE name = 'aovs'")
-            .and_then(|mut q| q.exists([]))
-            .map_err(write_err)?;
-        if !has_aovs {
-            conn.execute_batch("ALTER TABLE jobs ADD COLUMN aovs INTEGER NOT NULL DEFAULT 0")
-                .map_err(write_err)?;
-        }
+        schema::migrate(&conn, path)?;
         let mut store = Store { conn, path: path.to_owned(), stall: None };
         match store.read_jobs(problems) {
             Ok(jobs) => Ok(Some((store, jobs))),

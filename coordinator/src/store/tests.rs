@@ -1,8 +1,10 @@
 //! The database: reopening, fallback to the previous checkpoint, truncation, garbage, a
 //! directory in use.
 
+use super::schema::SCHEMA_VERSION;
 use super::*;
 use crate::scheduler::Completed;
+use tessera_description::bundle::Bundle;
 
 fn record(id: u64) -> JobRecord {
     JobRecord {

@@ -22,7 +22,7 @@ impl Validator<'_> {
             return Err(self.ctx.err(span, unreadable(self.assets, "gltf.file", &d.file)));
         }
         let no_keys = Vec::new();
-        let keys = crate::keyframes::KeysDef { keys: &no_keys, interpolation: &None };
+        let keys = crate::schema::KeysDef { keys: &no_keys, interpolation: &None };
         let (base, _) = self.placement(span, "gltf", &d.transform, &None, keys)?;
         let imported = import(&path, self.assets, d.scene.as_ref(), &base, self.time)
             .map_err(|e| self.ctx.err(span, e.to_string()))?;

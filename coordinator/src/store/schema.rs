@@ -1,0 +1,73 @@
+//! The tables' layout: created in a new file, older layouts migrated in place.
+
+use std::path::Path;
+
+use rusqlite::Connection;
+
+use super::errors::sqlite_error;
+use crate::persist::StoreError;
+
+/// The layout version of the tables, in `PRAGMA user_version`. Layout 2 added the jobs'
+/// owners; a layout-1 file is migrated at open (its jobs get no owner). Layout 3 added a
+/// sequence's frames (`frame_first`, `frame_last`; NULL for a still), migrated alike.
+pub(super) const SCHEMA_VERSION: i64 = 3;
+/// The columns layout 3 added.
+const FRAME_COLUMNS: &str = "ALTER TABLE jobs ADD COLUMN frame_first INTEGER;
+                 ALTER TABLE jobs ADD COLUMN frame_last INTEGER;";
+
+/// Brings the tables of an open database to the current layout: creates them in a new
+/// file, migrates an older layout (each in one transaction), adds the AOV column where it
+/// is missing; a newer layout is refused.
+pub(super) fn migrate(conn: &Connection, path: &Path) -> Result<(), StoreError> {
+    let write_err = |source: rusqlite::Error| {
+        sqlite_error(path, &source)
+            .unwrap_or_else(|| StoreError::Write { path: path.to_owned(), source: Box::new(source) })
+    };
+    let version: i64 = conn.query_row("PRAGMA user_version", [], |r| r.get(0)).map_err(write_err)?;
+    if version == 0 {
+        conn.execute_batch(&format!(
+            "CREATE TABLE IF NOT EXISTS jobs (
+                id INTEGER PRIMARY KEY,
+                priority INTEGER NOT NULL,
+                spp INTEGER, width INTEGER, height INTEGER, time_limit REAL, noise REAL,
+                state TEXT NOT NULL, error TEXT, owner TEXT NOT NULL DEFAULT '',
+                frame_first INTEGER, frame_last INTEGER);
+             CREATE TABLE IF NOT EXISTS scenes (
+                job INTEGER PRIMARY KEY, bundle BLOB NOT NULL, bundle_sum BLOB NOT NULL);
+             CREATE TABLE IF NOT EXISTS checkpoint_parts (
+                job INTEGER NOT NULL, generation INTEGER NOT NULL, part INTEGER NOT NULL,
+                data BLOB NOT NULL, sum BLOB NOT NULL,
+                PRIMARY KEY (job, generation, part));
+             PRAGMA user_version = {SCHEMA_VERSION};"
+        ))
+        .map_err(write_err)?;
+    } else if version == 1 {
+        // One transaction: a coordinator killed here leaves a layout-1 file to migrate again.
+        conn.execute_batch(&format!(
+            "BEGIN; ALTER TABLE jobs ADD COLUMN owner TEXT NOT NULL DEFAULT '';
+             {FRAME_COLUMNS}
+             PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+        ))
+        .map_err(write_err)?;
+    } else if version == 2 {
+        conn.execute_batch(&format!(
+            "BEGIN; {FRAME_COLUMNS}
+             PRAGMA user_version = {SCHEMA_VERSION}; COMMIT;"
+        ))
+        .map_err(write_err)?;
+    } else if version != SCHEMA_VERSION {
+        return Err(StoreError::Version { expected: SCHEMA_VERSION, path: path.to_owned(), found: version });
+    }
+    // The jobs' AOV layers: a column added where it is missing, whatever the layout
+    // version (older files, and older Tessera versions, which name their columns and
+    // so ignore it; a job without it keeps no layers).
+    let has_aovs = conn
+        .prepare("SELECT 1 FROM pragma_table_info('jobs') WHERE name = 'aovs'")
+        .and_then(|mut q| q.exists([]))
+        .map_err(write_err)?;
+    if !has_aovs {
+        conn.execute_batch("ALTER TABLE jobs ADD COLUMN aovs INTEGER NOT NULL DEFAULT 0")
+            .map_err(write_err)?;
+    }
+    Ok(())
+}

@@ -1,0 +1,96 @@
+//! Jobs over HTTP: a submitted job's images are a local render's bytes, the controls act
+//! on it, and the event stream follows the listing.
+
+use std::io::Read;
+
+use crate::common::{read, render_local, run, small_scene};
+use crate::web::{assert_error, client, job, json, post, small_form, submit_ok, wait_state, Web};
+
+#[test]
+fn a_job_submitted_over_http_gives_the_bytes_of_a_local_render() {
+    let web = Web::start(&[]);
+    let _worker = web.coord.worker(2);
+    let id = submit_ok(&web, None, small_form(40, 30, 3));
+    let done = wait_state(&web, None, id, "done");
+    assert_eq!(
+        (done["width"].as_u64(), done["height"].as_u64(), done["spp"].as_u64()),
+        (Some(40), Some(30), Some(3))
+    );
+    assert_eq!(done["progress"], 1.0);
+    assert_eq!(done["owner"], "anonymous");
+    assert_eq!(done["scene"], "small.toml");
+    let listing = json(client().get(web.url("/api/jobs")).send().unwrap()).1;
+    assert_eq!(listing["jobs"][0]["id"], id);
+    let worker = &listing["workers"][0];
+    assert_eq!(worker["threads"], 2);
+    assert!(worker["batches_done"].as_u64().unwrap() > 0, "{worker}");
+    assert!(worker["last_heard_seconds"].as_f64().unwrap() < 10.0, "{worker}");
+
+    let png = client().get(web.url(&format!("/api/jobs/{id}/image.png"))).send().unwrap();
+    assert_eq!(png.status(), 200);
+    assert_eq!(png.headers()["content-type"], "image/png");
+    let png = png.bytes().unwrap().to_vec();
+    let dir = tempfile::tempdir().unwrap();
+    // FetchImage of the same job, written by `tessera fetch`.
+    let fetched = dir.path().join("fetched.png");
+    let o =
+        run(&["fetch", &id.to_string(), "-o", fetched.to_str().unwrap(), "--coordinator", &web.coord.url]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(png, read(&fetched), "image.png differs from tessera fetch's file");
+    // And a local render of the same scene and settings: the determinism contract.
+    let local = dir.path().join("local.png");
+    render_local(&small_scene(), &local, 1, &["--size", "40x30", "--spp", "3"]);
+    assert_eq!(png, read(&local), "image.png differs from tessera render's file");
+    let exr = client().get(web.url(&format!("/api/jobs/{id}/image.exr"))).send().unwrap();
+    assert_eq!(exr.status(), 200);
+    let fetched = dir.path().join("fetched.exr");
+    let o =
+        run(&["fetch", &id.to_string(), "-o", fetched.to_str().unwrap(), "--coordinator", &web.coord.url]);
+    assert!(o.status.success());
+    assert_eq!(exr.bytes().unwrap().to_vec(), read(&fetched));
+}
+
+#[test]
+fn pause_resume_priority_and_cancel_act_on_the_job() {
+    // No worker: the job stays queued, so every transition is the control's doing.
+    let web = Web::start(&[]);
+    let id = submit_ok(&web, None, small_form(16, 16, 2));
+    assert_eq!(job(&web, None, id)["state"], "queued");
+    assert_eq!(post(&web, None, &format!("/api/jobs/{id}/pause"), None).status(), 204);
+    assert_eq!(job(&web, None, id)["state"], "paused");
+    assert_eq!(post(&web, None, &format!("/api/jobs/{id}/resume"), None).status(), 204);
+    assert_eq!(job(&web, None, id)["state"], "queued");
+    let r = post(&web, None, &format!("/api/jobs/{id}/priority"), Some(r#"{"priority": 7}"#));
+    assert_eq!(r.status(), 204);
+    assert_eq!(job(&web, None, id)["priority"], 7);
+    // The CLI's priority goes through the same RPC.
+    let o = run(&["priority", &id.to_string(), "-3", "--coordinator", &web.coord.url]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(job(&web, None, id)["priority"], -3);
+    assert_eq!(post(&web, None, &format!("/api/jobs/{id}/cancel"), None).status(), 204);
+    assert_eq!(job(&web, None, id)["state"], "cancelled");
+    assert_error(post(&web, None, &format!("/api/jobs/{id}/resume"), None), 409, "is cancelled");
+    // A cancelled job's image is still there (black: nothing rendered).
+    assert_eq!(client().get(web.url(&format!("/api/jobs/{id}/image.png"))).send().unwrap().status(), 200);
+}
+
+#[test]
+fn events_stream_the_listing_when_it_changes() {
+    let web = Web::start(&[]);
+    let mut events = client().get(web.url("/api/events")).send().unwrap();
+    assert_eq!(events.headers()["content-type"], "text/event-stream");
+    let mut seen = String::new();
+    let mut buf = [0u8; 4096];
+    let first = |s: &str| s.contains("event: status") && s.contains(r#"data: {"jobs":[],"workers":[]}"#);
+    while !first(&seen) {
+        let n = events.read(&mut buf).unwrap();
+        assert!(n > 0, "{seen}");
+        seen.push_str(&String::from_utf8_lossy(&buf[..n]));
+    }
+    let id = submit_ok(&web, None, small_form(8, 8, 1));
+    while !seen.contains(&format!(r#""id":{id},"scene":"small.toml","state":"queued""#)) {
+        let n = events.read(&mut buf).unwrap();
+        assert!(n > 0, "{seen}");
+        seen.push_str(&String::from_utf8_lossy(&buf[..n]));
+    }
+}
