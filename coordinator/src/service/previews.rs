@@ -37,6 +37,12 @@ use super::{lock, CoordinatorService};
 /// 100 viewers still get 16 KB an update, 2 000 blocks: a 4K frame in 64-pixel blocks
 /// while every tile changes, refined as soon as fewer do.
 const PREVIEW_BYTES_PER_SECOND: f64 = 16e6;
+/// The share of one core a job's preview publisher may take (snapshot, tick, encoding, as
+/// wall time): the farm's merges come first. A 4K tick of a farm of 256 workers takes
+/// about 5 ms, so its viewers get about six updates a second instead of ten.
+const PREVIEW_CORE_SHARE: f64 = 0.03;
+/// Ticks are never further apart than this (5.5 a second), however long they take.
+const SLOWEST_TICK: Duration = Duration::from_millis(180);
 /// A tick's blocks for each viewer are at least this many bytes (a 1080p frame in
 /// 64-pixel blocks), however many viewers share the budget, so that a preview stays
 /// recognisable; more viewers than the budget affords then get fewer updates instead.
@@ -190,6 +196,7 @@ impl CoordinatorService {
             // Before waiting: a snapshot held makes every merge copy the tiles it touches
             // (at 4K with 256 workers that halved the publisher's rate).
             drop(snap);
+            let busy = tick.elapsed();
             {
                 let mut feeds = lock(&self.feeds.previews);
                 if feed.newest.receiver_count() == 0 {
@@ -202,7 +209,10 @@ impl CoordinatorService {
                 _ = tokio::time::sleep(STATUS_REFRESH) => {}
                 _ = stop.changed() => break,
             }
-            tokio::time::sleep(interval.saturating_sub(tick.elapsed())).await;
+            // A tick's cost grows with the image and the farm's rate of change, not with its
+            // viewers; past a share of a core, ticks space out, down to SLOWEST_TICK.
+            let pause = interval.max(busy.div_f64(PREVIEW_CORE_SHARE)).min(SLOWEST_TICK.max(interval));
+            tokio::time::sleep(pause.saturating_sub(tick.elapsed())).await;
         }
         let mut feeds = lock(&self.feeds.previews);
         if feeds.get(&job).is_some_and(|f| Arc::ptr_eq(f, &feed)) {
