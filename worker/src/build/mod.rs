@@ -20,8 +20,35 @@ use crate::render::{Scene, World};
 
 pub use tessera_description::limits;
 
+/// A step of loading a scene, for timing it (`tessera bench load`): an observer is told,
+/// at the end of each stretch of work, which step it was.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    /// OBJ files read into meshes.
+    ReadObj,
+    /// The description validated (with its scan of the meshes it was not handed).
+    Validation,
+    /// Primitives made from the objects, and their boxes.
+    Primitives,
+    /// The BVH built.
+    Bvh,
+    /// The BVH's slots made.
+    Slots,
+    /// Everything else: images, materials, lights.
+    Rest,
+}
+
 /// Builds the scene a description describes, with its meshes and images from `assets`.
 pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneError> {
+    build_observed(desc, assets, &mut |_| {})
+}
+
+/// [`build`], telling `mark` what each stretch of work was.
+fn build_observed(
+    desc: &Description,
+    assets: &dyn Assets,
+    mark: &mut dyn FnMut(Phase),
+) -> Result<Scene, SceneError> {
     let r = &desc.render;
     let c = &desc.camera;
     let mut camera = Camera::new(c.position, c.look_at, c.up, c.fov, c.axis, r.width, r.height);
@@ -36,9 +63,11 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
     };
     let mut shapes = shapes::Shapes::default();
     let textures = materials::textures(desc, assets, &mut shapes.gltf, &err)?;
+    mark(Phase::Rest);
     for o in &desc.objects {
-        shapes.object(o, &desc.objects, assets, &err)?;
+        shapes.object(o, &desc.objects, assets, &err, mark)?;
     }
+    mark(Phase::Primitives);
     let planes = desc
         .planes
         .iter()
@@ -71,12 +100,18 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
     };
     let bounds: Vec<_> = {
         use rayon::prelude::*;
-        shapes.prims.par_iter().map(|p| p.bounds(&shapes.meshes, &shapes.motions)).collect()
+        mark(Phase::Rest);
+        let bounds = shapes.prims.par_iter().map(|p| p.bounds(&shapes.meshes, &shapes.motions)).collect();
+        mark(Phase::Primitives);
+        bounds
     };
     let bvh = Bvh::build(&bounds);
     drop(bounds);
+    mark(Phase::Bvh);
     let light_choice = LightChoice::new(&lights, scene_radius(&bvh));
+    mark(Phase::Rest);
     let slots = crate::render::triangles::slots(&bvh, &shapes.prims, &shapes.meshes);
+    mark(Phase::Slots);
     let materials: Vec<_> = desc.materials.iter().map(materials::material).collect();
     let surfaces = crate::render::surface::Surfaces::new(&materials, std::mem::take(&mut shapes.extras));
     let world = World {
@@ -93,7 +128,7 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
         light_choice,
         environment,
     };
-    Ok(Scene {
+    let scene = Scene {
         width: r.width,
         height: r.height,
         spp: r.spp,
@@ -104,7 +139,9 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
         ambient: r.ambient,
         camera,
         world: Arc::new(world),
-    })
+    };
+    mark(Phase::Rest);
+    Ok(scene)
 }
 
 /// Half the diagonal of the bounded objects' box (1 without any): the disc through which
@@ -159,7 +196,15 @@ fn environment(
 
 /// Validates and builds a bundle's scene.
 pub fn parse_bundle(bundle: &Bundle) -> Result<Scene, SceneError> {
-    build(&Description::parse(bundle)?, bundle)
+    parse_bundle_observed(bundle, &mut |_| {})
+}
+
+/// [`parse_bundle`], telling `mark` at the end of each stretch of work which [`Phase`] it
+/// was (the time since the previous call, or since the start, went to that phase).
+pub fn parse_bundle_observed(bundle: &Bundle, mark: &mut dyn FnMut(Phase)) -> Result<Scene, SceneError> {
+    let desc = Description::parse(bundle)?;
+    mark(Phase::Validation);
+    build_observed(&desc, bundle, mark)
 }
 
 /// Why a worker does not build a bundle's scene.

@@ -42,6 +42,7 @@ impl Shapes {
         objects: &[Object],
         assets: &dyn Assets,
         err: &dyn Fn(Location, String) -> SceneError,
+        mark: &mut dyn FnMut(super::Phase),
     ) -> Result<(), SceneError> {
         let trs = o.transform;
         let motion = o.motion.map(|end| {
@@ -90,7 +91,9 @@ impl Shapes {
                                 format!("mesh.file: cannot read {file:?} (relative to the scene's folder)"),
                             )
                         })?;
+                    mark(super::Phase::Primitives);
                     let m = parse_obj(text).map_err(|e| err(o.at, format!("mesh {file:?}: {e}")))?;
+                    mark(super::Phase::ReadObj);
                     self.read.insert(file.clone(), (m, uses(file)));
                 }
                 // Each use is its own copy: a static one is baked into world space.
