@@ -15,6 +15,11 @@ use crate::render::shape::{Mesh, Primitive, Rect, Shape};
 use crate::render::surface::Extras;
 use crate::render::transform::{Motion, Trs};
 
+/// How many of `objects` use the mesh file `f`.
+fn uses(objects: &[Object], f: &str) -> usize {
+    objects.iter().filter(|o| matches!(&o.shape, S::Mesh { file, .. } if file == f)).count()
+}
+
 /// The error for geometry that a transform overflowed.
 const NOT_FINITE: &str = "the transformed geometry overflows to non-finite coordinates";
 
@@ -35,6 +40,18 @@ pub(super) struct Shapes {
 }
 
 impl Shapes {
+    /// Shapes to be made with `meshes` (by asset path) already parsed, for `objects`.
+    pub(super) fn with_meshes(meshes: impl Iterator<Item = (String, ObjMesh)>, objects: &[Object]) -> Shapes {
+        let mut read = HashMap::new();
+        for (file, mesh) in meshes {
+            let uses = uses(objects, &file);
+            if uses > 0 {
+                read.insert(file, (mesh, uses));
+            }
+        }
+        Shapes { read, ..Shapes::default() }
+    }
+
     /// Adds the primitives of `o`, one of `objects`.
     pub(super) fn object(
         &mut self,
@@ -79,9 +96,6 @@ impl Shapes {
                 self.mesh(mesh, o, &trs, motion, err)?;
             }
             S::Mesh { file, .. } => {
-                let uses = |f: &String| {
-                    objects.iter().filter(|o| matches!(&o.shape, S::Mesh { file, .. } if file == f)).count()
-                };
                 if !self.read.contains_key(file) {
                     // Validation read this asset; a bundle that changed since is caught here.
                     let text =
@@ -94,7 +108,7 @@ impl Shapes {
                     mark(super::Phase::Primitives);
                     let m = parse_obj(text).map_err(|e| err(o.at, format!("mesh {file:?}: {e}")))?;
                     mark(super::Phase::ReadObj);
-                    self.read.insert(file.clone(), (m, uses(file)));
+                    self.read.insert(file.clone(), (m, uses(objects, file)));
                 }
                 // Each use is its own copy: a static one is baked into world space.
                 let (_, left) = self.read.get_mut(file).expect("read above");
