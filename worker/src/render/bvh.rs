@@ -311,6 +311,15 @@ impl Gather {
         self.cmax = self.cmax.max(c);
     }
 
+    fn union(&self, o: &Gather) -> Gather {
+        Gather {
+            min: self.min.min(o.min),
+            max: self.max.max(o.max),
+            cmin: self.cmin.min(o.cmin),
+            cmax: self.cmax.max(o.cmax),
+        }
+    }
+
     fn boxes(&self) -> Boxes {
         Boxes {
             bounds: Aabb { min: self.min.into(), max: self.max.into() },
@@ -421,17 +430,17 @@ fn split(p: &Prims, items: &mut [u32], bin_ids: &mut [u8], node_bounds: &Aabb, c
         // All centroids coincide: no split can separate them.
         return (n > MAX_LEAF).then_some(Split { mid: n / 2, axis, children: None });
     }
-    let (lo, span) = (cb.min[axis], extent[axis]);
-    let mut gathered = [(Gather::EMPTY, 0usize); BINS];
-    for (it, id) in items.iter().zip(bin_ids.iter_mut()) {
-        let bx = &p.boxes[*it as usize];
-        let c = bx.centroid();
-        let b = (((c[axis] - lo) / span * BINS as f32) as usize).min(BINS - 1);
-        *id = b as u8;
-        gathered[b].0.add(bx, c);
-        gathered[b].1 += 1;
-    }
-    let bins = gathered.map(|(g, n)| (g.boxes(), n));
+    let bins = if n >= PARALLEL_BINS {
+        use rayon::prelude::*;
+        // Bins are unions and counts, the same whatever the order they are gathered in.
+        (items.par_chunks(PARALLEL_BINS / 4))
+            .zip(bin_ids.par_chunks_mut(PARALLEL_BINS / 4))
+            .map(|(items, ids)| gather_bins(p, items, ids, axis, cb.min[axis], extent[axis]))
+            .reduce(|| [(Gather::EMPTY, 0); BINS], merge_bins)
+    } else {
+        gather_bins(p, items, bin_ids, axis, cb.min[axis], extent[axis])
+    };
+    let bins = bins.map(|(g, n)| (g.boxes(), n));
     // Sweep from the right to get the boxes, area and count of each right side.
     let mut right = [(Boxes::EMPTY, 0.0f32, 0usize); BINS];
     let (mut acc, mut count) = (Boxes::EMPTY, 0);
@@ -464,6 +473,41 @@ fn split(p: &Prims, items: &mut [u32], bin_ids: &mut [u8], node_bounds: &Aabb, c
         return Some(median(items));
     }
     Some(Split { mid, axis, children: Some([best.2, right[best.1 + 1].0]) })
+}
+
+/// Nodes with at least this many items gather their bins on several threads (the top of
+/// the tree, where the subtrees are still too few to keep the threads busy).
+const PARALLEL_BINS: usize = 64 * 1024;
+
+/// The bins of `items` along `axis` (centres from `lo` over `span`), with each item's bin
+/// written to `bin_ids`.
+fn gather_bins(
+    p: &Prims,
+    items: &[u32],
+    bin_ids: &mut [u8],
+    axis: usize,
+    lo: f32,
+    span: f32,
+) -> [(Gather, usize); BINS] {
+    let mut bins = [(Gather::EMPTY, 0usize); BINS];
+    for (it, id) in items.iter().zip(bin_ids.iter_mut()) {
+        let bx = &p.boxes[*it as usize];
+        let c = bx.centroid();
+        // The bin as the builder always computed it, operation for operation.
+        let b = (((c[axis] - lo) / span * BINS as f32) as usize).min(BINS - 1);
+        *id = b as u8;
+        bins[b].0.add(bx, c);
+        bins[b].1 += 1;
+    }
+    bins
+}
+
+fn merge_bins(mut a: [(Gather, usize); BINS], b: [(Gather, usize); BINS]) -> [(Gather, usize); BINS] {
+    for (x, y) in a.iter_mut().zip(b) {
+        x.0 = x.0.union(&y.0);
+        x.1 += y.1;
+    }
+    a
 }
 
 fn median_split(p: &Prims, items: &mut [u32], axis: usize) -> usize {
@@ -531,19 +575,22 @@ mod tests {
     /// and the same tree on 1 and 4 threads.
     #[test]
     fn build_matches_the_old_builder_on_any_thread_count() {
-        let mut sets = vec![random_boxes(1000, 7), random_boxes(3 * PARALLEL_MIN, 8)];
-        // Zeros of both signs on the box faces (an OBJ's "-0.0").
-        sets.push(
-            random_boxes(20_000, 9)
-                .into_iter()
-                .enumerate()
-                .map(|(i, b)| {
-                    let z = if i % 2 == 0 { 0.0 } else { -0.0 };
-                    let min = if i % 3 == 0 { Vec3::new(z, b.min.y, z) } else { b.min };
-                    Aabb { min: min.min(b.max), max: b.max }
-                })
-                .collect(),
-        );
+        // The second set is large enough for bins gathered in parallel (PARALLEL_BINS).
+        let mut sets = vec![random_boxes(1000, 7), random_boxes(PARALLEL_BINS + 3 * PARALLEL_MIN, 8)];
+        // Zeros of both signs on the box faces (an OBJ's "-0.0"), small and large.
+        for (n, seed) in [(20_000, 9), (PARALLEL_BINS + 5000, 10)] {
+            sets.push(
+                random_boxes(n, seed)
+                    .into_iter()
+                    .enumerate()
+                    .map(|(i, b)| {
+                        let z = if i % 2 == 0 { 0.0 } else { -0.0 };
+                        let min = if i % 3 == 0 { Vec3::new(z, b.min.y, z) } else { b.min };
+                        Aabb { min: min.min(b.max), max: b.max }
+                    })
+                    .collect(),
+            );
+        }
         // Many equal centroids and flat boxes: the median and leaf fallbacks.
         sets.push(
             (0..40_000)
