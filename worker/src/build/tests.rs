@@ -288,8 +288,8 @@ fn one_read_refuses_broken_meshes_as_two_reads_did() {
         (with(b"bogus\n", "\n[[sphere]]\ncenter = [0, 0, 0]\nradius = -1\nmaterial = \"red\"\n"), "radius"),
     ];
     for (bundle, words) in cases {
-        let old = two_reads(&bundle).err().expect("the old path refuses it");
-        let new = parse_bundle(&bundle).err().expect("the one-read path refuses it");
+        let old = two_reads(&bundle).expect_err("the old path refuses it");
+        let new = parse_bundle(&bundle).expect_err("the one-read path refuses it");
         assert_eq!(new, old);
         assert!(new.to_string().contains(words), "{new}");
         assert!(!new.to_string().contains('\n'), "one line: {new}");

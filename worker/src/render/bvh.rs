@@ -523,8 +523,8 @@ fn median_split(p: &Prims, items: &mut [u32], axis: usize) -> usize {
 /// the positions it has passed.
 fn partition(items: &mut [u32], bin_ids: &[u8], last: u8) -> usize {
     let mut mid = 0;
-    for i in 0..items.len() {
-        if bin_ids[i] <= last {
+    for (i, &bin) in bin_ids.iter().enumerate().take(items.len()) {
+        if bin <= last {
             items.swap(i, mid);
             mid += 1;
         }
