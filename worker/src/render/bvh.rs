@@ -320,6 +320,12 @@ impl Gather {
         }
     }
 
+    /// The surface area of the primitives' box, as [`Aabb::surface_area`] computes it.
+    #[inline(always)]
+    fn area(&self) -> f32 {
+        Aabb { min: self.min.into(), max: self.max.into() }.surface_area()
+    }
+
     fn boxes(&self) -> Boxes {
         Boxes {
             bounds: Aabb { min: self.min.into(), max: self.max.into() },
@@ -391,14 +397,6 @@ struct Boxes {
     centroids: Aabb,
 }
 
-impl Boxes {
-    const EMPTY: Boxes = Boxes { bounds: Aabb::EMPTY, centroids: Aabb::EMPTY };
-
-    fn union(self, o: Boxes) -> Boxes {
-        Boxes { bounds: self.bounds.union(o.bounds), centroids: self.centroids.union(o.centroids) }
-    }
-}
-
 /// A chosen split: the first child holds `items[..mid]`; its boxes, when the bins gave them.
 struct Split {
     mid: usize,
@@ -440,25 +438,24 @@ fn split(p: &Prims, items: &mut [u32], bin_ids: &mut [u8], node_bounds: &Aabb, c
     } else {
         gather_bins(p, items, bin_ids, axis, cb.min[axis], extent[axis])
     };
-    let bins = bins.map(|(g, n)| (g.boxes(), n));
     // Sweep from the right to get the boxes, area and count of each right side.
-    let mut right = [(Boxes::EMPTY, 0.0f32, 0usize); BINS];
-    let (mut acc, mut count) = (Boxes::EMPTY, 0);
+    let mut right = [(Gather::EMPTY, 0.0f32, 0usize); BINS];
+    let (mut acc, mut count) = (Gather::EMPTY, 0);
     for b in (1..BINS).rev() {
-        acc = acc.union(bins[b].0);
+        acc = acc.union(&bins[b].0);
         count += bins[b].1;
-        right[b] = (acc, acc.bounds.surface_area(), count);
+        right[b] = (acc, acc.area(), count);
     }
-    let (mut acc, mut count) = (Boxes::EMPTY, 0);
-    let mut best = (f32::INFINITY, 0, Boxes::EMPTY);
+    let (mut acc, mut count) = (Gather::EMPTY, 0);
+    let mut best = (f32::INFINITY, 0, Gather::EMPTY);
     for b in 0..BINS - 1 {
-        acc = acc.union(bins[b].0);
+        acc = acc.union(&bins[b].0);
         count += bins[b].1;
         let (_, ra, rc) = right[b + 1];
         if count == 0 || rc == 0 {
             continue;
         }
-        let cost = acc.bounds.surface_area() * count as f32 + ra * rc as f32;
+        let cost = acc.area() * count as f32 + ra * rc as f32;
         if cost < best.0 {
             best = (cost, b, acc);
         }
@@ -472,7 +469,7 @@ fn split(p: &Prims, items: &mut [u32], bin_ids: &mut [u8], node_bounds: &Aabb, c
     if mid == 0 || mid == n {
         return Some(median(items));
     }
-    Some(Split { mid, axis, children: Some([best.2, right[best.1 + 1].0]) })
+    Some(Split { mid, axis, children: Some([best.2.boxes(), right[best.1 + 1].0.boxes()]) })
 }
 
 /// Nodes with at least this many items gather their bins on several threads (the top of
@@ -493,8 +490,10 @@ fn gather_bins(
     for (it, id) in items.iter().zip(bin_ids.iter_mut()) {
         let bx = &p.boxes[*it as usize];
         let c = bx.centroid();
-        // The bin as the builder always computed it, operation for operation.
-        let b = (((c[axis] - lo) / span * BINS as f32) as usize).min(BINS - 1);
+        // The bin as the builder always computed it, operation for operation; through
+        // `i32`, whose saturating conversion is shorter than `usize`'s and, clamped to the
+        // bins, gives the same bin for every value (NaN and negatives 0, the rest capped).
+        let b = (((c[axis] - lo) / span * BINS as f32) as i32).clamp(0, BINS as i32 - 1) as usize;
         *id = b as u8;
         bins[b].0.add(bx, c);
         bins[b].1 += 1;
