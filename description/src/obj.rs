@@ -33,6 +33,10 @@ pub struct ObjCounts {
     pub triangles: usize,
 }
 
+/// What a scan of each mesh file found (its counts, its largest |coordinate| per axis), by
+/// the asset's normalised path (`Description::parse_scanned`).
+pub type MeshScans = std::collections::BTreeMap<String, (ObjCounts, Vec3)>;
+
 /// A triangle mesh as the file gives it (object space).
 #[derive(Debug, Clone, Default, PartialEq)]
 pub struct ObjMesh {
@@ -113,10 +117,35 @@ pub fn scan_obj_extent(text: &str) -> Result<(ObjCounts, Vec3), ObjError> {
     Ok((ObjCounts { triangles: sink.triangles, ..counts }, sink.extent))
 }
 
+/// An OBJ file parsed, with what [`scan_obj_extent`] would have said of it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct ParsedObj {
+    /// The mesh, as [`parse_obj`] gives it.
+    pub mesh: ObjMesh,
+    /// The counts, as [`scan_obj`] gives them.
+    pub counts: ObjCounts,
+    /// The largest |coordinate| per axis, as [`scan_obj_extent`] gives it.
+    pub extent: Vec3,
+}
+
 /// Parses OBJ text into a mesh (object space).
 pub fn parse_obj(text: &str) -> Result<ObjMesh, ObjError> {
+    parse_counted(text).map(|(mesh, _)| mesh)
+}
+
+/// [`parse_obj`] with the counts and extent of [`scan_obj_extent`], from one pass over the
+/// text: what a reader that needs both (the worker validates, then builds) reads once.
+pub fn parse_obj_scanned(text: &str) -> Result<ParsedObj, ObjError> {
+    let (mesh, counts) = parse_counted(text)?;
+    // The scan's fold: a maximum of |x| of finite coordinates is the same in any order.
+    let extent = mesh.p.iter().fold(Vec3::ZERO, |e, p| e.max(p.abs()));
+    let counts = ObjCounts { triangles: mesh.tris.len(), ..counts };
+    Ok(ParsedObj { mesh, counts, extent })
+}
+
+fn parse_counted(text: &str) -> Result<(ObjMesh, ObjCounts), ObjError> {
     let mut mesh = ObjMesh::default();
-    read(text, &mut mesh)?;
+    let counts = read(text, &mut mesh)?;
     // Use normals only when every corner has one; the same for texture coordinates.
     let all = |k: usize| mesh.tris.iter().all(|t| t.iter().all(|c| c[k] != u32::MAX));
     let (has_n, has_uv) = (all(1), all(2));
@@ -130,7 +159,7 @@ pub fn parse_obj(text: &str) -> Result<ObjMesh, ObjError> {
             }
         }
     }
-    Ok(mesh)
+    Ok((mesh, counts))
 }
 
 /// Text at least this long is read in parallel chunks.
@@ -452,6 +481,34 @@ mod tests {
         let c = scan_obj(text).unwrap();
         assert_eq!(c, ObjCounts { positions: 4, normals: 1, uvs: 1, faces: 2, triangles: 3 });
         assert_eq!(parse_obj(text).unwrap().tris.len(), c.triangles);
+    }
+
+    /// The scanned parse says what a scan says, on one pass and on parallel chunks.
+    #[test]
+    fn scanned_parse_counts_like_a_scan() {
+        let mut big = String::new();
+        for i in 0..60_000 {
+            big.push_str(&format!("v {} -{} {}.5\nvt 0 1\n", i % 89, i / 89, i % 7));
+        }
+        for i in 3..60_000 {
+            big.push_str(&format!("f {} {}/1 -3 {}\n", i, i - 1, i - 2));
+        }
+        let small =
+            "v 0 0 0\nv -3 1 0\nv 1 1 -0\nv 0 1 0\nvt 0 0\nvn 0 0 1\nf 1//1 2//1 3//1 4//1\nf 1 2 3\n";
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(2).build().unwrap();
+        for text in [small, big.as_str()] {
+            let p = pool.install(|| parse_obj_scanned(text)).unwrap();
+            let (counts, extent) = scan_obj_extent(text).unwrap();
+            assert_eq!(
+                (p.counts, p.extent.to_array().map(f32::to_bits)),
+                (counts, extent.to_array().map(f32::to_bits))
+            );
+            assert_eq!(p.mesh, parse_obj(text).unwrap());
+        }
+        assert_eq!(
+            parse_obj_scanned("v 0 0 0\nf 1 1 2\n").unwrap_err(),
+            scan_obj("v 0 0 0\nf 1 1 2\n").unwrap_err()
+        );
     }
 
     #[test]

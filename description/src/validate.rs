@@ -14,6 +14,7 @@ use crate::keyframes::{self, light_tracks, CameraTracks, Clock, ObjectTracks, Sc
 use crate::limits;
 use crate::model::SamplerKind;
 use crate::model::{Camera, Description, FovAxis, Light, Material, Object, Plane, RenderSettings};
+use crate::obj::MeshScans;
 use crate::schema::{CameraDef, KeysDef, SceneFile};
 use crate::SceneError;
 
@@ -33,7 +34,7 @@ pub(crate) struct Validator<'a> {
     pub(crate) triangles: usize,
     /// Each mesh file's scan, made once however often the scene uses it: a scene of many
     /// uses of one large file costs one scan, not one per use.
-    pub(crate) scans: BTreeMap<String, (crate::obj::ObjCounts, Vec3)>,
+    pub(crate) scans: MeshScans,
     /// The `[animation]` table, checked.
     pub(crate) clock: Option<Clock>,
     /// The frame the scene is read at, with its shutter window (glTF assets' animations
@@ -51,7 +52,16 @@ pub(crate) struct Validator<'a> {
 
 /// Parses and validates a scene whose meshes and images come from `assets`, as it stands
 /// at `frame` when it is animated (its first frame for `None`).
-pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets, frame: Option<u32>) -> R<Description> {
+///
+/// `scans` holds the counts and extents of mesh files already read, by asset path: those
+/// are not scanned again.
+pub(crate) fn validate(
+    file: &str,
+    text: &str,
+    assets: &dyn Assets,
+    frame: Option<u32>,
+    scans: MeshScans,
+) -> R<Description> {
     crate::bounds::check_text(file, text)?;
     let ctx = Ctx { file, text };
     let raw: SceneFile = toml::from_str(text).map_err(|e| {
@@ -120,7 +130,7 @@ pub(crate) fn validate(file: &str, text: &str, assets: &dyn Assets, frame: Optio
         emitter_material: None,
         objects: Vec::new(),
         triangles: 0,
-        scans: BTreeMap::new(),
+        scans,
         clock,
         time,
         pending: None,
@@ -359,19 +369,50 @@ impl Description {
         self.sequence.map(|s| s.frames)
     }
 
-    fn parse_at(bundle: &crate::Bundle, frame: Option<u32>) -> Result<Description, SceneError> {
+    /// [`Description::parse`] (`frame` `None`) or [`Description::parse_frame`], handed the
+    /// scans of mesh files already read (`crate::obj::parse_obj_scanned`): those are not
+    /// read again. Everything else, and the order and words of every error, is as
+    /// `parse`'s; a file missing from `scans` is scanned as usual.
+    pub fn parse_scanned(
+        bundle: &crate::Bundle,
+        frame: Option<u32>,
+        scans: MeshScans,
+    ) -> Result<Description, SceneError> {
         crate::bounds::check_bundle(bundle)?;
-        let mut d = validate(&bundle.name, &bundle.text, bundle, frame)?;
+        let mut d = validate(&bundle.name, &bundle.text, bundle, frame, scans)?;
         crate::bounds::check_referenced(bundle, &d)?;
         d.bundle_bytes = bundle.text.len() as u64
             + bundle.assets.iter().map(|(p, a)| (p.len() + a.len()) as u64).sum::<u64>();
         Ok(d)
     }
 
+    /// The mesh files (`[[mesh]]` tables' `file`) a bundle's scene names and the bundle
+    /// carries, as normalised asset paths, each once: what a reader of the meshes may read
+    /// before validating. Empty for a bundle over its bounds or a text that does not parse
+    /// (validation then says why); names that are not valid asset paths are left out
+    /// (validation refuses them).
+    pub fn mesh_files(bundle: &crate::Bundle) -> Vec<String> {
+        if crate::bounds::check_bundle(bundle).is_err() {
+            return Vec::new();
+        }
+        let Ok(raw) = toml::from_str::<SceneFile>(&bundle.text) else { return Vec::new() };
+        let mut files: Vec<String> = (raw.mesh.iter())
+            .filter_map(|m| crate::bundle::check_asset_path(&m.get_ref().file).ok())
+            .filter(|f| bundle.assets.binary_search_by(|(p, _)| p.as_str().cmp(f)).is_ok())
+            .collect();
+        files.sort();
+        files.dedup();
+        files
+    }
+
+    fn parse_at(bundle: &crate::Bundle, frame: Option<u32>) -> Result<Description, SceneError> {
+        Self::parse_scanned(bundle, frame, MeshScans::new())
+    }
+
     /// Parses and validates a scene text whose meshes and images come from `assets`;
     /// `file` names the scene in messages.
     pub fn parse_text(file: &str, text: &str, assets: &dyn Assets) -> Result<Description, SceneError> {
-        let mut d = validate(file, text, assets, None)?;
+        let mut d = validate(file, text, assets, None, MeshScans::new())?;
         d.bundle_bytes = text.len() as u64;
         Ok(d)
     }

@@ -18,6 +18,7 @@ mod checkpoint;
 mod convergence;
 mod farm;
 mod font;
+mod load;
 mod plot;
 mod rays;
 mod reference;
@@ -169,6 +170,18 @@ pub enum BenchCommand {
         #[arg(long, default_value_t = 3)]
         repeats: usize,
     },
+    /// A worker's load of a scene, step by step (OBJ read and parsed, validation,
+    /// primitives, BVH build, slots), in wall and CPU seconds per run, and the medians.
+    Load {
+        /// The scene file.
+        scene: PathBuf,
+        /// Runs [default: 5].
+        #[arg(long, default_value_t = 5)]
+        runs: usize,
+        /// Threads [default: one per core].
+        #[arg(long)]
+        threads: Option<usize>,
+    },
     /// The farm's overhead: `tessera render` with local workers against the same image
     /// traced in one process on the same cores, as a ratio, and the time to the first
     /// full-frame preview.
@@ -202,6 +215,7 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         BenchCommand::Rays { dir, mesh, repeats } => rays::run(&dir, mesh.as_deref(), repeats.max(1)),
+        BenchCommand::Load { scene, runs, threads } => load::run(&scene, runs.max(1), threads),
         BenchCommand::Farm(opts) => {
             if opts.spp < 2 || opts.credit == 0 || opts.workers.contains(&0) {
                 anyhow::bail!("--spp must be at least 2, --credit and every --workers at least 1");

@@ -7,10 +7,12 @@ mod gltf;
 mod materials;
 mod shapes;
 
+use std::collections::BTreeMap;
 use std::sync::Arc;
 
 use tessera_description::bundle::{Assets, NoAssets};
 use tessera_description::model::{Description, Location};
+use tessera_description::obj::{parse_obj_scanned, ParsedObj};
 use tessera_description::{Bundle, SceneError};
 
 use crate::render::bvh::Bvh;
@@ -20,8 +22,37 @@ use crate::render::{Scene, World};
 
 pub use tessera_description::limits;
 
+/// A step of loading a scene, for timing it (`tessera bench load`): an observer is told,
+/// at the end of each stretch of work, which step it was.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Phase {
+    /// OBJ files read into meshes.
+    ReadObj,
+    /// The description validated (with its scan of the meshes it was not handed).
+    Validation,
+    /// Primitives made from the objects, and their boxes.
+    Primitives,
+    /// The BVH built.
+    Bvh,
+    /// The BVH's slots made.
+    Slots,
+    /// Everything else: images, materials, lights.
+    Rest,
+}
+
 /// Builds the scene a description describes, with its meshes and images from `assets`.
 pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneError> {
+    build_observed(desc, assets, Meshes::new(), &mut |_| {})
+}
+
+/// [`build`] from meshes already parsed (the others are parsed from `assets`), telling
+/// `mark` what each stretch of work was.
+fn build_observed(
+    desc: &Description,
+    assets: &dyn Assets,
+    meshes: Meshes,
+    mark: &mut dyn FnMut(Phase),
+) -> Result<Scene, SceneError> {
     let r = &desc.render;
     let c = &desc.camera;
     let mut camera = Camera::new(c.position, c.look_at, c.up, c.fov, c.axis, r.width, r.height);
@@ -34,11 +65,13 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
         column: at.column,
         message,
     };
-    let mut shapes = shapes::Shapes::default();
+    let mut shapes = shapes::Shapes::with_meshes(meshes.into_iter().map(|(f, p)| (f, p.mesh)), &desc.objects);
     let textures = materials::textures(desc, assets, &mut shapes.gltf, &err)?;
+    mark(Phase::Rest);
     for o in &desc.objects {
-        shapes.object(o, &desc.objects, assets, &err)?;
+        shapes.object(o, &desc.objects, assets, &err, mark)?;
     }
+    mark(Phase::Primitives);
     let planes = desc
         .planes
         .iter()
@@ -71,12 +104,18 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
     };
     let bounds: Vec<_> = {
         use rayon::prelude::*;
-        shapes.prims.par_iter().map(|p| p.bounds(&shapes.meshes, &shapes.motions)).collect()
+        mark(Phase::Rest);
+        let bounds = shapes.prims.par_iter().map(|p| p.bounds(&shapes.meshes, &shapes.motions)).collect();
+        mark(Phase::Primitives);
+        bounds
     };
     let bvh = Bvh::build(&bounds);
     drop(bounds);
+    mark(Phase::Bvh);
     let light_choice = LightChoice::new(&lights, scene_radius(&bvh));
+    mark(Phase::Rest);
     let slots = crate::render::triangles::slots(&bvh, &shapes.prims, &shapes.meshes);
+    mark(Phase::Slots);
     let materials: Vec<_> = desc.materials.iter().map(materials::material).collect();
     let surfaces = crate::render::surface::Surfaces::new(&materials, std::mem::take(&mut shapes.extras));
     let world = World {
@@ -93,7 +132,7 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
         light_choice,
         environment,
     };
-    Ok(Scene {
+    let scene = Scene {
         width: r.width,
         height: r.height,
         spp: r.spp,
@@ -104,7 +143,9 @@ pub fn build(desc: &Description, assets: &dyn Assets) -> Result<Scene, SceneErro
         ambient: r.ambient,
         camera,
         world: Arc::new(world),
-    })
+    };
+    mark(Phase::Rest);
+    Ok(scene)
 }
 
 /// Half the diagonal of the bounded objects' box (1 without any): the disc through which
@@ -159,7 +200,14 @@ fn environment(
 
 /// Validates and builds a bundle's scene.
 pub fn parse_bundle(bundle: &Bundle) -> Result<Scene, SceneError> {
-    build(&Description::parse(bundle)?, bundle)
+    parse_bundle_observed(bundle, &mut |_| {})
+}
+
+/// [`parse_bundle`], telling `mark` at the end of each stretch of work which [`Phase`] it
+/// was (the time since the previous call, or since the start, went to that phase).
+pub fn parse_bundle_observed(bundle: &Bundle, mark: &mut dyn FnMut(Phase)) -> Result<Scene, SceneError> {
+    let (desc, meshes) = validated(bundle, None, u64::MAX, mark)?;
+    build_observed(&desc, bundle, meshes, mark)
 }
 
 /// Why a worker does not build a bundle's scene.
@@ -189,13 +237,14 @@ pub enum LoadError {
 /// Validates and builds a bundle's scene as it stands during `frame`: its animation
 /// evaluated over that frame's shutter (a still scene is the same at every frame).
 pub fn parse_bundle_frame(bundle: &Bundle, frame: u32) -> Result<Scene, SceneError> {
-    build(&Description::parse_frame(bundle, frame)?, bundle)
+    let (desc, meshes) = validated(bundle, Some(frame), u64::MAX, &mut |_| {})?;
+    build_observed(&desc, bundle, meshes, &mut |_| {})
 }
 
 /// Validates a bundle's scene and builds it if its estimated memory fits in `memory`
 /// bytes; checked before any geometry is built or image decoded.
 pub fn parse_bundle_within(bundle: &Bundle, memory: u64) -> Result<Scene, LoadError> {
-    build_within(Description::parse(bundle)?, bundle, memory)
+    parse_bundle_frame_within(bundle, None, memory)
 }
 
 /// [`parse_bundle_within`] for frame `frame` of an animated scene (`None`: its first).
@@ -204,14 +253,7 @@ pub fn parse_bundle_frame_within(
     frame: Option<u32>,
     memory: u64,
 ) -> Result<Scene, LoadError> {
-    let desc = match frame {
-        Some(f) => Description::parse_frame(bundle, f)?,
-        None => Description::parse(bundle)?,
-    };
-    build_within(desc, bundle, memory)
-}
-
-fn build_within(desc: Description, bundle: &Bundle, memory: u64) -> Result<Scene, LoadError> {
+    let (desc, meshes) = validated(bundle, frame, memory, &mut |_| {})?;
     let summary = desc.summary(false);
     if summary.worker_bytes > memory {
         return Err(LoadError::TooLarge {
@@ -222,7 +264,55 @@ fn build_within(desc: Description, bundle: &Bundle, memory: u64) -> Result<Scene
             textures: summary.textures.len(),
         });
     }
-    Ok(build(&desc, bundle)?)
+    Ok(build_observed(&desc, bundle, meshes, &mut |_| {})?)
+}
+
+/// An upper bound of the bytes parsing an OBJ file allocates per byte of its text: a
+/// triangle (36 bytes) takes at least two bytes of a face line (`"1 "`), vectors grow to at
+/// most twice their length, and a file read in chunks holds a chunk's part beside the
+/// whole while joining them.
+const PARSE_BYTES_PER_OBJ_BYTE: u64 = 64;
+
+/// The description of a bundle's scene at `frame`, with the meshes it names already
+/// parsed: each OBJ file is read once, here, in parallel across files, and validation is
+/// handed their counts and extents instead of scanning them again. A file that is missing,
+/// not text or does not parse is left to validation, which refuses it with the words and
+/// at the place it always did. When parsing could take more than `memory` bytes the meshes
+/// are not read ahead (validation scans them, the build parses them after the memory check),
+/// so that a scene too large for this worker is still refused before it is built.
+fn validated(
+    bundle: &Bundle,
+    frame: Option<u32>,
+    memory: u64,
+    mark: &mut dyn FnMut(Phase),
+) -> Result<(Description, Meshes), SceneError> {
+    let files = Description::mesh_files(bundle);
+    let text_bytes: u64 = files.iter().filter_map(|f| bundle.get(f)).map(|b| b.len() as u64).sum();
+    let meshes = if text_bytes.saturating_mul(PARSE_BYTES_PER_OBJ_BYTE) <= memory {
+        read_meshes(bundle, &files)
+    } else {
+        Meshes::new()
+    };
+    mark(Phase::ReadObj);
+    let scans = meshes.iter().map(|(f, p)| (f.clone(), (p.counts, p.extent))).collect();
+    let desc = Description::parse_scanned(bundle, frame, scans)?;
+    mark(Phase::Validation);
+    Ok((desc, meshes))
+}
+
+/// OBJ files parsed, by asset path.
+type Meshes = BTreeMap<String, ParsedObj>;
+
+/// The files of `files` that parse, parsed in parallel (a large one in parallel chunks too).
+fn read_meshes(bundle: &Bundle, files: &[String]) -> Meshes {
+    use rayon::prelude::*;
+    files
+        .par_iter()
+        .filter_map(|f| {
+            let text = bundle.get(f).and_then(|b| std::str::from_utf8(b).ok())?;
+            parse_obj_scanned(text).ok().map(|p| (f.clone(), p))
+        })
+        .collect()
 }
 
 /// Validates and builds a scene without assets. `file` names the scene in messages.

@@ -15,6 +15,11 @@ use crate::render::shape::{Mesh, Primitive, Rect, Shape};
 use crate::render::surface::Extras;
 use crate::render::transform::{Motion, Trs};
 
+/// How many of `objects` use the mesh file `f`.
+fn uses(objects: &[Object], f: &str) -> usize {
+    objects.iter().filter(|o| matches!(&o.shape, S::Mesh { file, .. } if file == f)).count()
+}
+
 /// The error for geometry that a transform overflowed.
 const NOT_FINITE: &str = "the transformed geometry overflows to non-finite coordinates";
 
@@ -35,6 +40,18 @@ pub(super) struct Shapes {
 }
 
 impl Shapes {
+    /// Shapes to be made with `meshes` (by asset path) already parsed, for `objects`.
+    pub(super) fn with_meshes(meshes: impl Iterator<Item = (String, ObjMesh)>, objects: &[Object]) -> Shapes {
+        let mut read = HashMap::new();
+        for (file, mesh) in meshes {
+            let uses = uses(objects, &file);
+            if uses > 0 {
+                read.insert(file, (mesh, uses));
+            }
+        }
+        Shapes { read, ..Shapes::default() }
+    }
+
     /// Adds the primitives of `o`, one of `objects`.
     pub(super) fn object(
         &mut self,
@@ -42,6 +59,7 @@ impl Shapes {
         objects: &[Object],
         assets: &dyn Assets,
         err: &dyn Fn(Location, String) -> SceneError,
+        mark: &mut dyn FnMut(super::Phase),
     ) -> Result<(), SceneError> {
         let trs = o.transform;
         let motion = o.motion.map(|end| {
@@ -78,9 +96,6 @@ impl Shapes {
                 self.mesh(mesh, o, &trs, motion, err)?;
             }
             S::Mesh { file, .. } => {
-                let uses = |f: &String| {
-                    objects.iter().filter(|o| matches!(&o.shape, S::Mesh { file, .. } if file == f)).count()
-                };
                 if !self.read.contains_key(file) {
                     // Validation read this asset; a bundle that changed since is caught here.
                     let text =
@@ -90,8 +105,10 @@ impl Shapes {
                                 format!("mesh.file: cannot read {file:?} (relative to the scene's folder)"),
                             )
                         })?;
+                    mark(super::Phase::Primitives);
                     let m = parse_obj(text).map_err(|e| err(o.at, format!("mesh {file:?}: {e}")))?;
-                    self.read.insert(file.clone(), (m, uses(file)));
+                    mark(super::Phase::ReadObj);
+                    self.read.insert(file.clone(), (m, uses(objects, file)));
                 }
                 // Each use is its own copy: a static one is baked into world space.
                 let (_, left) = self.read.get_mut(file).expect("read above");

@@ -211,3 +211,95 @@ fn each_frame_of_an_animated_scene_builds_with_its_blur() {
     let e = parse_bundle_frame(&bundle, 9).unwrap_err();
     assert!(e.to_string().contains("frame 9 is outside the animation's frames [1, 8]"), "{e}");
 }
+
+/// The old load: validation scans each OBJ, then the build parses it again.
+fn two_reads(bundle: &Bundle) -> Result<Scene, SceneError> {
+    build(&Description::parse(bundle)?, bundle)
+}
+
+/// A worker reads each OBJ file once (parsed ahead, its scan handed to validation): the
+/// description, the tree and the image are those of the old two reads, bit for bit.
+#[test]
+fn one_read_of_each_obj_builds_what_two_reads_built() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    for name in ["mesh.toml", "emissive_mesh.toml", "showcase.toml"] {
+        let bundle = Bundle::read(&root.join(name)).unwrap();
+        let files = Description::mesh_files(&bundle);
+        assert!(!files.is_empty(), "{name} names meshes");
+        let meshes = read_meshes(&bundle, &files);
+        assert_eq!(meshes.len(), files.len(), "{name}: every mesh read ahead");
+        let scans = meshes.iter().map(|(f, p)| (f.clone(), (p.counts, p.extent))).collect();
+        assert_eq!(
+            Description::parse_scanned(&bundle, None, scans).unwrap(),
+            Description::parse(&bundle).unwrap()
+        );
+        let (old, new) = (two_reads(&bundle).unwrap(), parse_bundle(&bundle).unwrap());
+        assert_eq!(new.world.bvh.indices(), old.world.bvh.indices(), "{name}");
+        assert_eq!(new.world.bvh.bounds(), old.world.bvh.bounds(), "{name}");
+        let bits = |s: &Scene| -> Vec<u32> {
+            s.world
+                .meshes
+                .iter()
+                .flat_map(|m| m.p.iter().chain(&m.n))
+                .flat_map(|p| p.to_array().map(f32::to_bits))
+                .collect()
+        };
+        assert_eq!(bits(&new), bits(&old), "{name}");
+        let pixels: Vec<glam::UVec2> =
+            (0..48).map(|i| glam::UVec2::new(i * old.width / 48, (i * 7) % old.height)).collect();
+        let sums = |s: &Scene| crate::batch::render_batch(s, &pixels, 0..2, crate::batch::Sums::Radiance);
+        assert_eq!(sums(&new), sums(&old), "{name}");
+    }
+}
+
+/// A broken, missing or foreign mesh file is refused by the one-read path with the old
+/// path's one-line error, at the same place (the OBJ's line included), and an earlier
+/// error still comes first.
+#[test]
+fn one_read_refuses_broken_meshes_as_two_reads_did() {
+    let mut big = String::new();
+    for i in 0..40_000 {
+        big.push_str(&format!("v {} {} 0\n", i % 200, i / 200));
+    }
+    for i in 3..40_000 {
+        big.push_str(&format!("f {} {} {}\n", i - 2, i - 1, i));
+    }
+    assert!(big.len() > 1 << 20, "large enough to be read in parallel chunks");
+    let late = format!("{big}f 1 2 40001\n");
+    let with = |obj: &[u8], extra: &str| Bundle {
+        name: "t.toml".into(),
+        text: format!("{MINIMAL}{extra}\n[[mesh]]\nfile = \"m.obj\"\nmaterial = \"red\"\n"),
+        assets: vec![("m.obj".into(), obj.to_vec())],
+        refused: vec![],
+    };
+    let cases: Vec<(Bundle, &str)> = vec![
+        (with(b"v 0 0 0\nv 1 0 0\n\nf 1 2 7\n", ""), "line 4: vertex index 7 is out of range"),
+        (with(late.as_bytes(), ""), "line 79998: vertex index 40001 is out of range"),
+        (with(b"v 0 0 0\nv 1 0 0\nv 1 1 0\n", ""), "has no faces"),
+        (with(b"v 0 0 0\nv 1 0 \xff0\n", ""), "is not text"),
+        (
+            with(
+                b"v 0 0 0\nv 1 0 0\nv 1 1 0\nf 1 2 3\n",
+                "\n[[mesh]]\nfile = \"n.obj\"\nmaterial = \"red\"\n",
+            ),
+            "cannot read \"n.obj\"",
+        ),
+        // The sphere's error is met before the mesh's, in both paths.
+        (with(b"bogus\n", "\n[[sphere]]\ncenter = [0, 0, 0]\nradius = -1\nmaterial = \"red\"\n"), "radius"),
+    ];
+    for (bundle, words) in cases {
+        let old = two_reads(&bundle).expect_err("the old path refuses it");
+        let new = parse_bundle(&bundle).expect_err("the one-read path refuses it");
+        assert_eq!(new, old);
+        assert!(new.to_string().contains(words), "{new}");
+        assert!(!new.to_string().contains('\n'), "one line: {new}");
+        assert_eq!(parse_bundle_within(&bundle, u64::MAX).unwrap_err(), LoadError::Scene(old.clone()));
+        assert_eq!(parse_bundle_frame(&bundle, 0).unwrap_err(), old);
+    }
+    // A worker whose memory could not hold the parse scans first, as before.
+    let bundle = with(late.as_bytes(), "");
+    assert_eq!(
+        parse_bundle_within(&bundle, 1 << 20).unwrap_err(),
+        LoadError::Scene(two_reads(&bundle).unwrap_err())
+    );
+}
