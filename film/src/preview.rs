@@ -442,7 +442,8 @@ impl Publisher {
             // Between ticks `shown` holds no `DIRTY`, so a non-zero byte is a coarse pixel;
             // 64 exact ones are skipped at once (a few coarse pixels left in a 4K frame made
             // this scan the whole image every tick).
-            if i % 64 == 0 && i + 64 <= n && self.shown[i..i + 64].iter().fold(0, |a, &v| a | v) == 0 {
+            if i.is_multiple_of(64) && i + 64 <= n && self.shown[i..i + 64].iter().fold(0, |a, &v| a | v) == 0
+            {
                 self.cursor = (i + 64) % n;
                 scanned += 64;
                 continue;
