@@ -170,12 +170,12 @@ color = [1, 0, 0]
         let text = b.text.len() as u64;
         let s = d.summary(false);
         assert_eq!((s.width, s.height, s.spp, s.objects, s.triangles), (8, 6, 4, 1, 0));
-        assert_eq!(s.coordinator_bytes, 48 * 36 + text);
-        assert_eq!(d.summary(true).coordinator_bytes, 48 * 44 + text);
+        assert_eq!(s.coordinator_bytes, 48 * 37 + text);
+        assert_eq!(d.summary(true).coordinator_bytes, 48 * 45 + text);
         d.apply(Some(64), Some((100, 10)));
         let s = d.summary(false);
         assert_eq!((s.width, s.height, s.spp), (100, 10, 64));
-        assert_eq!(s.coordinator_bytes, 1000 * 36 + text);
+        assert_eq!(s.coordinator_bytes, 1000 * 37 + text);
     }
 
     /// A PNG's header: signature, IHDR and an empty IDAT for a `w × h` 8-bit RGB image. No pixel data
