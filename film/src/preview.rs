@@ -27,11 +27,11 @@ pub const MAX_SHIFT: u8 = 8;
 /// share of a run. Only used to choose the block size, so an estimate is enough.
 pub const BLOCK_BYTES: usize = 8;
 
-/// The most blocks a tick paints for what changed, whatever the budget: each block's value
-/// reads a grid of pixels scattered over the framebuffer, so these blocks are what a tick
-/// costs (`tessera bench farm`: 7 500 of them a tick, for 10 viewers of a 4K job of 256
-/// workers, cost a fifth of the commits). What budget is left refines coarse pixels, one
-/// read each, in scan order.
+/// The most blocks of several pixels a tick paints for what changed, whatever the budget:
+/// each one's value reads a grid of pixels scattered over the framebuffer, so these blocks
+/// are what a tick costs (`tessera bench farm`: 7 500 of them a tick, for 10 viewers of a
+/// 4K job of 256 workers, cost a fifth of the commits). Changed pixels painted alone (one
+/// read each) are bounded by the budget only, and so is the refinement of coarse ones.
 pub const MAX_CHANGED_BLOCKS: usize = 2048;
 /// `Publisher::shown` for a pixel that changed since it was last painted.
 const DIRTY: u8 = u8::MAX;
@@ -354,10 +354,12 @@ impl Publisher {
         self.dirty.clear();
         self.rects.clear();
         self.tiles.clear();
-        // Each changed tile holds a changed pixel, so a block finer than a tile per changed
-        // tile at least: with more of those than the budget's blocks, only tiles matter.
-        let fits = (budget / BLOCK_BYTES).min(MAX_CHANGED_BLOCKS);
-        let by_tile = (0..fb.tiles().0).filter(|&t| fb.tile_changed(t, since)).count() > fits;
+        // Single pixels are read once each, so only blocks of several are capped. Each
+        // changed tile holds a changed pixel, so a block finer than a tile per changed tile
+        // at least: with more of those than the budget's blocks, only tiles matter.
+        let alone = budget / BLOCK_BYTES;
+        let fits = |shift: u8| if shift == 0 { alone } else { alone.min(MAX_CHANGED_BLOCKS) };
+        let by_tile = (0..fb.tiles().0).filter(|&t| fb.tile_changed(t, since)).count() > alone;
         self.mark_changes(since, fb, by_tile);
         let mut out = Vec::new();
         let mut spent = 0;
@@ -368,10 +370,12 @@ impl Publisher {
             // they surely add.
             let area = |r: &(u32, u32, u32, u32)| (r.2 - r.0) as usize * (r.3 - r.1) as usize;
             let least = self.dirty.len().max(self.rects.iter().map(area).max().unwrap_or(0));
-            let first = (0..=MAX_SHIFT).find(|&s| least.div_ceil(1 << (2 * s)) <= fits).unwrap_or(MAX_SHIFT);
+            let first =
+                (0..=MAX_SHIFT).find(|&s| least.div_ceil(1 << (2 * s)) <= fits(s)).unwrap_or(MAX_SHIFT);
             let first = if by_tile { first.max(TILE_SHIFT) } else { first };
-            let shift =
-                (first..=MAX_SHIFT).find(|&s| self.count_blocks(s, fits) <= fits).unwrap_or_else(|| {
+            let shift = (first..=MAX_SHIFT)
+                .find(|&s| self.count_blocks(s, fits(s)) <= fits(s))
+                .unwrap_or_else(|| {
                     self.count_blocks(MAX_SHIFT, usize::MAX);
                     MAX_SHIFT
                 });
