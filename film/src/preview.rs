@@ -297,32 +297,30 @@ impl Publisher {
         let words = (gw as usize * gh as usize).div_ceil(64);
         self.seen.clear();
         self.seen.resize(words, 0);
+        // Marks block `b` seen; 1 if it was not yet.
+        fn see(seen: &mut [u64], b: u32) -> usize {
+            let (word, bit) = (b as usize / 64, 1u64 << (b % 64));
+            let new = seen[word] & bit == 0;
+            seen[word] |= bit;
+            usize::from(new)
+        }
         let mut n = 0;
         for &i in &self.dirty {
             let (x, y) = (i % self.width, i / self.width);
-            let b = ((y >> shift) * gw + (x >> shift)) as usize;
-            let (word, bit) = (b / 64, 1u64 << (b % 64));
-            n += usize::from(self.seen[word] & bit == 0);
-            self.seen[word] |= bit;
+            n += see(&mut self.seen, (y >> shift) * gw + (x >> shift));
         }
         if !self.tiles.is_empty() {
             // Only asked at shifts of a tile or more (`tick`), so a tile lies in one block.
             let tiles_x = self.width.div_ceil(TILE);
             let up = shift - TILE_SHIFT;
             for &t in &self.tiles {
-                let b = (((t / tiles_x) >> up) * gw + ((t % tiles_x) >> up)) as usize;
-                let (word, bit) = (b / 64, 1u64 << (b % 64));
-                n += usize::from(self.seen[word] & bit == 0);
-                self.seen[word] |= bit;
+                n += see(&mut self.seen, ((t / tiles_x) >> up) * gw + ((t % tiles_x) >> up));
             }
         }
         for &(x0, y0, x1, y1) in &self.rects {
             for by in y0 >> shift..=(y1 - 1) >> shift {
                 for bx in x0 >> shift..=(x1 - 1) >> shift {
-                    let b = (by * gw + bx) as usize;
-                    let (word, bit) = (b / 64, 1u64 << (b % 64));
-                    n += usize::from(self.seen[word] & bit == 0);
-                    self.seen[word] |= bit;
+                    n += see(&mut self.seen, by * gw + bx);
                 }
             }
             if n > most {
@@ -339,12 +337,13 @@ impl Publisher {
     pub fn tick(&mut self, fb: &Framebuffer, budget: usize) -> Vec<Blocks> {
         assert_eq!((fb.width(), fb.height()), (self.width, self.height), "one publisher per image size");
         let Some(since) = self.version.replace(fb.version()) else {
-            for chunk in fb.changes(0, 1 << 16) {
-                for p in chunk.iter().filter(|p| p.count > 0) {
-                    self.sampled[p.index as usize / 64] |= 1u64 << (p.index % 64);
-                }
-            }
-            for t in 0..fb.tiles().0 {
+            for t in (0..fb.tiles().0).filter(|&t| fb.tile_changed(t, 0)) {
+                let sampled = &mut self.sampled;
+                fb.tile_changes(t, 0, |index, count| {
+                    if count > 0 {
+                        sampled[index as usize / 64] |= 1u64 << (index % 64);
+                    }
+                });
                 if fb.tile_full(t) {
                     self.full[t / 64] |= 1u64 << (t % 64);
                 }
