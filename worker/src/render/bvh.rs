@@ -1,7 +1,9 @@
 //! A bounding volume hierarchy over axis-aligned boxes, built with the binned surface area
 //! heuristic. It sees only boxes: the caller keeps the primitives and intersects them in a
 //! closure, so the same BVH serves spheres, rectangles, triangles and moving objects (whose
-//! box covers their whole motion over the shutter).
+//! box covers their whole motion over the shutter). The builder makes a binary tree
+//! (`build.rs`); rays traverse it folded into nodes of four (`fold.rs`, `wide.rs`), which
+//! visit the same leaves in the same order.
 
 use glam::Vec3;
 
@@ -62,21 +64,28 @@ impl Aabb {
     /// The entry distance of a ray into the box, if it enters before `t_max`. The far
     /// distance is widened by the rounding error bound of the slab test, so that a ray
     /// grazing a box edge is never missed (pbrt's robust test).
+    ///
+    /// The box is closed: a ray parallel to a slab (a zero direction component, whose
+    /// reciprocal is infinite) and inside it or on one of its faces is not limited by it.
+    /// On a face the slab test meets 0 × ∞ = NaN; the slab then imposes nothing. That rule
+    /// makes the test monotone — a box inside another is entered only if that one is —
+    /// which lets the wide BVH skip the binary nodes it folds away (`wide.rs`).
     #[inline]
     pub fn hit(&self, origin: Vec3, inv_dir: Vec3, t_max: f32) -> Option<f32> {
         let t0 = (self.min - origin) * inv_dir;
         let t1 = (self.max - origin) * inv_dir;
-        let near = t0.min(t1);
-        let far = t0.max(t1) * (1.0 + 2.0 * gamma(3));
-        // NaN (0 × ∞ on a slab boundary) must not reject: max/min of glam ignore NaN.
+        let inside = t0.is_nan_mask() | t1.is_nan_mask();
+        let near = Vec3::select(inside, Vec3::NEG_INFINITY, t0.min(t1));
+        let far = Vec3::select(inside, Vec3::INFINITY, t0.max(t1));
         let t_enter = near.max_element().max(0.0);
-        let t_exit = far.min_element().min(t_max);
+        let t_exit = (far.min_element() * (1.0 + 2.0 * gamma(3))).min(t_max);
         (t_enter <= t_exit).then_some(t_enter)
     }
 }
 
+/// A node of the binary tree the builder makes (folded into [`wide`] nodes for traversal).
 #[derive(Debug, Clone, Copy, PartialEq)]
-struct Node {
+pub(super) struct Node {
     bounds: Aabb,
     /// Leaf: first index into `indices`. Interior: distance from this node to its second
     /// child (the first child follows the node), so that subtrees built apart can be
@@ -91,8 +100,16 @@ struct Node {
 /// The hierarchy.
 #[derive(Debug, Clone, Default)]
 pub struct Bvh {
-    nodes: Vec<Node>,
+    wide: Wide,
     indices: Vec<u32>,
+}
+
+/// The binary tree the builder makes, in depth-first order (a node, its first subtree, its
+/// second), and the primitive of each slot in its leaf order.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub(super) struct Binary {
+    pub(super) nodes: Vec<Node>,
+    pub(super) indices: Vec<u32>,
 }
 
 /// Bins of the SAH sweep: 12 is within a percent of a full sweep at a fraction of its cost.
@@ -107,23 +124,13 @@ impl Bvh {
     /// [`PARALLEL_MIN`] primitives build in parallel; every split depends only on the
     /// boxes, so the tree is the same for any number of threads.
     pub fn build(bounds: &[Aabb]) -> Bvh {
-        if bounds.is_empty() {
-            return Bvh::default();
-        }
-        use rayon::prelude::*;
-        let boxes: Vec<PrimBox> =
-            bounds.par_iter().map(|b| PrimBox { min: b.min.into(), max: b.max.into() }).collect();
-        let prims = Prims { boxes: &boxes };
-        let mut indices: Vec<u32> = (0..bounds.len() as u32).collect();
-        let mut bins = vec![0u8; bounds.len()];
-        let mut nodes = Vec::with_capacity(bounds.len() / 2);
-        build_subtree(&prims, &mut indices, &mut bins, 0, &mut nodes, None);
-        Bvh { nodes, indices }
+        let Binary { nodes, indices } = build_binary(bounds);
+        Bvh { wide: Wide::fold(&nodes), indices }
     }
 
     /// Bounds of everything.
     pub fn bounds(&self) -> Aabb {
-        self.nodes.first().map_or(Aabb::EMPTY, |n| n.bounds)
+        self.wide.bounds()
     }
 
     /// The primitive in each slot of the leaf order: a leaf holds slots `offset..offset +
@@ -142,46 +149,8 @@ impl Bvh {
     /// [`Bvh::traverse`] by slot: `hit(slot, t_max)`, where slot k holds primitive
     /// `indices()[k]` (for data stored in leaf order).
     #[inline]
-    pub fn traverse_slots(
-        &self,
-        ray: &Ray,
-        mut t_max: f32,
-        mut hit: impl FnMut(usize, f32) -> Option<f32>,
-    ) -> f32 {
-        if self.nodes.is_empty() {
-            return t_max;
-        }
-        let inv_dir = ray.dir.recip();
-        let neg = [inv_dir.x < 0.0, inv_dir.y < 0.0, inv_dir.z < 0.0];
-        let mut stack = [0u32; 64];
-        let mut top = 0;
-        let mut node = 0u32;
-        loop {
-            let n = &self.nodes[node as usize];
-            if n.bounds.hit(ray.origin, inv_dir, t_max).is_some() {
-                if n.count > 0 {
-                    for k in n.offset as usize..(n.offset + n.count) as usize {
-                        if let Some(t) = hit(k, t_max) {
-                            t_max = t_max.min(t);
-                        }
-                    }
-                } else {
-                    // Near child first, so that early hits prune the far one.
-                    let far = node + n.offset;
-                    let (first, second) =
-                        if neg[n.axis as usize] { (far, node + 1) } else { (node + 1, far) };
-                    stack[top] = second;
-                    top += 1;
-                    node = first;
-                    continue;
-                }
-            }
-            if top == 0 {
-                return t_max;
-            }
-            top -= 1;
-            node = stack[top];
-        }
+    pub fn traverse_slots(&self, ray: &Ray, t_max: f32, hit: impl FnMut(usize, f32) -> Option<f32>) -> f32 {
+        self.wide.nearest(ray.origin, ray.dir, t_max, hit)
     }
 
     /// Visits the primitives whose boxes the ray enters before `t_max`, in no particular
@@ -192,82 +161,45 @@ impl Bvh {
 
     /// [`Bvh::visit`] by slot (see [`Bvh::traverse_slots`]).
     #[inline]
-    pub fn visit_slots(&self, ray: &Ray, t_max: f32, mut f: impl FnMut(usize) -> bool) {
-        if self.nodes.is_empty() {
-            return;
-        }
-        let inv_dir = ray.dir.recip();
-        let mut stack = [0u32; 64];
-        let mut top = 0;
-        let mut node = 0u32;
-        loop {
-            let n = &self.nodes[node as usize];
-            if n.bounds.hit(ray.origin, inv_dir, t_max).is_some() {
-                if n.count > 0 {
-                    for k in n.offset as usize..(n.offset + n.count) as usize {
-                        if !f(k) {
-                            return;
-                        }
-                    }
-                } else {
-                    stack[top] = node + n.offset;
-                    top += 1;
-                    node += 1;
-                    continue;
-                }
-            }
-            if top == 0 {
-                return;
-            }
-            top -= 1;
-            node = stack[top];
-        }
+    pub fn visit_slots(&self, ray: &Ray, t_max: f32, f: impl FnMut(usize) -> bool) {
+        self.wide.each(ray.origin, ray.dir, t_max, f)
     }
 
     /// Checks the structure: every primitive in exactly one leaf, every box inside its
     /// parent's, every primitive's box inside its leaf's. For tests.
     pub fn validate(&self, bounds: &[Aabb]) -> Result<(), String> {
-        let mut seen = vec![false; bounds.len()];
-        let mut stack = vec![(0usize, 0usize)];
-        if self.nodes.is_empty() {
-            return if bounds.is_empty() { Ok(()) } else { Err("no nodes".into()) };
+        if self.indices.len() != bounds.len() {
+            return Err(format!("{} slots for {} primitives", self.indices.len(), bounds.len()));
         }
-        while let Some((i, depth)) = stack.pop() {
-            if depth > 60 {
-                return Err("tree deeper than the traversal stack".into());
-            }
-            let n = &self.nodes[i];
-            if n.count > 0 {
-                for &p in &self.indices[n.offset as usize..(n.offset + n.count) as usize] {
-                    if std::mem::replace(&mut seen[p as usize], true) {
-                        return Err(format!("primitive {p} in two leaves"));
-                    }
-                    if !n.bounds.contains(&bounds[p as usize]) {
-                        return Err(format!("primitive {p} outside its leaf"));
-                    }
-                }
-            } else {
-                for c in [i + 1, i + n.offset as usize] {
-                    if !n.bounds.contains(&self.nodes[c].bounds) {
-                        return Err(format!("node {c} outside its parent {i}"));
-                    }
-                    stack.push((c, depth + 1));
-                }
-            }
-        }
-        match seen.iter().position(|s| !s) {
-            Some(p) => Err(format!("primitive {p} in no leaf")),
-            None => Ok(()),
-        }
+        self.wide.validate(&self.indices, bounds)
     }
 }
 
+/// The builder's binary tree over primitives with the given boxes.
+pub(super) fn build_binary(bounds: &[Aabb]) -> Binary {
+    if bounds.is_empty() {
+        return Binary::default();
+    }
+    use rayon::prelude::*;
+    let boxes: Vec<PrimBox> =
+        bounds.par_iter().map(|b| PrimBox { min: b.min.into(), max: b.max.into() }).collect();
+    let prims = Prims { boxes: &boxes };
+    let mut indices: Vec<u32> = (0..bounds.len() as u32).collect();
+    let mut bins = vec![0u8; bounds.len()];
+    let mut nodes = Vec::with_capacity(bounds.len() / 2);
+    build_subtree(&prims, &mut indices, &mut bins, 0, &mut nodes, None);
+    Binary { nodes, indices }
+}
+
 mod build;
+mod fold;
 #[cfg(test)]
 mod reference;
+mod wide;
 
 pub use build::PARALLEL_MIN;
 use build::{build_subtree, PrimBox, Prims};
+use wide::Wide;
 
 #[cfg(test)]
 mod tests {
@@ -302,8 +234,8 @@ mod tests {
 
     /// The same nodes (boxes equal as numbers: see `Boxes` on the sign of zero) and the
     /// same leaf order.
-    fn same_tree(a: &Bvh, b: &Bvh) -> bool {
-        a.indices == b.indices && a.nodes == b.nodes
+    fn same_tree(a: &Binary, b: &Binary) -> bool {
+        a == b
     }
 
     /// The builder makes the tree the sequential builder it replaced made, bit for bit,
@@ -338,11 +270,11 @@ mod tests {
         for boxes in sets {
             let old = reference::build(&boxes);
             let pool = |n| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
-            let one = pool(1).install(|| Bvh::build(&boxes));
-            let four = pool(4).install(|| Bvh::build(&boxes));
+            let one = pool(1).install(|| build_binary(&boxes));
+            let four = pool(4).install(|| build_binary(&boxes));
             assert!(same_tree(&old, &one), "{} boxes: not the old tree", boxes.len());
             assert!(same_tree(&one, &four), "{} boxes: 1 and 4 threads differ", boxes.len());
-            four.validate(&boxes).unwrap();
+            Bvh { wide: Wide::fold(&four.nodes), indices: four.indices }.validate(&boxes).unwrap();
         }
     }
 

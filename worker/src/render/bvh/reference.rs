@@ -1,15 +1,17 @@
 //! The builder as it was before items moved with their boxes and subtrees built in
-//! parallel (only the link to the second child is now relative): the tests check that the
-//! new one makes the same tree, node for node, so that traversal order and images keep
-//! their bits.
+//! parallel (only the link to the second child is now relative), and the binary traversal
+//! as it was before the tree was folded into wide nodes: the tests check that the builder
+//! makes the same tree, node for node, and that the wide tree visits the same leaves in
+//! the same order, so that images keep their bits.
 
 use glam::Vec3;
 
-use super::{Aabb, Bvh, Node, BINS, MAX_LEAF, TRAVERSAL_COST};
+use super::{Aabb, Binary, Node, BINS, MAX_LEAF, TRAVERSAL_COST};
+use crate::render::geometry::Ray;
 
-pub(super) fn build(bounds: &[Aabb]) -> Bvh {
+pub(super) fn build(bounds: &[Aabb]) -> Binary {
     let mut bvh =
-        Bvh { nodes: Vec::with_capacity(bounds.len() * 2), indices: (0..bounds.len() as u32).collect() };
+        Binary { nodes: Vec::with_capacity(bounds.len() * 2), indices: (0..bounds.len() as u32).collect() };
     if bounds.is_empty() {
         return bvh;
     }
@@ -123,4 +125,73 @@ fn partition(idx: &mut [u32], left: impl Fn(u32) -> bool) -> usize {
         }
     }
     mid
+}
+
+/// The binary tree's nearest-hit traversal: near child first by the sign of the direction
+/// on the node's split axis, each node's box tested against the current `t_max`.
+pub(super) fn traverse_slots(
+    bvh: &Binary,
+    ray: &Ray,
+    mut t_max: f32,
+    mut hit: impl FnMut(usize, f32) -> Option<f32>,
+) -> f32 {
+    if bvh.nodes.is_empty() {
+        return t_max;
+    }
+    let inv_dir = ray.dir.recip();
+    let neg = [inv_dir.x < 0.0, inv_dir.y < 0.0, inv_dir.z < 0.0];
+    let mut stack = vec![];
+    let mut node = 0u32;
+    loop {
+        let n = &bvh.nodes[node as usize];
+        if n.bounds.hit(ray.origin, inv_dir, t_max).is_some() {
+            if n.count > 0 {
+                for k in n.offset as usize..(n.offset + n.count) as usize {
+                    if let Some(t) = hit(k, t_max) {
+                        t_max = t_max.min(t);
+                    }
+                }
+            } else {
+                let far = node + n.offset;
+                let (first, second) = if neg[n.axis as usize] { (far, node + 1) } else { (node + 1, far) };
+                stack.push(second);
+                node = first;
+                continue;
+            }
+        }
+        match stack.pop() {
+            Some(n) => node = n,
+            None => return t_max,
+        }
+    }
+}
+
+/// The binary tree's any-order traversal: first child first, while `f` returns true.
+pub(super) fn visit_slots(bvh: &Binary, ray: &Ray, t_max: f32, mut f: impl FnMut(usize) -> bool) {
+    if bvh.nodes.is_empty() {
+        return;
+    }
+    let inv_dir = ray.dir.recip();
+    let mut stack = vec![];
+    let mut node = 0u32;
+    loop {
+        let n = &bvh.nodes[node as usize];
+        if n.bounds.hit(ray.origin, inv_dir, t_max).is_some() {
+            if n.count > 0 {
+                for k in n.offset as usize..(n.offset + n.count) as usize {
+                    if !f(k) {
+                        return;
+                    }
+                }
+            } else {
+                stack.push(node + n.offset);
+                node += 1;
+                continue;
+            }
+        }
+        match stack.pop() {
+            Some(n) => node = n,
+            None => return,
+        }
+    }
 }
