@@ -88,6 +88,16 @@ pub struct World {
     pub environment: Option<u32>,
 }
 
+/// The nearest hit found so far, before it is completed: the primitive, the distance and
+/// the surface coordinates its completion needs.
+#[derive(Debug, Clone, Copy)]
+enum Candidate {
+    /// An inline triangle: barycentrics b1, b2.
+    Triangle(u32, f32, f32, f32),
+    /// A still parallelogram: coordinates s, t in [-1, 1].
+    Rect(u32, f32, f32, f32),
+}
+
 /// A hit with what lies at it.
 #[derive(Debug, Clone, Copy)]
 pub struct SurfaceHit {
@@ -131,9 +141,10 @@ impl Scene {
     /// [`Scene::intersect`], with hits on materials with alpha tested when `ALPHA`.
     fn nearest<const ALPHA: bool>(&self, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceHit> {
         let w = &*self.world;
-        // An inline triangle's hit is completed (point, normals, uv) only once it is known
-        // to be the nearest; it is the same hit `Primitive::intersect` would have made.
-        let mut nearest: Option<(u32, f32, f32, f32)> = None;
+        // An inline triangle's or a still parallelogram's hit is completed (point, normals,
+        // uv) only once it is known to be the nearest; it is the same hit
+        // `Primitive::intersect` would have made.
+        let mut nearest: Option<Candidate> = None;
         let mut best: Option<SurfaceHit> = None;
         let t_max = w.bvh.traverse_slots(ray, t_max, |k, t_max| match w.slots[k].kind() {
             triangles::SlotKind::Triangle(i) => {
@@ -141,17 +152,21 @@ impl Scene {
                 if ALPHA && !w.covers_slot(i, b1, b2, ray) {
                     return None;
                 }
-                nearest = Some((i, t, b1, b2));
+                nearest = Some(Candidate::Triangle(i, t, b1, b2));
                 best = None;
                 Some(t)
             }
             triangles::SlotKind::Generic(i) => {
                 let prim = &w.prims[i as usize];
+                let alpha = ALPHA && w.surfaces.alpha[prim.material as usize];
+                if let (shape::Shape::Rect(r), None, false) = (&prim.shape, prim.motion, alpha) {
+                    let (t, s, tt) = r.candidate(ray, t_max)?;
+                    nearest = Some(Candidate::Rect(i, t, s, tt));
+                    best = None;
+                    return Some(t);
+                }
                 let mut hit = prim.intersect(ray, t_max, time, &w.meshes, &w.motions)?;
-                if ALPHA
-                    && w.surfaces.alpha[prim.material as usize]
-                    && !w.covers_hit(i, hit.p, hit.uv, ray, time)
-                {
+                if alpha && !w.covers_hit(i, hit.p, hit.uv, ray, time) {
                     return None;
                 }
                 hit.prim = i;
@@ -160,14 +175,25 @@ impl Scene {
                 Some(hit.t)
             }
         });
-        if let Some((i, t, b1, b2)) = nearest {
+        let complete = |i: u32, hit: Option<Hit>| {
             let prim = &w.prims[i as usize];
-            if let shape::Shape::Triangle { mesh, tri } = prim.shape {
-                best = w.meshes[mesh as usize].hit_at(tri, t, b1, b2).map(|mut hit| {
-                    hit.prim = i;
-                    SurfaceHit { hit, material: prim.material, light: prim.light }
-                });
+            hit.map(|mut hit| {
+                hit.prim = i;
+                SurfaceHit { hit, material: prim.material, light: prim.light }
+            })
+        };
+        match nearest {
+            Some(Candidate::Triangle(i, t, b1, b2)) => {
+                if let shape::Shape::Triangle { mesh, tri } = w.prims[i as usize].shape {
+                    best = complete(i, w.meshes[mesh as usize].hit_at(tri, t, b1, b2));
+                }
             }
+            Some(Candidate::Rect(i, t, s, tt)) => {
+                if let shape::Shape::Rect(r) = &w.prims[i as usize].shape {
+                    best = complete(i, Some(r.hit_at(t, s, tt)));
+                }
+            }
+            None => {}
         }
         let mut t_max = t_max;
         for (plane, material) in &w.planes {

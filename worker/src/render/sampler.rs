@@ -15,12 +15,18 @@ use glam::{UVec2, Vec2};
 /// Hashes a few words into 64 well-mixed bits (a splitmix64-style finaliser per word).
 #[inline]
 pub fn hash_words(words: &[u64]) -> u64 {
-    let mut h: u64 = 0x9e37_79b9_7f4a_7c15;
-    for &w in words {
-        h ^= w.wrapping_add(0x9e37_79b9_7f4a_7c15).wrapping_add(h << 6).wrapping_add(h >> 2);
-        h = mix64(h);
-    }
-    h
+    words.iter().fold(HASH_START, |h, &w| hash_step(h, w))
+}
+
+/// The state [`hash_words`] starts from.
+const HASH_START: u64 = 0x9e37_79b9_7f4a_7c15;
+
+/// One word of [`hash_words`]: hashes sharing their first words can share those steps
+/// (the sampler keeps the state after seed and pixel, and after a pattern's key and
+/// sample), with the same bits as hashing each from the start.
+#[inline]
+fn hash_step(h: u64, w: u64) -> u64 {
+    mix64(h ^ w.wrapping_add(HASH_START).wrapping_add(h << 6).wrapping_add(h >> 2))
 }
 
 #[inline]
@@ -87,8 +93,10 @@ fn cmj(s: u32, (m, rows): (u32, u32), key: u64) -> Vec2 {
     // coarse grid do not line up.
     let sx = permute(col, m, key ^ 0x51);
     let sy = permute(row, rows, key ^ 0xa3);
-    let jx = unit_float(hash_words(&[key, u64::from(s), 1]));
-    let jy = unit_float(hash_words(&[key, u64::from(s), 2]));
+    // hash_words(&[key, s, 1]) and (&[key, s, 2]), sharing their first two steps.
+    let prefix = hash_step(hash_step(HASH_START, key), u64::from(s));
+    let jx = unit_float(hash_step(prefix, 1));
+    let jy = unit_float(hash_step(prefix, 2));
     let x = (col as f32 + (sy as f32 + jx) / rows as f32) / m as f32;
     let y = (row as f32 + (sx as f32 + jy) / m as f32) / rows as f32;
     Vec2::new(x.min(ONE_MINUS_EPSILON), y.min(ONE_MINUS_EPSILON))
@@ -138,6 +146,8 @@ pub struct Sampler {
     spp: u32,
     grid: (u32, u32),
     pixel: UVec2,
+    /// The hash state after the seed and the pixel: every dimension's key starts there.
+    pixel_key: u64,
     index: u32,
     dimension: u32,
 }
@@ -146,22 +156,33 @@ impl Sampler {
     /// A sampler for patterns of `spp` samples per pixel.
     pub fn new(kind: SamplerKind, seed: u64, spp: u32) -> Self {
         let spp = spp.max(1);
-        Sampler { kind, seed, spp, grid: grid(spp), pixel: UVec2::ZERO, index: 0, dimension: 0 }
+        let mut sampler = Sampler {
+            kind,
+            seed,
+            spp,
+            grid: grid(spp),
+            pixel: UVec2::ZERO,
+            pixel_key: 0,
+            index: 0,
+            dimension: 0,
+        };
+        sampler.start_pixel_sample(UVec2::ZERO, 0);
+        sampler
     }
 
     /// Positions the sampler at sample `index` of `pixel`; the next draw is dimension 0.
     pub fn start_pixel_sample(&mut self, pixel: UVec2, index: u32) {
+        let words = [self.seed, u64::from(pixel.x) | (u64::from(pixel.y) << 32)];
+        self.pixel_key = words.iter().fold(HASH_START, |h, &w| hash_step(h, w));
         self.pixel = pixel;
         self.index = index;
         self.dimension = 0;
     }
 
+    /// `hash_words(&[seed, pixel, dimension])`, from the state after seed and pixel.
+    #[inline]
     fn dimension_key(&self) -> u64 {
-        hash_words(&[
-            self.seed,
-            u64::from(self.pixel.x) | (u64::from(self.pixel.y) << 32),
-            u64::from(self.dimension),
-        ])
+        hash_step(self.pixel_key, u64::from(self.dimension))
     }
 
     /// Dimensions drawn since `start_pixel_sample` (a 2-D draw counts once): what a sample

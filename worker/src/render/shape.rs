@@ -58,6 +58,14 @@ impl Rect {
 
     /// The hit in (0, t_max).
     pub fn intersect(&self, ray: &Ray, t_max: f32) -> Option<Hit> {
+        let (t, s, tt) = self.candidate(ray, t_max)?;
+        Some(self.hit_at(t, s, tt))
+    }
+
+    /// The distance and surface coordinates (s, t in [-1, 1]) of the hit in (0, t_max):
+    /// all a nearest-hit search needs, [`Rect::hit_at`] completing only the nearest.
+    #[inline]
+    pub fn candidate(&self, ray: &Ray, t_max: f32) -> Option<(f32, f32, f32)> {
         let denom = self.n.dot(ray.dir);
         if denom == 0.0 {
             return None;
@@ -71,12 +79,17 @@ impl Rect {
         if s.abs() > 1.0 || tt.abs() > 1.0 {
             return None;
         }
+        Some((t, s, tt))
+    }
+
+    /// The hit at distance `t` and surface coordinates (`s`, `tt`) from [`Rect::candidate`].
+    pub fn hit_at(&self, t: f32, s: f32, tt: f32) -> Hit {
         // Recompute the point from its surface coordinates: its error is then that of
         // a few products and sums, independent of the ray's length.
         let p = self.point(s, tt);
         let p_error = (self.c.abs() + (self.u * s).abs() + (self.v * tt).abs()) * gamma(5);
         let uv = Vec2::new((s + 1.0) * 0.5, (tt + 1.0) * 0.5);
-        Some(Hit { t, p, p_error, n: self.n, ns: self.n, uv, prim: 0 })
+        Hit { t, p, p_error, n: self.n, ns: self.n, uv, prim: 0 }
     }
 }
 

@@ -51,8 +51,10 @@ struct Entry {
     at: u32,
 }
 
-/// Entries of the stack kept in the traversal's frame; a deeper tree (the builder's
-/// worst cases) traverses with a stack on the heap.
+/// Entries of the stacks kept in the traversal's frame, a small one for small scenes (a
+/// stack is zeroed for every ray, which a scene of a few primitives notices); a deeper
+/// tree (the builder's worst cases) traverses with a stack on the heap.
+const SMALL_STACK: usize = 16;
 const STACK: usize = 64;
 
 /// The exit distance's widening for the rounding of the slab test (pbrt's robust test).
@@ -150,13 +152,21 @@ impl Wide {
             return t_max;
         }
         let r = RayLanes::new(origin, dir);
-        match (r.exact, self.depth <= STACK) {
-            (false, true) => self.nearest_in::<false>(&r, t_max, hit, &mut [Entry::default(); STACK]),
-            (true, true) => self.nearest_in::<true>(&r, t_max, hit, &mut [Entry::default(); STACK]),
-            (false, false) => {
-                self.nearest_in::<false>(&r, t_max, hit, &mut vec![Entry::default(); self.depth])
-            }
-            (true, false) => self.nearest_in::<true>(&r, t_max, hit, &mut vec![Entry::default(); self.depth]),
+        self.with_stack(|stack| match r.exact {
+            false => self.nearest_in::<false>(&r, t_max, hit, stack),
+            true => self.nearest_in::<true>(&r, t_max, hit, stack),
+        })
+    }
+
+    /// Runs `f` with a stack deep enough for this tree.
+    #[inline(always)]
+    fn with_stack<R>(&self, f: impl FnOnce(&mut [Entry]) -> R) -> R {
+        if self.depth <= SMALL_STACK {
+            f(&mut [Entry::default(); SMALL_STACK])
+        } else if self.depth <= STACK {
+            f(&mut [Entry::default(); STACK])
+        } else {
+            f(&mut vec![Entry::default(); self.depth])
         }
     }
 
@@ -217,12 +227,10 @@ impl Wide {
             return;
         }
         let r = RayLanes::new(origin, dir);
-        match (r.exact, self.depth <= STACK) {
-            (false, true) => self.each_in::<false>(&r, t_max, f, &mut [Entry::default(); STACK]),
-            (true, true) => self.each_in::<true>(&r, t_max, f, &mut [Entry::default(); STACK]),
-            (false, false) => self.each_in::<false>(&r, t_max, f, &mut vec![Entry::default(); self.depth]),
-            (true, false) => self.each_in::<true>(&r, t_max, f, &mut vec![Entry::default(); self.depth]),
-        }
+        self.with_stack(|stack| match r.exact {
+            false => self.each_in::<false>(&r, t_max, f, stack),
+            true => self.each_in::<true>(&r, t_max, f, stack),
+        })
     }
 
     #[inline(always)]
@@ -359,6 +367,15 @@ mod tests {
             .collect()
     }
 
+    /// Boxes ever farther apart along a line: the binned SAH peels a few off at each
+    /// level, a tree deeper than the traversal's stack in its frame.
+    fn exponential_boxes(n: usize) -> Vec<Aabb> {
+        std::iter::successors(Some(1.0f32), |x| Some(x * 1.5))
+            .take(n)
+            .map(|x| Aabb { min: Vec3::new(x, 0.0, 0.0), max: Vec3::new(x + 0.5, 1.0, 1.0) })
+            .collect()
+    }
+
     /// A ray from a lattice point or anywhere, its direction's components often ±0.
     fn ray(k: u64, scale: f32) -> Ray {
         let u = |j| unit(&[k, j, 7]);
@@ -423,11 +440,20 @@ mod tests {
             (random_boxes(20_000, 3), 100.0),
             (random_boxes(5, 4), 100.0),
             (random_boxes(1, 5), 100.0),
+            (exponential_boxes(200), 100.0),
         ];
         let mut visits = 0;
+        let mut stacks = std::collections::BTreeSet::new();
         for (set, (boxes, scale)) in sets.iter().enumerate() {
             let binary = build_binary(boxes);
             let wide = Wide::fold(&binary.nodes);
+            stacks.insert(if wide.depth <= super::SMALL_STACK {
+                "small"
+            } else if wide.depth <= super::STACK {
+                "frame"
+            } else {
+                "heap"
+            });
             wide.validate(&binary.indices, boxes).unwrap();
             for k in 0..3000u64 {
                 let r = ray(k * 7 + set as u64, *scale);
@@ -440,6 +466,7 @@ mod tests {
             }
         }
         assert!(visits > 100_000, "only {visits} visits: the rays miss the boxes");
+        assert_eq!(stacks.len(), 3, "every stack size is exercised: {stacks:?}");
     }
 
     /// A box inside another is entered only if the outer one is, also where the slab test

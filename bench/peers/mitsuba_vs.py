@@ -1,0 +1,93 @@
+"""Mitsuba 3 and Tessera side by side, in one run, on the benchmark scenes.
+
+    VENV/bin/python mitsuba_vs.py --tessera target/release/tessera [--scenes cornell,spheres]
+        [--spp 16,64,256] [--runs 3]
+
+For each scene and spp: Mitsuba 3's llvm_ad_rgb variant with a Cook-style integrator
+(cook_integrator.py: direct light with MIS at every hit, recursion along specular and
+glossy lobes, stop at diffuse) -- timed on its second call, kernel compiled, scene load
+excluded -- and `tessera render scenes/<scene>.toml --spp N` timed as a whole process.
+Both images are compared (RMSE over all pixels and linear RGB channels) with the
+converged references in docs/references/<scene>_cook.exr (--refs). Prints one row per (scene, spp) and,
+per scene, the time each needs to reach the error Tessera reaches at its largest spp
+(interpolated on the log-log error curve): the ratio that matters to someone rendering.
+Run it on an otherwise idle machine; both renderers use every core.
+"""
+import argparse, math, os, subprocess, sys, tempfile, time
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+import llvm_path  # noqa: E402
+llvm_path.configure()
+import numpy as np  # noqa: E402
+import drjit as dr  # noqa: E402
+import mitsuba as mi  # noqa: E402
+import scenes  # noqa: E402
+
+def render_mitsuba(scene, spp, seed):
+    dr.sync_thread()
+    t0 = time.perf_counter()
+    img = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
+    dr.sync_thread()
+    return img[..., :3], time.perf_counter() - t0
+
+def read_exr(path):
+    return np.array(mi.Bitmap(path), dtype=np.float64)[..., :3]
+
+def rmse(a, b):
+    return float(np.sqrt(np.mean((np.asarray(a, np.float64) - b) ** 2)))
+
+def time_to(err_target, rows):
+    """Time to reach err_target from (time, error) rows: a least-squares line through
+    log error against log time (Monte Carlo error falls as a power of time)."""
+    lt = np.log([t for t, _ in rows]); le = np.log([e for _, e in rows])
+    slope, icept = np.polyfit(lt, le, 1)
+    return float(np.exp((math.log(err_target) - icept) / slope))
+
+def main():
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--tessera", required=True, help="path to the tessera binary")
+    p.add_argument("--scene-dir", default="scenes", help="folder with cornell.toml and spheres.toml")
+    p.add_argument("--scenes", default="cornell,spheres")
+    p.add_argument("--spp", default="16,64,256")
+    p.add_argument("--runs", type=int, default=3, help="runs per renderer; medians are reported")
+    p.add_argument("--refs", default=os.path.join(HERE, "..", "..", "docs", "references"),
+                   help="folder with <scene>_cook.exr (default: the repository's docs/references)")
+    a = p.parse_args()
+    mi.set_variant("llvm_ad_rgb")
+    import cook_integrator
+    cook_integrator.register()
+    tmp = tempfile.mkdtemp()
+    print(f"{'scene':8} {'spp':>5} | {'mitsuba s':>9} {'Ms/s':>6} {'RMSE':>8} | {'tessera s':>9} {'Ms/s':>6} {'RMSE':>8} | T/M time")
+    for name in a.scenes.split(","):
+        ref = read_exr(os.path.join(a.refs, f"{name}_cook.exr"))
+        h, w = ref.shape[:2]
+        mrows, trows = [], []
+        for spp in [int(s) for s in a.spp.split(",")]:
+            scene = mi.load_dict(scenes.mitsuba_dict(name, {"type": "cook", "max_depth": 8}, spp=spp))
+            render_mitsuba(scene, spp, 0)  # traces and compiles the kernel
+            mt, me = [], []
+            for r in range(a.runs):
+                img, t = render_mitsuba(scene, spp, 1 + r)
+                mt.append(t); me.append(rmse(img, ref))
+            tt, te = [], []
+            for r in range(a.runs):
+                out = os.path.join(tmp, f"{name}-{spp}.exr")
+                t0 = time.perf_counter()
+                cp = subprocess.run([a.tessera, "render", os.path.join(a.scene_dir, f"{name}.toml"),
+                                     "-o", out, "--spp", str(spp)], capture_output=True, text=True)
+                tt.append(time.perf_counter() - t0)
+                if cp.returncode != 0:
+                    sys.exit(f"tessera render failed: {cp.stderr.strip()[-400:]}")
+                te.append(rmse(read_exr(out), ref))
+            m_t, t_t = float(np.median(mt)), float(np.median(tt))
+            m_e, t_e = float(np.median(me)), float(np.median(te))
+            mrows.append((m_t, m_e)); trows.append((t_t, t_e))
+            print(f"{name:8} {spp:5d} | {m_t:9.3f} {w*h*spp/m_t/1e6:6.2f} {m_e:8.5f} | "
+                  f"{t_t:9.3f} {w*h*spp/t_t/1e6:6.2f} {t_e:8.5f} | {t_t/m_t:5.2f}", flush=True)
+        target = trows[-1][1]
+        m_need = time_to(target, mrows)
+        print(f"{name}: to reach RMSE {target:.5f} Tessera takes {trows[-1][0]:.2f} s, Mitsuba ~{m_need:.2f} s"
+              f" -> time ratio at equal error T/M = {trows[-1][0]/m_need:.2f}", flush=True)
+
+if __name__ == "__main__":
+    main()
