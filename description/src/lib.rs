@@ -12,11 +12,13 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod animation;
+mod assets;
 pub mod bounds;
 pub mod bundle;
 mod ctx;
 pub mod error;
 pub mod gltf;
+mod gltf_table;
 pub mod ids;
 pub mod job;
 mod keyframes;

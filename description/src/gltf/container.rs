@@ -7,7 +7,7 @@ use base64::Engine;
 use gltf::json;
 
 use super::{at, GltfError};
-use crate::bundle::{check_asset_path, Assets};
+use crate::assets::{check_asset_path, Assets};
 
 /// A `.glb` split into its JSON and binary chunks (glTF 2.0 §4.4), every length checked
 /// against the bytes there are.

@@ -11,7 +11,7 @@ use gltf::json::{self, Root};
 
 use super::container::resolve;
 use super::{at, GltfError, Instance};
-use crate::bundle::Assets;
+use crate::assets::Assets;
 use crate::limits;
 use crate::model::{AlphaMode, Pbr, TexRef};
 

@@ -19,8 +19,8 @@ mod container;
 mod geometry;
 mod lights;
 mod materials;
+pub(crate) use materials::default_material;
 mod nodes;
-mod table;
 #[cfg(test)]
 mod tests;
 pub mod wrap;
@@ -33,7 +33,7 @@ pub use geometry::Geometry;
 pub use nodes::SceneRef;
 
 use crate::animation::FrameTime;
-use crate::bundle::Assets;
+use crate::assets::Assets;
 use crate::math;
 use crate::model::{Light, Pbr};
 use crate::transform::Trs;

@@ -2,7 +2,7 @@
 //! wraps it as a `[[gltf]]` table, with the defaults `docs/gltf.md` documents.
 
 use super::{framing_camera, import, GltfError};
-use crate::bundle::Assets;
+use crate::assets::Assets;
 use crate::transform::Trs;
 
 /// Image height of a wrapped glTF file; its width follows the file's camera's aspect

@@ -1,15 +1,15 @@
 //! The `[[gltf]]` table of a TOML scene: a glTF asset's scene placed among the scene's own
 //! objects, its materials, textures, lights and (when the TOML has no `[camera]`) its
-//! first camera added to the description.
+//! first camera added to the description. A part of the validator, beside `objects.rs`
+//! and `lights.rs`; `gltf/` reads the asset and knows nothing of the validator.
 
 use std::collections::BTreeMap;
 use std::ops::Range;
 
 use glam::Vec3;
 
-use super::materials::default_material;
-use super::{import, GltfCamera};
 use crate::bundle::{check_asset_path, unreadable};
+use crate::gltf::{default_material, import, GltfCamera};
 use crate::model::{Material, Shape, TexRef, Texture, TextureKind};
 use crate::schema::GltfDef;
 use crate::validate::{Validator, R};
