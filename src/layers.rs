@@ -169,7 +169,7 @@ pub async fn fetch(
     // The layers travel only when something is written or denoised with them.
     let aovs = args.denoise || args.written() != Aovs::default();
     let request = pb::FetchImageRequest { job_id: job.0, aovs, frame };
-    let mut stream = client.fetch_image(request).await.map_err(crate::remote::status_error)?.into_inner();
+    let mut stream = client.fetch_image(request).await.map_err(crate::rpc::status_error)?.into_inner();
     let mut size = None;
     let (mut rgb, mut layers) = (Vec::new(), Resolved::default());
     let floats = |b: &[u8], into: &mut Vec<f32>| -> Result<()> {
@@ -179,7 +179,7 @@ pub async fn fetch(
         into.extend(b.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])));
         Ok(())
     };
-    while let Some(chunk) = stream.message().await.map_err(crate::remote::status_error)? {
+    while let Some(chunk) = stream.message().await.map_err(crate::rpc::status_error)? {
         let (w, h) = *size.get_or_insert((chunk.width, chunk.height));
         if (chunk.width, chunk.height) != (w, h) {
             bail!("the coordinator sent an inconsistent image chunk");

@@ -9,6 +9,7 @@ mod layers;
 mod local;
 mod remote;
 mod report;
+mod rpc;
 
 use std::io::IsTerminal;
 use std::net::SocketAddr;

@@ -10,6 +10,7 @@ use anyhow::{anyhow, bail, Context, Result};
 use tessera_coordinator::{Auth, CoordinatorService, Timing, Tokens};
 
 use crate::report::report_recovery;
+use crate::rpc::status_error;
 use tessera_description::bundle::Bundle;
 use tessera_description::ids::JobId;
 use tessera_description::job::{JobProgress, JobSettings, JobState};
@@ -326,10 +327,6 @@ async fn serve_web(
 /// A client of the coordinator.
 pub async fn connect(conn: &ClientArgs) -> Result<Client> {
     Ok(tessera_proto::connect::client(&conn.endpoint()?).await?)
-}
-
-pub(crate) fn status_error(s: tonic::Status) -> anyhow::Error {
-    anyhow!("{}", s.message())
 }
 
 /// `tessera submit`.

@@ -10,9 +10,9 @@ use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 use tokio_stream::Stream;
 
-use crate::api::auth::Caller;
-use crate::api::{listing_of, status_of};
+use crate::caller::{status as status_of, Caller};
 use crate::errors::ApiError;
+use crate::json::listing as listing_of;
 use crate::AppState;
 
 /// The shortest time between two events.

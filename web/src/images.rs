@@ -11,8 +11,7 @@ use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_server::Coordinator;
 use tokio_stream::StreamExt;
 
-use crate::api::auth::Caller;
-use crate::api::{job_id, request};
+use crate::caller::{job_id, request, Caller};
 use crate::errors::ApiError;
 use crate::AppState;
 

@@ -7,6 +7,7 @@
 //! contract with the pages is `docs/http-api.md`.
 
 mod api;
+mod caller;
 mod errors;
 mod events;
 mod headers;

@@ -32,8 +32,7 @@ use tessera_proto::v1::coordinator_server::Coordinator;
 use tokio::sync::watch;
 use tokio_stream::{Stream, StreamExt};
 
-use crate::api::auth::Caller;
-use crate::api::{job_id, request, the_job};
+use crate::caller::{job_id, request, the_job, Caller};
 use crate::errors::ApiError;
 use crate::json::Job;
 use crate::AppState;

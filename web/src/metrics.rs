@@ -7,7 +7,7 @@ use axum::extract::State;
 use axum::http::header::CONTENT_TYPE;
 use axum::response::{IntoResponse, Response};
 
-use crate::api::auth::Caller;
+use crate::caller::Caller;
 use crate::AppState;
 
 /// The exposition text; the farm's lock is held for one census (no pixel is read).

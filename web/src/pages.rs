@@ -36,7 +36,7 @@ fn page(path: &str) -> Result<Response, ApiError> {
 
 /// `/jobs/{id}`: the job page (which reads its id from the address).
 async fn job_page(Path(raw): Path<String>) -> Result<Response, ApiError> {
-    crate::api::job_id(&raw)?;
+    crate::caller::job_id(&raw)?;
     page("job.html")
 }
 

@@ -6,6 +6,7 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod aov;
+mod aov_tests;
 pub mod batch;
 pub mod build;
 pub mod client;

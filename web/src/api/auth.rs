@@ -1,57 +1,18 @@
-//! Who is calling: a bearer token in `Authorization`, or the session cookie a login set;
-//! and the login, logout and whoami endpoints.
+//! The login, logout and whoami endpoints (who is calling is `crate::caller`'s).
 
-use axum::extract::{FromRequestParts, State};
-use axum::http::header::{AUTHORIZATION, COOKIE, SET_COOKIE};
-use axum::http::request::Parts;
+use axum::extract::State;
+use axum::http::header::{COOKIE, SET_COOKIE};
 use axum::http::{HeaderMap, HeaderValue, StatusCode};
 use axum::response::{IntoResponse, Response};
 use axum::Json;
 use bytes::Bytes;
 use serde::Deserialize;
-use tessera_coordinator::{Principal, Role};
+use tessera_coordinator::Role;
 
+use crate::caller::Caller;
 use crate::errors::ApiError;
 use crate::sessions::{self, COOKIE as SESSION_COOKIE, LIFETIME};
 use crate::AppState;
-
-/// The authenticated caller of a request.
-pub(crate) struct Caller(pub(crate) Principal);
-
-impl FromRequestParts<AppState> for Caller {
-    type Rejection = ApiError;
-
-    async fn from_request_parts(parts: &mut Parts, state: &AppState) -> Result<Self, Self::Rejection> {
-        authenticate(&parts.headers, state).map(Caller)
-    }
-}
-
-/// The principal of a request's bearer token, else of its session cookie; the admin
-/// `anonymous` on a coordinator without authentication.
-pub(crate) fn authenticate(headers: &HeaderMap, state: &AppState) -> Result<Principal, ApiError> {
-    let auth = state.service.auth();
-    if !auth.required() {
-        return Ok(auth.authenticate_token(None)?);
-    }
-    if let Some(h) = headers.get(AUTHORIZATION) {
-        let token = h
-            .as_bytes()
-            .strip_prefix(b"Bearer ")
-            .ok_or_else(|| ApiError::unauthorized("the Authorization header is not `Bearer TOKEN`"))?;
-        return Ok(auth.authenticate_token(Some(token))?);
-    }
-    let session =
-        headers.get_all(COOKIE).iter().filter_map(|h| h.to_str().ok()).find_map(sessions::from_cookie_header);
-    match session {
-        Some(id) => state
-            .sessions
-            .get(id)
-            .ok_or_else(|| ApiError::unauthorized("the session expired or was closed; log in again")),
-        None => Err(ApiError::unauthorized(
-            "no token: send `Authorization: Bearer TOKEN`, or log in with POST /api/login",
-        )),
-    }
-}
 
 #[derive(Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -8,33 +8,11 @@ use serde::Deserialize;
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_server::Coordinator;
 
-use super::auth::{parse_json, Caller};
-use super::request;
+use super::auth::parse_json;
+use crate::caller::{job_id, request, status, the_job, Caller};
 use crate::errors::ApiError;
 use crate::json::{self, Job, Listing};
 use crate::AppState;
-
-/// A job id from the path: a positive integer.
-pub(crate) fn job_id(raw: &str) -> Result<u64, ApiError> {
-    match raw.parse::<u64>() {
-        Ok(id) if id > 0 => Ok(id),
-        _ => Err(ApiError::bad_request(format!(
-            "job id {:?} is not a positive integer",
-            raw.chars().take(40).collect::<String>()
-        ))),
-    }
-}
-
-/// The status of every job `who` may see (`job` 0) or of one.
-pub(crate) async fn status(
-    state: &AppState,
-    caller: &Caller,
-    job: u64,
-) -> Result<pb::StatusResponse, ApiError> {
-    let response =
-        Coordinator::status(&state.service, request(&caller.0, pb::StatusRequest { job_id: job })).await?;
-    Ok(response.into_inner())
-}
 
 /// `GET /api/jobs`.
 pub(crate) async fn list(State(state): State<AppState>, caller: Caller) -> Result<Json<Listing>, ApiError> {
@@ -49,12 +27,6 @@ pub(crate) async fn one(
 ) -> Result<Json<Job>, ApiError> {
     let id = job_id(&raw)?;
     Ok(Json(Job::from(the_job(&state, &caller, id).await?)))
-}
-
-/// The one job `id` as `caller` may see it, or why not (401, 403, 404, as Status says).
-pub(crate) async fn the_job(state: &AppState, caller: &Caller, id: u64) -> Result<pb::JobStatus, ApiError> {
-    let s = status(state, caller, id).await?;
-    s.jobs.into_iter().next().ok_or_else(|| ApiError::not_found(format!("no job {id}")))
 }
 
 /// Pauses or resumes a job through the Pause RPC (its role and owner checks); a job that

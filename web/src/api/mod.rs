@@ -4,22 +4,10 @@ pub(crate) mod auth;
 mod jobs;
 mod submit;
 
-pub(crate) use crate::json::listing as listing_of;
-pub(crate) use jobs::{job_id, status as status_of, the_job};
-
 use axum::routing::{get, post};
 use axum::Router;
-use tessera_coordinator::Principal;
 
 use crate::AppState;
-
-/// A gRPC request of `who`, as the coordinator's interceptor would hand it to the RPC: the
-/// principal in its extensions.
-pub(crate) fn request<T>(who: &Principal, message: T) -> tonic::Request<T> {
-    let mut r = tonic::Request::new(message);
-    r.extensions_mut().insert(who.clone());
-    r
-}
 
 pub(crate) fn routes() -> Router<AppState> {
     Router::new()

@@ -12,8 +12,7 @@ use tessera_description::limits::{MAX_ASSETS, MAX_NAME_BYTES};
 use tessera_proto::v1 as pb;
 use tessera_proto::v1::coordinator_server::Coordinator;
 
-use super::auth::Caller;
-use super::request;
+use crate::caller::{request, Caller};
 use crate::errors::ApiError;
 use crate::AppState;
 
