@@ -35,100 +35,119 @@ pub(super) fn node4(kids: &[(&Node, u32)], lanes: usize, order: [u8; 8]) -> Node
     n
 }
 
-/// The binary nodes a wide node holds: a small tree whose leaves are its lanes.
+/// A child of an opened binary node: a binary node that is a lane, or another opened one.
+#[derive(Debug, Clone, Copy)]
 enum Part {
-    /// A binary node that becomes a lane.
     Kid(usize),
-    /// A binary node opened: its split axis and its two children, first child first.
-    Open(u8, Box<[Part; 2]>),
+    Open(usize),
 }
 
-impl Part {
-    fn open(binary: &[Node], b: usize) -> Part {
+/// The binary nodes a wide node holds: up to three opened binary nodes (the first is the
+/// wide node's own), each with its split axis and its two children, first child first;
+/// the children not opened are its lanes. Fixed arrays, no allocation: the fold makes one
+/// per wide node.
+struct Opened {
+    axis: [u8; 3],
+    parts: [[Part; 2]; 3],
+    len: usize,
+}
+
+impl Opened {
+    fn new(binary: &[Node], b: usize) -> Opened {
+        let mut o = Opened { axis: [0; 3], parts: [[Part::Kid(0); 2]; 3], len: 0 };
+        o.push(binary, b);
+        o
+    }
+
+    fn push(&mut self, binary: &[Node], b: usize) -> usize {
         let n = &binary[b];
-        Part::Open(n.axis, Box::new([Part::Kid(b + 1), Part::Kid(b + n.offset as usize)]))
+        let i = self.len;
+        self.axis[i] = n.axis;
+        self.parts[i] = [Part::Kid(b + 1), Part::Kid(b + n.offset as usize)];
+        self.len += 1;
+        i
     }
 
-    /// The lanes' binary nodes in depth-first order.
-    fn kids(&self, out: &mut Vec<usize>) {
-        match self {
-            Part::Kid(b) => out.push(*b),
-            Part::Open(_, parts) => parts.iter().for_each(|p| p.kids(out)),
-        }
-    }
-
-    /// The lanes in the order a ray with direction signs `signs` visits them: at each
-    /// opened node, its far child first when the direction is negative on its axis.
-    fn order(&self, signs: usize, kids: &[usize], out: &mut Vec<usize>) {
-        match self {
-            Part::Kid(b) => out.push(kids.iter().position(|k| k == b).expect("a lane of this node")),
-            Part::Open(axis, parts) => {
-                let [a, b] = &**parts;
-                let (first, second) = if signs & (1 << axis) != 0 { (b, a) } else { (a, b) };
-                first.order(signs, kids, out);
-                second.order(signs, kids, out);
+    /// Opens lane `target` (an interior binary node).
+    fn open(&mut self, binary: &[Node], target: usize) {
+        let i = self.push(binary, target);
+        for parts in &mut self.parts[..i] {
+            for p in parts.iter_mut() {
+                if matches!(p, Part::Kid(k) if *k == target) {
+                    *p = Part::Open(i);
+                }
             }
         }
     }
 
-    /// The interior kid with the largest surface area (the first of equals), to open next.
-    fn largest(&self, binary: &[Node]) -> Option<usize> {
-        let mut kids = Vec::new();
-        self.kids(&mut kids);
-        let mut best: Option<(usize, f32)> = None;
-        for k in kids {
-            let area = binary[k].bounds.surface_area();
-            if binary[k].count == 0 && best.is_none_or(|(_, a)| area > a) {
-                best = Some((k, area));
-            }
-        }
-        best.map(|(k, _)| k)
+    /// The lanes' binary nodes: in depth-first order (first child first) without `signs`;
+    /// with them, in the order a ray with those direction signs visits them (at each opened
+    /// node, its second child first when the direction is negative on its axis).
+    fn kids(&self, signs: Option<usize>) -> ([usize; 4], usize) {
+        let mut out = ([0; 4], 0);
+        self.walk(0, signs, &mut out);
+        out
     }
 
-    fn open_kid(&mut self, binary: &[Node], target: usize) {
-        match self {
-            Part::Kid(b) if *b == target => *self = Part::open(binary, target),
-            Part::Kid(_) => {}
-            Part::Open(_, parts) => parts.iter_mut().for_each(|p| p.open_kid(binary, target)),
+    fn walk(&self, at: usize, signs: Option<usize>, out: &mut ([usize; 4], usize)) {
+        let [a, b] = self.parts[at];
+        let swap = signs.is_some_and(|s| s & (1 << self.axis[at]) != 0);
+        for p in if swap { [b, a] } else { [a, b] } {
+            match p {
+                Part::Kid(k) => {
+                    out.0[out.1] = k;
+                    out.1 += 1;
+                }
+                Part::Open(i) => self.walk(i, signs, out),
+            }
         }
     }
+}
+
+/// The interior kid with the largest surface area (the first of equals), to open next.
+fn largest(binary: &[Node], kids: &[usize]) -> Option<usize> {
+    let mut best: Option<(usize, f32)> = None;
+    for &k in kids {
+        let area = binary[k].bounds.surface_area();
+        if binary[k].count == 0 && best.is_none_or(|(_, a)| area > a) {
+            best = Some((k, area));
+        }
+    }
+    best.map(|(k, _)| k)
 }
 
 /// Appends the wide subtree of interior binary node `b` to `nodes` (the node, then its
 /// children's subtrees in lane order); returns the most stack entries its traversal needs.
 pub(super) fn fold_node(binary: &[Node], b: usize, nodes: &mut Vec<Node4>) -> usize {
-    let mut part = Part::open(binary, b);
-    let mut kids = Vec::with_capacity(4);
-    loop {
-        kids.clear();
-        part.kids(&mut kids);
-        if kids.len() == 4 {
-            break;
-        }
-        match part.largest(binary) {
-            Some(k) => part.open_kid(binary, k),
-            None => break,
-        }
+    let mut part = Opened::new(binary, b);
+    let (mut kids, mut lanes) = part.kids(None);
+    while lanes < 4 {
+        let Some(k) = largest(binary, &kids[..lanes]) else { break };
+        part.open(binary, k);
+        (kids, lanes) = part.kids(None);
     }
+    let kids = &kids[..lanes];
     let mut order = [0u8; 8];
-    let mut lanes = Vec::with_capacity(4);
     for (signs, o) in order.iter_mut().enumerate() {
-        lanes.clear();
-        part.order(signs, &kids, &mut lanes);
-        *o = lanes.iter().enumerate().fold(0, |acc, (k, &lane)| acc | (lane as u8) << (2 * k));
+        let (visit, n) = part.kids(Some(signs));
+        *o = visit[..n].iter().enumerate().fold(0, |acc, (k, b)| {
+            let lane = kids.iter().position(|x| x == b).expect("a lane of this node");
+            acc | (lane as u8) << (2 * k)
+        });
     }
     let at = nodes.len();
     nodes.push(node4(&[], 1, order));
-    let mut children = [0u32; 4];
+    let mut with = [(&binary[b], 0u32); 4];
     let mut deepest = 0;
     for (lane, &k) in kids.iter().enumerate() {
+        with[lane].0 = &binary[k];
         if binary[k].count == 0 {
-            children[lane] = u32::try_from(nodes.len()).expect("node index");
+            with[lane].1 = u32::try_from(nodes.len()).expect("node index");
             deepest = deepest.max(fold_node(binary, k, nodes));
         }
     }
-    let with: Vec<(&Node, u32)> = kids.iter().zip(children).map(|(&k, c)| (&binary[k], c)).collect();
-    nodes[at] = node4(&with, kids.len(), order);
-    // All of a node's lanes may be on the stack at once, above what its deepest child needs.
-    kids.len() + deepest
+    nodes[at] = node4(&with[..lanes], lanes, order);
+    // All of a node's lanes are on the stack at once when it is visited; while a child's
+    // subtree is, at most the other lanes are.
+    lanes.max(lanes - 1 + deepest)
 }
