@@ -78,9 +78,16 @@ impl Aabb {
         let near = Vec3::select(inside, Vec3::NEG_INFINITY, t0.min(t1));
         let far = Vec3::select(inside, Vec3::INFINITY, t0.max(t1));
         let t_enter = near.max_element().max(0.0);
-        let t_exit = (far.min_element() * (1.0 + 2.0 * gamma(3))).min(t_max);
+        let t_exit = (far.min_element() * slab_widening()).min(t_max);
         (t_enter <= t_exit).then_some(t_enter)
     }
+}
+
+/// The exit distance's widening for the rounding of the slab test (pbrt's robust test):
+/// one definition for [`Aabb::hit`] and the wide nodes' lanes, whose decisions must agree.
+#[inline(always)]
+pub(super) fn slab_widening() -> f32 {
+    1.0 + 2.0 * gamma(3)
 }
 
 /// A node of the binary tree the builder makes (folded into [`wide`] nodes for traversal).

@@ -172,8 +172,7 @@ impl Sampler {
 
     /// Positions the sampler at sample `index` of `pixel`; the next draw is dimension 0.
     pub fn start_pixel_sample(&mut self, pixel: UVec2, index: u32) {
-        let words = [self.seed, u64::from(pixel.x) | (u64::from(pixel.y) << 32)];
-        self.pixel_key = words.iter().fold(HASH_START, |h, &w| hash_step(h, w));
+        self.pixel_key = hash_words(&[self.seed, u64::from(pixel.x) | (u64::from(pixel.y) << 32)]);
         self.pixel = pixel;
         self.index = index;
         self.dimension = 0;

@@ -22,8 +22,7 @@
 use glam::{Vec3, Vec4};
 
 use super::fold::{fold_node, node4};
-use super::{Aabb, Node};
-use crate::render::geometry::gamma;
+use super::{slab_widening, Aabb, Node};
 
 /// One node: the boxes of up to four children, lane by lane.
 #[derive(Debug, Clone, Copy)]
@@ -56,11 +55,6 @@ struct Entry {
 /// tree (the builder's worst cases) traverses with a stack on the heap.
 const SMALL_STACK: usize = 16;
 const STACK: usize = 64;
-
-/// The exit distance's widening for the rounding of the slab test (pbrt's robust test).
-fn widen() -> f32 {
-    1.0 + 2.0 * gamma(3)
-}
 
 /// A ray prepared for box tests: origin and reciprocal direction splatted over the lanes.
 pub(super) struct RayLanes {
@@ -107,7 +101,7 @@ impl Node4 {
             enter = enter.max(near);
             exit = exit.min(far);
         }
-        let exit = (exit * widen()).min(Vec4::splat(t_max));
+        let exit = (exit * slab_widening()).min(Vec4::splat(t_max));
         (enter.cmple(exit).bitmask() & u32::from(self.lanes), enter.to_array())
     }
 }
