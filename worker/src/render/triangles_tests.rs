@@ -1,0 +1,109 @@
+//! The triangle slots against the primitives they replace, on scenes built from their
+//! files (a file of its own: the builder it needs depends on this module).
+
+use glam::Vec3;
+use tessera_description::bundle::Bundle;
+
+use crate::render::geometry::{Hit, Ray};
+use crate::render::sampler::hash_words;
+use crate::render::{Scene, SurfaceHit};
+
+/// The nearest hit as it was found before the slots: every primitive through
+/// `Primitive::intersect`, by BVH index.
+fn old_intersect(s: &Scene, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceHit> {
+    let w = &s.world;
+    let mut best = None;
+    let mut t_max = w.bvh.traverse(ray, t_max, |i, t_max| {
+        let prim = &w.prims[i as usize];
+        let mut hit = prim.intersect(ray, t_max, time, &w.meshes, &w.motions)?;
+        hit.prim = i;
+        best = Some(SurfaceHit { hit, material: prim.material, light: prim.light });
+        Some(hit.t)
+    });
+    for (plane, material) in &w.planes {
+        if let Some(mut hit) = plane.intersect(ray, t_max) {
+            hit.prim = u32::MAX;
+            t_max = hit.t;
+            best = Some(SurfaceHit { hit, material: *material, light: None });
+        }
+    }
+    best
+}
+
+/// Whether anything blocks the segment, as it was found before the slots.
+fn old_blocked(s: &Scene, ray: &Ray, dist: f32, time: f32) -> Vec<u32> {
+    let w = &s.world;
+    let mut crossed = Vec::new();
+    w.bvh.visit(ray, dist, |i| {
+        for _ in 0..w.prims[i as usize].crossings(ray, dist, time, &w.meshes, &w.motions) {
+            crossed.push(i);
+        }
+        true
+    });
+    crossed
+}
+
+fn bits(h: &Hit) -> Vec<u32> {
+    let mut v = vec![h.t.to_bits(), h.prim];
+    for x in [h.p, h.p_error, h.n, h.ns] {
+        v.extend(x.to_array().map(f32::to_bits));
+    }
+    v.extend(h.uv.to_array().map(f32::to_bits));
+    v
+}
+
+/// The slots give the same hits, bit for bit, as every primitive through its own
+/// test, and the same shadows, on random rays into the mesh, motion and shadow scenes.
+#[test]
+fn slots_hit_what_the_primitives_hit_bit_for_bit() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    for name in ["mesh.toml", "motion_blur.toml", "translucency.toml", "showcase.toml"] {
+        let bundle = Bundle::read(&root.join(name)).unwrap();
+        let scene = crate::build::parse_bundle(&bundle).unwrap();
+        let b = scene.world.bvh.bounds();
+        let (c, r) = (b.centroid(), (b.max - b.min).length());
+        let (mut hits, mut crossings) = (0, 0);
+        for k in 0..20_000u64 {
+            let h = |j: u64| (hash_words(&[k, j, 99]) >> 40) as f32 / (1u64 << 24) as f32 - 0.5;
+            let origin = c + Vec3::new(h(0), h(1), h(2)) * r;
+            let Some(dir) = Vec3::new(h(3), h(4), h(5)).try_normalize() else { continue };
+            let ray = Ray::new(origin, dir);
+            let time = h(6) + 0.5;
+            let (new, old) = (
+                scene.intersect(&ray, f32::INFINITY, time),
+                old_intersect(&scene, &ray, f32::INFINITY, time),
+            );
+            assert_eq!(
+                new.map(|s| (bits(&s.hit), s.material, s.light)),
+                old.map(|s| (bits(&s.hit), s.material, s.light)),
+                "{name}: ray {k}"
+            );
+            hits += usize::from(new.is_some());
+            let dist = (h(7) + 0.5) * r;
+            let crossed = old_blocked(&scene, &ray, dist, time);
+            crossings += crossed.len();
+            // The product of the crossed materials' transmissions in the old order,
+            // then the planes'.
+            let m = |i: u32| scene.world.materials[i as usize].shadow_transmission();
+            let mut want = Vec3::ONE;
+            for &i in &crossed {
+                let p = &scene.world.prims[i as usize];
+                want *= if p.light.is_some() { Vec3::ZERO } else { m(p.material) };
+                if want == Vec3::ZERO {
+                    break;
+                }
+            }
+            for (plane, material) in &scene.world.planes {
+                if want != Vec3::ZERO && plane.intersect(&ray, dist).is_some() {
+                    want *= m(*material);
+                }
+            }
+            let tr = scene.transmittance(&ray, dist, time);
+            assert_eq!(tr.to_array().map(f32::to_bits), want.to_array().map(f32::to_bits), "{name}: ray {k}");
+        }
+        assert!(
+            hits > 1000 && crossings > 100,
+            "{name}: {hits} hits, {crossings} crossings: the rays miss the scene"
+        );
+    }
+}
