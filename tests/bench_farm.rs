@@ -19,9 +19,11 @@ fn a_tiny_farm_benchmark_prints_its_table() {
             "--viewers",
             "0,1",
             "--seconds",
-            "1",
+            "0.5",
             "--batch-ms",
             "20",
+            "--rounds",
+            "2",
         ],
         Duration::from_secs(60),
     );
@@ -32,6 +34,8 @@ fn a_tiny_farm_benchmark_prints_its_table() {
         .lines()
         .filter(|l| l.trim_start().starts_with("64x64") && l.split_whitespace().count() >= 15)
         .collect();
-    assert_eq!(rows.len(), 2, "one row per case:\n{stdout}");
+    assert_eq!(rows.len(), 4, "one row per case and round:\n{stdout}");
     assert!(stdout.contains("targets:"), "{stdout}");
+    // The viewer case's ratio, taken within each round, summarised over both.
+    assert!(stdout.contains("64x64 2w 1v 20 ms:") && stdout.contains("median of 2 rounds"), "{stdout}");
 }

@@ -7,7 +7,7 @@ For each scene and spp: Mitsuba 3's llvm_ad_rgb variant with a Cook-style integr
 (cook_integrator.py: direct light with MIS at every hit, recursion along specular and
 glossy lobes, stop at diffuse) -- timed on its second call, kernel compiled, scene load
 excluded -- and `tessera render scenes/<scene>.toml --spp N` timed as a whole process.
-Both images are compared (RMSE over all pixels and linear RGB channels) with the
+Each run of either renderer has a seed of its own (1, 2, 3, ...). Both images are compared (RMSE over all pixels and linear RGB channels) with the
 converged references in docs/references/<scene>_cook.exr (--refs). Prints one row per (scene, spp) and,
 per scene, the time each needs to reach the error Tessera reaches at its largest spp
 (interpolated on the log-log error curve): the ratio that matters to someone rendering.
@@ -43,6 +43,19 @@ def time_to(err_target, rows):
     slope, icept = np.polyfit(lt, le, 1)
     return float(np.exp((math.log(err_target) - icept) / slope))
 
+def seeded_scene(path, seed, tmp):
+    """A copy of the scene file at `path` whose [render] table sets `seed` (in `tmp`; the
+    benchmark scenes have no assets, so the copy renders as the original)."""
+    text = open(path).read()
+    if "\n[render]\n" not in "\n" + text:
+        sys.exit(f"{path}: no [render] table to set the seed in")
+    if any(line.strip().startswith("seed") for line in text.splitlines()):
+        sys.exit(f"{path}: already sets a seed")
+    out = os.path.join(tmp, f"seed{seed}-{os.path.basename(path)}")
+    with open(out, "w") as f:
+        f.write(("\n" + text).replace("\n[render]\n", f"\n[render]\nseed = {seed}\n", 1)[1:])
+    return out
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--tessera", required=True, help="path to the tessera binary")
@@ -72,8 +85,11 @@ def main():
             tt, te = [], []
             for r in range(a.runs):
                 out = os.path.join(tmp, f"{name}-{spp}.exr")
+                # Tessera is deterministic: without a seed of its own per run, every run
+                # would be the same image and the median of its errors one sample.
+                seeded = seeded_scene(os.path.join(a.scene_dir, f"{name}.toml"), 1 + r, tmp)
                 t0 = time.perf_counter()
-                cp = subprocess.run([a.tessera, "render", os.path.join(a.scene_dir, f"{name}.toml"),
+                cp = subprocess.run([a.tessera, "render", seeded,
                                      "-o", out, "--spp", str(spp)], capture_output=True, text=True)
                 tt.append(time.perf_counter() - t0)
                 if cp.returncode != 0:

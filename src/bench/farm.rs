@@ -30,7 +30,7 @@ pub struct FarmOptions {
     /// Worker counts, comma-separated [default: 16,64,256].
     #[arg(long, value_delimiter = ',', default_value = "16,64,256")]
     pub workers: Vec<usize>,
-    /// Viewer counts, comma-separated; a 0 gives the rows after it their baseline
+    /// Viewer counts, comma-separated; a 0 among them gives the others their baseline
     /// [default: 0,10,100].
     #[arg(long, value_delimiter = ',', default_value = "0,10,100")]
     pub viewers: Vec<usize>,
@@ -55,6 +55,12 @@ pub struct FarmOptions {
     /// previews while the job renders (`tessera view`'s kind).
     #[arg(long)]
     pub exact_viewers: bool,
+    /// Rounds of each size and worker count: every round measures all the viewer counts
+    /// (in reverse order every other round, so that drift falls on both sides), and the
+    /// ratios to the 0-viewer row are taken within a round, then summarised by their
+    /// median [default: 1].
+    #[arg(long, default_value_t = 1)]
+    pub rounds: usize,
 }
 
 /// One case's figures.
@@ -346,6 +352,9 @@ pub async fn run(opts: FarmOptions) -> Result<()> {
     if opts.seconds <= 0.0 || !opts.seconds.is_finite() {
         bail!("--seconds must be positive");
     }
+    if opts.rounds == 0 {
+        bail!("--rounds must be at least 1");
+    }
     if opts.batch_ms.iter().any(|b| !(b.is_finite() && *b >= 0.0)) {
         bail!("--batch-ms must be non-negative milliseconds");
     }
@@ -390,43 +399,58 @@ pub async fn run(opts: FarmOptions) -> Result<()> {
     );
     let mut worst_ratio: f64 = 0.0;
     let mut peak: f64 = 0.0;
-    let mut viewer_drop: Vec<String> = Vec::new();
+    let mut viewer_drop: Vec<ViewerCost> = Vec::new();
     for &batch_ms in &opts.batch_ms {
         for &size in &opts.sizes {
             for &workers in &opts.workers {
-                let mut baseline: Option<Figures> = None;
-                for &viewers in &opts.viewers {
-                    let f = case(&opts, size, workers, viewers, batch_ms, ticks).await?;
-                    let per_batch = f.cpu / f.commits.max(1) as f64;
-                    // What viewers add: the CPU beyond the same commits at the 0-viewer
-                    // row's cost per batch, shared over the updates sent.
-                    let per_update = baseline.as_ref().filter(|_| f.updates > 0).map(|b| {
-                        let base = b.cpu / b.commits.max(1) as f64;
-                        (f.cpu - base * f.commits as f64).max(0.0) / f.updates as f64
-                    });
-                    let ratio = (f.simulated_worker_cpu > 0.0).then(|| f.cpu / f.simulated_worker_cpu);
-                    let vs0 = baseline.as_ref().map(|b| f.commits_per_s / b.commits_per_s.max(1e-9));
-                    // Rows whose job ended, or that never left pass one, measure something else.
-                    if f.note.is_empty() {
-                        if let Some(r) = ratio {
-                            worst_ratio = worst_ratio.max(r);
-                        }
-                        if f.cpu > 0.0 {
-                            peak = peak.max(f.commits_per_s / (f.cpu / f.window));
-                        }
+                for round in 0..opts.rounds {
+                    // Measured first, printed in the given order: a row's baseline is the
+                    // 0-viewer case of the same round, whenever it ran.
+                    let mut order: Vec<usize> = (0..opts.viewers.len()).collect();
+                    if round % 2 == 1 {
+                        order.reverse();
                     }
-                    if viewers > 0 {
-                        if let Some(v) = vs0 {
-                            viewer_drop.push(format!(
-                                "{}x{} {workers}w {viewers}v {batch_ms} ms: {:+.1} % commits, {:.1} upd/s min",
-                                size.0,
-                                size.1,
-                                (v - 1.0) * 100.0,
-                                f.updates_per_viewer_s.1
-                            ));
-                        }
+                    let mut measured: Vec<Option<Figures>> = vec![None; opts.viewers.len()];
+                    for i in order {
+                        measured[i] =
+                            Some(case(&opts, size, workers, opts.viewers[i], batch_ms, ticks).await?);
                     }
-                    println!(
+                    let round_baseline =
+                        opts.viewers.iter().position(|&v| v == 0).and_then(|i| measured[i].clone());
+                    for (&viewers, f) in opts.viewers.iter().zip(measured) {
+                        let f = f.expect("every viewer count was measured");
+                        let baseline = round_baseline.as_ref().filter(|_| viewers > 0);
+                        let per_batch = f.cpu / f.commits.max(1) as f64;
+                        // What viewers add: the CPU beyond the same commits at the 0-viewer
+                        // row's cost per batch, shared over the updates sent.
+                        let per_update = baseline.filter(|_| f.updates > 0).map(|b| {
+                            let base = b.cpu / b.commits.max(1) as f64;
+                            (f.cpu - base * f.commits as f64).max(0.0) / f.updates as f64
+                        });
+                        let ratio = (f.simulated_worker_cpu > 0.0).then(|| f.cpu / f.simulated_worker_cpu);
+                        let vs0 = baseline.map(|b| f.commits_per_s / b.commits_per_s.max(1e-9));
+                        // Rows whose job ended, or that never left pass one, measure something else.
+                        if f.note.is_empty() {
+                            if let Some(r) = ratio {
+                                worst_ratio = worst_ratio.max(r);
+                            }
+                            if f.cpu > 0.0 {
+                                peak = peak.max(f.commits_per_s / (f.cpu / f.window));
+                            }
+                        }
+                        if viewers > 0 {
+                            if let Some(v) = vs0 {
+                                let key =
+                                    format!("{}x{} {workers}w {viewers}v {batch_ms} ms", size.0, size.1);
+                                match viewer_drop.iter_mut().find(|d| d.key == key) {
+                                    Some(d) => d.push(v, f.updates_per_viewer_s.1),
+                                    None => {
+                                        viewer_drop.push(ViewerCost::new(key, v, f.updates_per_viewer_s.1))
+                                    }
+                                }
+                            }
+                        }
+                        println!(
                         "{:>9} {:>4} {:>4} {:>5} {:>9.0} {:>6.1} {:>8.1} {:>8} {:>11} {:>13} {:>11} {:>9} {:>7} {:>7} {:>6.1} {:>6.1}{}",
                         format!("{}x{}", size.0, size.1),
                         workers,
@@ -450,8 +474,6 @@ pub async fn run(opts: FarmOptions) -> Result<()> {
                         f.warm,
                         f.note
                     );
-                    if viewers == 0 {
-                        baseline = Some(f);
                     }
                 }
             }
@@ -472,8 +494,50 @@ pub async fn run(opts: FarmOptions) -> Result<()> {
          workers': worst {:.2} %; 100 viewers at >= 5 upd/s with <= 5 % fewer commits:",
         worst_ratio * 100.0
     );
-    for line in viewer_drop {
-        println!("  {line}");
+    for d in viewer_drop {
+        println!("  {d}");
     }
     Ok(())
+}
+
+/// One case's commits against its round's 0-viewer row, over the rounds.
+struct ViewerCost {
+    key: String,
+    ratios: Vec<f64>,
+    min_updates: f64,
+}
+
+impl ViewerCost {
+    fn new(key: String, ratio: f64, min_updates: f64) -> Self {
+        ViewerCost { key, ratios: vec![ratio], min_updates }
+    }
+
+    fn push(&mut self, ratio: f64, min_updates: f64) {
+        self.ratios.push(ratio);
+        self.min_updates = self.min_updates.min(min_updates);
+    }
+
+    /// The median ratio (of the middle two, their mean).
+    fn median(&self) -> f64 {
+        let mut r = self.ratios.clone();
+        r.sort_by(f64::total_cmp);
+        let n = r.len();
+        if n % 2 == 1 {
+            r[n / 2]
+        } else {
+            (r[n / 2 - 1] + r[n / 2]) / 2.0
+        }
+    }
+}
+
+impl std::fmt::Display for ViewerCost {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let pct = |v: f64| format!("{:+.1} %", (v - 1.0) * 100.0);
+        write!(f, "{}: {} commits", self.key, pct(self.median()))?;
+        if self.ratios.len() > 1 {
+            let each: Vec<String> = self.ratios.iter().map(|&v| pct(v)).collect();
+            write!(f, " (median of {} rounds: {})", self.ratios.len(), each.join(", "))?;
+        }
+        write!(f, ", {:.1} upd/s min", self.min_updates)
+    }
 }
