@@ -32,7 +32,11 @@ fn a_tiny_farm_benchmark_prints_its_table() {
     assert!(stdout.contains("commit/s") && stdout.contains("lease p50/99"), "{stdout}");
     let rows: Vec<&str> = stdout
         .lines()
-        .filter(|l| l.trim_start().starts_with("64x64") && l.split_whitespace().count() >= 15)
+        .filter(|l| {
+            let f: Vec<&str> = l.split_whitespace().collect();
+            // A row: size, then the worker count (the summary's lines say "2w").
+            f.len() >= 15 && f[0] == "64x64" && f[1].parse::<u32>().is_ok()
+        })
         .collect();
     assert_eq!(rows.len(), 4, "one row per case and round:\n{stdout}");
     assert!(stdout.contains("targets:"), "{stdout}");
