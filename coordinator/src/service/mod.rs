@@ -83,6 +83,7 @@ pub struct CoordinatorService {
     timing: Timing,
     durable: Option<Arc<durability::Durable>>,
     feeds: Arc<viewers::Feeds>,
+    previews: Arc<previews::PreviewFeeds>,
     budget: budget::MemoryBudget,
     /// Finished jobs kept in memory (and the store); older ones are dropped.
     keep_finished: usize,
@@ -144,6 +145,7 @@ impl CoordinatorService {
             timing,
             durable: None,
             feeds: Arc::default(),
+            previews: Arc::default(),
             budget: budget::MemoryBudget::new(bytes),
             keep_finished: KEEP_FINISHED,
             submits: Arc::new(tokio::sync::Semaphore::new(SUBMITS_AT_ONCE)),

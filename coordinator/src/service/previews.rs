@@ -15,7 +15,7 @@
 //! changes; previews need 6 bytes a block, so a hundred viewers of a farm of 256 workers
 //! stay within the budget (docs/farm.md has the figures).
 
-use std::collections::VecDeque;
+use std::collections::{HashMap, VecDeque};
 use std::sync::atomic::Ordering;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
@@ -72,6 +72,12 @@ pub(super) struct PreviewDelta {
     /// The job is over: these are exact pixels and the last of them is `final`.
     over: bool,
     bytes: usize,
+}
+
+/// The preview publishers of jobs with viewers that read previews, one a job.
+#[derive(Default)]
+pub(super) struct PreviewFeeds {
+    by_job: Mutex<HashMap<JobId, Arc<PreviewFeed>>>,
 }
 
 /// A job's preview publisher, as its viewers see it.
@@ -132,7 +138,7 @@ impl CoordinatorService {
     /// Subscribing under the table's lock means a publisher never leaves a viewer behind:
     /// it ends only when, under the same lock, it sees no receiver.
     fn preview_feed(&self, job: JobId) -> (Arc<PreviewFeed>, watch::Receiver<u64>) {
-        let mut feeds = lock(&self.feeds.previews);
+        let mut feeds = lock(&self.previews.by_job);
         if let Some(feed) = feeds.get(&job) {
             return (feed.clone(), feed.newest.subscribe());
         }
@@ -198,7 +204,7 @@ impl CoordinatorService {
             drop(snap);
             let busy = tick.elapsed();
             {
-                let mut feeds = lock(&self.feeds.previews);
+                let mut feeds = lock(&self.previews.by_job);
                 if feed.newest.receiver_count() == 0 {
                     feeds.remove(&job);
                     return;
@@ -214,7 +220,7 @@ impl CoordinatorService {
             let pause = interval.max(busy.div_f64(PREVIEW_CORE_SHARE)).min(SLOWEST_TICK.max(interval));
             tokio::time::sleep(pause.saturating_sub(tick.elapsed())).await;
         }
-        let mut feeds = lock(&self.feeds.previews);
+        let mut feeds = lock(&self.previews.by_job);
         if feeds.get(&job).is_some_and(|f| Arc::ptr_eq(f, &feed)) {
             feeds.remove(&job);
         }
@@ -309,7 +315,7 @@ impl CoordinatorService {
                     if self.farm().job(job).is_none() {
                         return;
                     }
-                    if !lock(&self.feeds.previews).get(&job).is_some_and(|f| Arc::ptr_eq(f, &feed)) {
+                    if !lock(&self.previews.by_job).get(&job).is_some_and(|f| Arc::ptr_eq(f, &feed)) {
                         // The publisher ended: another one's blocks assume viewers that
                         // joined it, so this one starts afresh.
                         (feed, newest) = self.preview_feed(job);

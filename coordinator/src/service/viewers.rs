@@ -76,8 +76,6 @@ pub(super) struct Feeds {
     pub(super) own: AtomicU64,
     /// Viewers now, by job.
     viewers: Arc<Mutex<HashMap<JobId, usize>>>,
-    /// The preview publishers of jobs with viewers that read previews (previews.rs).
-    pub(super) previews: Mutex<HashMap<JobId, Arc<super::previews::PreviewFeed>>>,
 }
 
 /// A viewer's place among `MAX_VIEWERS`, held by its task and given back when it ends.

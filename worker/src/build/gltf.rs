@@ -61,7 +61,7 @@ pub(super) fn image(
     linear: bool,
 ) -> Result<Rgba, String> {
     let bytes = asset.image(image, assets).map_err(|e| e.to_string())?;
-    let img = super::materials::decode_image(&bytes)
+    let img = super::images::decode_image(&bytes)
         .map_err(|e| format!("{}: images[{image}]: not a readable image: {e}", asset.file))?;
     let rgba = img.to_rgba32f();
     let (w, h) = rgba.dimensions();

@@ -2,7 +2,6 @@
 
 use glam::Vec3;
 use tessera_description::bundle::Assets;
-use tessera_description::limits;
 use tessera_description::model::{self as d, Description, Location, TextureKind};
 use tessera_description::SceneError;
 
@@ -31,7 +30,7 @@ pub(super) fn textures(
                 })?;
                 // The header was good; the pixels may still be damaged, and the scene may
                 // not have been validated by this build's limits.
-                let img = decode_image(bytes)
+                let img = super::images::decode_image(bytes)
                     .map_err(|e| err(t.at, format!("{what}: {file:?} is not a readable image: {e}")))?;
                 let (width, height, values) = crate::render::texture::linear_rgb(&img);
                 let texels = values.chunks_exact(3).map(Vec3::from_slice).collect();
@@ -66,26 +65,6 @@ fn roles(desc: &Description) -> (Vec<bool>, Vec<bool>) {
         }
     }
     (srgb, linear)
-}
-
-/// Decodes an image within the texture budget: its size is read from the header and
-/// refused past `limits::MAX_TEXTURE_PIXELS`, and the decoder itself may allocate no more
-/// than such an image needs (16 bytes a pixel: 32-bit float RGBA), so that a small file
-/// declaring a huge image is an error, never a multi-gigabyte allocation or a panic.
-pub(crate) fn decode_image(bytes: &[u8]) -> image::ImageResult<image::DynamicImage> {
-    use image::error::{LimitError, LimitErrorKind};
-    let reader = || image::ImageReader::new(std::io::Cursor::new(bytes)).with_guessed_format();
-    let (width, height) = reader()?.into_dimensions()?;
-    if u64::from(width) * u64::from(height) > limits::MAX_TEXTURE_PIXELS {
-        return Err(image::ImageError::Limits(LimitError::from_kind(LimitErrorKind::DimensionError)));
-    }
-    let mut budget = image::Limits::default();
-    budget.max_image_width = Some(limits::MAX_SIDE);
-    budget.max_image_height = Some(limits::MAX_SIDE);
-    budget.max_alloc = Some(limits::MAX_TEXTURE_PIXELS * 16);
-    let mut reader = reader()?;
-    reader.limits(budget);
-    reader.decode()
 }
 
 fn tex(c: d::Color) -> Tex {

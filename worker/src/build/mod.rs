@@ -4,6 +4,7 @@
 //! (an image whose pixels are damaged) or assets that differ from the ones validated.
 
 mod gltf;
+mod images;
 mod materials;
 mod shapes;
 
@@ -178,7 +179,7 @@ fn environment(
             let bytes = assets.get(file).ok_or_else(|| {
                 err(at, format!("environment.file: cannot read {file:?} (relative to the scene's folder)"))
             })?;
-            let img = materials::decode_image(bytes)
+            let img = images::decode_image(bytes)
                 .map_err(|e| err(at, format!("environment.file: {file:?} is not a readable image: {e}")))?;
             let (width, height, values) = crate::render::texture::linear_rgb(&img);
             drop(img);

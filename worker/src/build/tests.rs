@@ -175,18 +175,18 @@ fn png_declaring(width: u32, height: u32, idat: &[u8]) -> Vec<u8> {
 #[test]
 fn a_small_png_declaring_a_huge_image_is_refused_before_decoding() {
     let png = png_declaring(12_000, 12_000, &[0; 400_000]);
-    let e = super::materials::decode_image(&png).unwrap_err();
+    let e = super::images::decode_image(&png).unwrap_err();
     assert!(matches!(e, image::ImageError::Limits(_)), "{e}");
     // Within the pixel budget but with data missing: an error, not a panic.
     let png = png_declaring(4096, 4096, &[0; 1000]);
-    assert!(super::materials::decode_image(&png).is_err());
+    assert!(super::images::decode_image(&png).is_err());
     // And a good one decodes.
     let img = image::RgbImage::from_pixel(2, 2, image::Rgb([1, 2, 3]));
     let mut good = Vec::new();
     image::DynamicImage::ImageRgb8(img)
         .write_to(&mut std::io::Cursor::new(&mut good), image::ImageFormat::Png)
         .unwrap();
-    assert_eq!(super::materials::decode_image(&good).unwrap().width(), 2);
+    assert_eq!(super::images::decode_image(&good).unwrap().width(), 2);
 }
 
 #[test]

@@ -132,7 +132,7 @@ impl Bvh {
     /// boxes, so the tree is the same for any number of threads.
     pub fn build(bounds: &[Aabb]) -> Bvh {
         let Binary { nodes, indices } = build_binary(bounds);
-        Bvh { wide: Wide::fold(&nodes), indices }
+        Bvh { wide: fold::fold(&nodes), indices }
     }
 
     /// Bounds of everything.
@@ -281,7 +281,7 @@ mod tests {
             let four = pool(4).install(|| build_binary(&boxes));
             assert!(same_tree(&old, &one), "{} boxes: not the old tree", boxes.len());
             assert!(same_tree(&one, &four), "{} boxes: 1 and 4 threads differ", boxes.len());
-            Bvh { wide: Wide::fold(&four.nodes), indices: four.indices }.validate(&boxes).unwrap();
+            Bvh { wide: fold::fold(&four.nodes), indices: four.indices }.validate(&boxes).unwrap();
         }
     }
 

@@ -6,12 +6,27 @@
 
 use glam::Vec4;
 
-use super::wide::Node4;
+use super::wide::{Node4, Wide};
 use super::Node;
+
+/// Folds the binary tree (in the builder's depth-first layout) into wide nodes.
+pub(super) fn fold(binary: &[Node]) -> Wide {
+    let mut nodes = Vec::with_capacity(binary.len() / 3 + 1);
+    let depth = match binary.first() {
+        None => 0,
+        Some(root) if root.count > 0 => {
+            // A root leaf: one lane.
+            nodes.push(node4(&[(root, 0)], 1, [0; 8]));
+            1
+        }
+        Some(_) => fold_node(binary, 0, &mut nodes),
+    };
+    Wide::new(nodes, depth)
+}
 
 /// A wide node over binary nodes `kids` (in depth-first order), `lanes` of them, with the
 /// visit orders `order`; interior kids' lanes point at `child` given alongside.
-pub(super) fn node4(kids: &[(&Node, u32)], lanes: usize, order: [u8; 8]) -> Node4 {
+fn node4(kids: &[(&Node, u32)], lanes: usize, order: [u8; 8]) -> Node4 {
     let mut n = Node4 {
         min: [Vec4::ZERO; 3],
         max: [Vec4::ZERO; 3],
@@ -118,7 +133,7 @@ fn largest(binary: &[Node], kids: &[usize]) -> Option<usize> {
 
 /// Appends the wide subtree of interior binary node `b` to `nodes` (the node, then its
 /// children's subtrees in lane order); returns the most stack entries its traversal needs.
-pub(super) fn fold_node(binary: &[Node], b: usize, nodes: &mut Vec<Node4>) -> usize {
+fn fold_node(binary: &[Node], b: usize, nodes: &mut Vec<Node4>) -> usize {
     let mut part = Opened::new(binary, b);
     let (mut kids, mut lanes) = part.kids(None);
     while lanes < 4 {

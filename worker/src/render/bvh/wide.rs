@@ -21,8 +21,7 @@
 
 use glam::{Vec3, Vec4};
 
-use super::fold::{fold_node, node4};
-use super::{slab_widening, Aabb, Node};
+use super::{slab_widening, Aabb};
 
 /// One node: the boxes of up to four children, lane by lane.
 #[derive(Debug, Clone, Copy)]
@@ -115,18 +114,9 @@ pub(super) struct Wide {
 }
 
 impl Wide {
-    /// Folds the binary tree (in the builder's depth-first layout) into wide nodes.
-    pub(super) fn fold(binary: &[Node]) -> Wide {
-        let mut nodes = Vec::with_capacity(binary.len() / 3 + 1);
-        let depth = match binary.first() {
-            None => 0,
-            Some(root) if root.count > 0 => {
-                // A root leaf: one lane.
-                nodes.push(node4(&[(root, 0)], 1, [0; 8]));
-                1
-            }
-            Some(_) => fold_node(binary, 0, &mut nodes),
-        };
+    /// The folded nodes (`fold::fold`), root first, whose traversals need at most `depth`
+    /// stack entries.
+    pub(super) fn new(nodes: Vec<Node4>, depth: usize) -> Wide {
         assert!(nodes.len() < (1 << 30), "more BVH nodes than a stack entry can name");
         Wide { nodes, depth }
     }
@@ -440,7 +430,7 @@ mod tests {
         let mut stacks = std::collections::BTreeSet::new();
         for (set, (boxes, scale)) in sets.iter().enumerate() {
             let binary = build_binary(boxes);
-            let wide = Wide::fold(&binary.nodes);
+            let wide = super::super::fold::fold(&binary.nodes);
             stacks.insert(if wide.depth <= super::SMALL_STACK {
                 "small"
             } else if wide.depth <= super::STACK {

@@ -1,0 +1,292 @@
+//! The house rules ARCHITECTURE.md states, checked on the sources: the coordinator and the
+//! viewer depend on no renderer crate; no source file is much over 600 lines; no two files
+//! of a crate import each other, directly or around a circle.
+
+use std::collections::{BTreeMap, BTreeSet};
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+fn root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+/// The crates' source folders: the root CLI's and every workspace member's.
+fn crate_sources() -> Vec<PathBuf> {
+    let mut dirs = vec![root().join("src")];
+    for member in
+        ["proto", "description", "film", "coordinator", "worker", "viewer", "harness", "web", "denoise"]
+    {
+        dirs.push(root().join(member).join("src"));
+    }
+    dirs.into_iter().filter(|d| d.is_dir()).collect()
+}
+
+fn rust_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    for entry in std::fs::read_dir(dir).unwrap_or_else(|e| panic!("{}: {e}", dir.display())) {
+        let path = entry.unwrap().path();
+        let name = path.file_name().unwrap().to_string_lossy().into_owned();
+        if path.is_dir() {
+            if name != "target" && !name.starts_with('.') {
+                rust_files(&path, out);
+            }
+        } else if name.ends_with(".rs") {
+            out.push(path);
+        }
+    }
+}
+
+#[test]
+fn the_coordinator_and_the_viewer_depend_on_no_renderer() {
+    for krate in ["tessera-coordinator", "tessera-viewer"] {
+        let out = Command::new(env!("CARGO"))
+            .args(["tree", "--offline", "-e", "normal", "--prefix", "none", "-p", krate])
+            .current_dir(root())
+            .output()
+            .expect("running cargo tree");
+        assert!(out.status.success(), "cargo tree -p {krate}: {}", String::from_utf8_lossy(&out.stderr));
+        let tree = String::from_utf8_lossy(&out.stdout);
+        let renderer: Vec<&str> = tree.lines().filter(|l| l.starts_with("tessera-worker ")).collect();
+        assert!(renderer.is_empty(), "{krate} depends on the renderer:\n{tree}");
+        assert!(tree.lines().any(|l| l.starts_with("tessera-description ")), "{krate}: {tree}");
+    }
+}
+
+/// "About 600": a file may run a little past while it is being split, not double.
+const MOST_LINES: usize = 620;
+
+#[test]
+fn no_source_file_is_over_about_600_lines() {
+    let mut files = Vec::new();
+    for dir in crate_sources() {
+        rust_files(&dir, &mut files);
+    }
+    for dir in ["tests", "worker/tests", "harness/tests", "benches"] {
+        if root().join(dir).is_dir() {
+            rust_files(&root().join(dir), &mut files);
+        }
+    }
+    assert!(files.len() > 100, "found only {} source files", files.len());
+    let long: Vec<String> = files
+        .iter()
+        .filter_map(|f| {
+            let n = std::fs::read_to_string(f).unwrap().lines().count();
+            (n > MOST_LINES).then(|| format!("{}: {n} lines", f.strip_prefix(root()).unwrap().display()))
+        })
+        .collect();
+    assert!(long.is_empty(), "files over {MOST_LINES} lines:\n{}", long.join("\n"));
+}
+
+/// A crate's modules by file: the module path of each file (`render::bvh::wide`), a file
+/// given by `#[path = "…"]` being the module its `mod` names.
+fn modules(src: &Path) -> BTreeMap<String, PathBuf> {
+    let mut files = Vec::new();
+    rust_files(src, &mut files);
+    let mut by_file: BTreeMap<PathBuf, String> = BTreeMap::new();
+    for f in &files {
+        let rel = f.strip_prefix(src).unwrap().with_extension("");
+        let mut parts: Vec<String> = rel.iter().map(|p| p.to_string_lossy().into_owned()).collect();
+        if matches!(parts.last().map(String::as_str), Some("mod" | "lib" | "main")) {
+            parts.pop();
+        }
+        by_file.insert(f.clone(), parts.join("::"));
+    }
+    // `#[path = "x_tests.rs"] mod tests;` in module m makes x_tests.rs the module m::tests.
+    for f in &files {
+        let text = std::fs::read_to_string(f).unwrap();
+        let mut lines = text.lines().map(str::trim);
+        while let Some(line) = lines.next() {
+            let Some(target) = line.strip_prefix("#[path = \"").and_then(|l| l.strip_suffix("\"]")) else {
+                continue;
+            };
+            let Some(name) = lines
+                .find(|l| !l.starts_with("#["))
+                .and_then(|l| {
+                    l.trim_start_matches("pub(crate) ").trim_start_matches("pub ").strip_prefix("mod ")
+                })
+                .and_then(|l| l.strip_suffix(';'))
+            else {
+                continue;
+            };
+            let file = f.parent().unwrap().join(target);
+            let parent = by_file[f].clone();
+            let module = if parent.is_empty() { name.to_string() } else { format!("{parent}::{name}") };
+            by_file.insert(file, module);
+        }
+    }
+    by_file.into_iter().map(|(f, m)| (m, f)).collect()
+}
+
+/// The paths a file names through `crate::` or `super::`, resolved against its module, one
+/// per item of a `{…}` group (their first segment is enough to find the file).
+fn named_paths(text: &str, module: &str) -> Vec<Vec<String>> {
+    let me: Vec<String> =
+        if module.is_empty() { vec![] } else { module.split("::").map(String::from).collect() };
+    let ident = |s: &str| s.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect::<String>();
+    let mut out = Vec::new();
+    for (at, _) in text.match_indices("::") {
+        // Only where a path starts: `crate::` or `super::` not preceded by an identifier
+        // character or another `::`.
+        let head = &text[..at];
+        let word: String = head.chars().rev().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+        let word: String = word.chars().rev().collect();
+        if word != "crate" && word != "super" {
+            continue;
+        }
+        let before = &head[..head.len() - word.len()];
+        if before.ends_with("::") || before.ends_with(|c: char| c.is_alphanumeric() || c == '_') {
+            continue;
+        }
+        let mut base: Vec<String> =
+            if word == "crate" { vec![] } else { me[..me.len().saturating_sub(1)].to_vec() };
+        let mut rest = &text[at + 2..];
+        loop {
+            let id = ident(rest);
+            if id == "super" {
+                base.pop();
+                rest = rest[id.len()..].strip_prefix("::").unwrap_or("");
+            } else if id.is_empty() && rest.starts_with('{') {
+                let group = &rest[1..rest.find('}').unwrap_or(rest.len())];
+                for item in group.split(',') {
+                    let first = ident(item.trim());
+                    if !first.is_empty() && first != "self" {
+                        let mut p = base.clone();
+                        p.push(first);
+                        out.push(p);
+                    }
+                }
+                break;
+            } else {
+                let mut p = base.clone();
+                while let Some(seg) = Some(ident(rest)).filter(|s| !s.is_empty()) {
+                    p.push(seg.clone());
+                    rest = &rest[seg.len()..];
+                    match rest.strip_prefix("::") {
+                        Some(r) => rest = r,
+                        None => break,
+                    }
+                }
+                out.push(p);
+                break;
+            }
+        }
+    }
+    out
+}
+
+fn is_within(inner: &str, outer: &str) -> bool {
+    outer.is_empty() || inner == outer || inner.starts_with(&format!("{outer}::"))
+}
+
+/// Each file's imports of the crate's other files, leaving out a module's own ancestors and
+/// descendants (a parent declares its children and they see its items: that is nesting, not
+/// a circle).
+fn file_graph(src: &Path) -> BTreeMap<String, BTreeSet<String>> {
+    let mods = modules(src);
+    let mut graph: BTreeMap<String, BTreeSet<String>> = BTreeMap::new();
+    for (module, file) in &mods {
+        let text = std::fs::read_to_string(file).unwrap();
+        let edges = graph.entry(module.clone()).or_default();
+        for path in named_paths(&text, module) {
+            let target = (0..=path.len()).rev().map(|n| path[..n].join("::")).find(|m| mods.contains_key(m));
+            if let Some(t) = target {
+                if !is_within(&t, module) && !is_within(module, &t) {
+                    edges.insert(t);
+                }
+            }
+        }
+    }
+    graph
+}
+
+/// The strongly connected groups of more than one file (Tarjan's algorithm).
+fn circles(graph: &BTreeMap<String, BTreeSet<String>>) -> Vec<Vec<String>> {
+    struct State<'a> {
+        graph: &'a BTreeMap<String, BTreeSet<String>>,
+        index: BTreeMap<&'a str, usize>,
+        low: BTreeMap<&'a str, usize>,
+        stack: Vec<&'a str>,
+        on: BTreeSet<&'a str>,
+        found: Vec<Vec<String>>,
+    }
+    fn visit<'a>(s: &mut State<'a>, v: &'a str) {
+        let n = s.index.len();
+        s.index.insert(v, n);
+        s.low.insert(v, n);
+        s.stack.push(v);
+        s.on.insert(v);
+        let graph = s.graph;
+        for w in graph.get(v).into_iter().flatten() {
+            let w = w.as_str();
+            if !s.index.contains_key(w) {
+                visit(s, w);
+                let lw = s.low[w];
+                let lv = s.low.get_mut(v).unwrap();
+                *lv = (*lv).min(lw);
+            } else if s.on.contains(w) {
+                let iw = s.index[w];
+                let lv = s.low.get_mut(v).unwrap();
+                *lv = (*lv).min(iw);
+            }
+        }
+        if s.low[v] == s.index[v] {
+            let mut group = Vec::new();
+            loop {
+                let w = s.stack.pop().unwrap();
+                s.on.remove(w);
+                group.push(w.to_string());
+                if w == v {
+                    break;
+                }
+            }
+            if group.len() > 1 {
+                group.sort();
+                s.found.push(group);
+            }
+        }
+    }
+    let mut s = State {
+        graph,
+        index: BTreeMap::new(),
+        low: BTreeMap::new(),
+        stack: Vec::new(),
+        on: BTreeSet::new(),
+        found: Vec::new(),
+    };
+    for v in graph.keys() {
+        if !s.index.contains_key(v.as_str()) {
+            visit(&mut s, v);
+        }
+    }
+    s.found
+}
+
+#[test]
+fn no_import_circle_between_files() {
+    let mut found = Vec::new();
+    for src in crate_sources() {
+        for group in circles(&file_graph(&src)) {
+            found.push(format!("{}: {}", src.strip_prefix(root()).unwrap().display(), group.join(" <-> ")));
+        }
+    }
+    assert!(found.is_empty(), "files that import each other:\n{}", found.join("\n"));
+}
+
+/// The checker finds a circle of siblings through `super::` (grouped or not), and leaves
+/// nesting alone.
+#[test]
+fn the_circle_checker_sees_circles() {
+    let dir = tempfile::tempdir().unwrap();
+    let src = dir.path();
+    std::fs::create_dir_all(src.join("a")).unwrap();
+    std::fs::write(src.join("lib.rs"), "mod a;\nmod c;\nuse crate::a::Thing;\n").unwrap();
+    std::fs::write(src.join("a/mod.rs"), "mod x;\nmod y;\npub use x::Thing;\n").unwrap();
+    std::fs::write(src.join("a/x.rs"), "use super::{y::Other, Thing};\npub struct Thing;\n").unwrap();
+    std::fs::write(src.join("a/y.rs"), "pub struct Other(super::x::Thing);\nuse crate::c::C;\n").unwrap();
+    std::fs::write(src.join("c.rs"), "pub struct C;\n#[cfg(test)]\n#[path = \"c_tests.rs\"]\nmod tests;\n")
+        .unwrap();
+    std::fs::write(src.join("c_tests.rs"), "use crate::a::Thing;\nuse super::C;\n").unwrap();
+    let graph = file_graph(src);
+    assert_eq!(circles(&graph), vec![vec!["a::x".to_string(), "a::y".to_string()]], "{graph:?}");
+    assert!(graph["c::tests"].contains("a"), "{graph:?}");
+    assert!(!graph["c::tests"].contains("c"), "a test file within its module: {graph:?}");
+}
