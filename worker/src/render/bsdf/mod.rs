@@ -168,6 +168,7 @@ impl Bsdf {
 mod tests {
     use super::*;
     use crate::render::sampler::hash_words;
+    use tessera_description::math;
 
     pub(super) fn u2(i: u64, k: u64) -> Vec2 {
         let h = hash_words(&[i, k]);
@@ -213,6 +214,67 @@ mod tests {
             }
             // Opaque surfaces scatter nothing from below; everything else must sample.
             assert!(sampled > 0 || wo.z < 0.0, "{bsdf:?} never sampled");
+        }
+    }
+
+    /// Sampling is unbiased: the mean weight of the sampled (non-Dirac) directions equals
+    /// ∫ f |cos θi| over the sphere by uniform directions, for views above and below, so
+    /// the density `pdf` reports is the one `sample` draws from.
+    #[test]
+    fn sampling_estimates_what_uniform_directions_estimate() {
+        let views = [Vec3::new(0.3, -0.2, 0.93), Vec3::new(0.8, 0.1, 0.2), Vec3::new(0.5, 0.1, -0.7)];
+        let bsdfs = [
+            Bsdf::RoughConductor { eta: Vec3::splat(0.2), k: Vec3::splat(3.9), alpha: 0.3 },
+            Bsdf::RoughDielectric { eta: 1.5, alpha: 0.3 },
+            Bsdf::Plastic {
+                diffuse: Vec3::new(0.7, 0.08, 0.08),
+                eta: 1.5,
+                fdr: fresnel_diffuse_reflectance(1.5),
+            },
+        ];
+        for wo in views.map(Vec3::normalize) {
+            for bsdf in bsdfs {
+                let n = 400_000u64;
+                let mut sampled = 0.0f64;
+                for i in 0..n {
+                    if let Some(s) = bsdf.sample(wo, u2(i, 21).x, u2(i, 22)) {
+                        if s.lobe != Lobe::Specular {
+                            sampled += f64::from(s.weight.x);
+                        }
+                    }
+                }
+                let mut uniform = 0.0f64;
+                for i in 0..n {
+                    let u = u2(i, 23);
+                    let (z, phi) = (1.0 - 2.0 * u.x, 2.0 * std::f32::consts::PI * u.y);
+                    let r = (1.0 - z * z).max(0.0).sqrt();
+                    let wi = Vec3::new(r * math::cos(phi), r * math::sin(phi), z);
+                    uniform += f64::from(bsdf.eval(wo, wi).x) * 4.0 * std::f64::consts::PI;
+                }
+                let (sampled, uniform) = (sampled / n as f64, uniform / n as f64);
+                assert!(
+                    (sampled - uniform).abs() < 0.01 + 0.02 * uniform,
+                    "{bsdf:?} from {wo}: sampling gives {sampled}, uniform directions {uniform}"
+                );
+            }
+        }
+    }
+
+    /// Visible-normal sampling bounds a rough conductor's weight by F · G1(wi) ≤ 1, at every
+    /// view down to grazing (sampling D(m) cos θm let it grow as 1 / cos θo).
+    #[test]
+    fn rough_conductor_weights_stay_at_most_one() {
+        let gold = Bsdf::RoughConductor {
+            eta: Vec3::new(0.18, 0.42, 1.37),
+            k: Vec3::new(3.42, 2.35, 1.77),
+            alpha: 0.15,
+        };
+        for cos_o in [1.0f32, 0.5, 0.1, 0.02] {
+            let wo = Vec3::new((1.0 - cos_o * cos_o).sqrt(), 0.0, cos_o);
+            for i in 0..20_000u64 {
+                let Some(s) = gold.sample(wo, 0.5, u2(i, 5)) else { continue };
+                assert!(s.weight.max_element() <= 1.0 + 1e-4, "cos θo {cos_o}: weight {}", s.weight);
+            }
         }
     }
 

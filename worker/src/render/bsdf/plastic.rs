@@ -62,12 +62,18 @@ pub(super) fn sample(
 }
 
 /// The probability of sampling the coat of a plastic: its Fresnel reflectance against the
-/// base's expected contribution, so that neither lobe is starved.
+/// base's share, weighted as Mitsuba 3's `plastic` weighs them (the coat at 1 / (1 + mean
+/// albedo)), so that neither lobe is starved. The coat is what reflects a light source
+/// (sharp, bright, seen by no light sample), the base what every light sample serves: at
+/// the `spheres` scene's red highlight this picks the coat for 13 % of the samples, where
+/// comparing F with the base's largest channel picked it for 6 % (the coat's share of the
+/// variance goes as 1 / p - 1: 2.4 times as much).
 fn specular_probability(cos_o: f32, eta: f32, diffuse: Vec3) -> f32 {
     let f = fresnel_dielectric(cos_o, eta);
-    let d = (1.0 - f) * diffuse.max_element().clamp(0.0, 1.0);
-    if f + d <= 0.0 {
+    let w = 1.0 / (1.0 + diffuse.clamp(Vec3::ZERO, Vec3::ONE).element_sum() / 3.0);
+    let (spec, base) = (f * w, (1.0 - f) * (1.0 - w));
+    if spec + base <= 0.0 {
         return 1.0;
     }
-    (f / (f + d)).clamp(0.05, 0.95)
+    (spec / (spec + base)).clamp(0.05, 0.95)
 }

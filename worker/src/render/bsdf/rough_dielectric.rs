@@ -5,7 +5,7 @@ use glam::{Vec2, Vec3};
 
 use super::frame::{reflect_about, refract_about, same_hemisphere};
 use super::fresnel::fresnel_dielectric;
-use super::microfacet::{ggx_d, ggx_g1, ggx_sample_normal};
+use super::microfacet::{ggx_d, ggx_g1, ggx_sample_visible, ggx_visible_pdf};
 use super::{BsdfSample, Lobe};
 
 /// The generalised half vector of a rough dielectric (Walter et al. 2007), facing +z, and
@@ -53,7 +53,8 @@ pub(super) fn eval(wo: Vec3, wi: Vec3, eta: f32, alpha: f32) -> f32 {
 /// Density of [`sample`] returning `wi`.
 pub(super) fn pdf(wo: Vec3, wi: Vec3, eta: f32, alpha: f32) -> f32 {
     let Some((m, rel, reflect)) = half(wo, wi, eta) else { return 0.0 };
-    let pdf_m = ggx_d(m, alpha) * m.z;
+    // `half` keeps only facets `wo` sees, which the visible density is defined on.
+    let pdf_m = ggx_visible_pdf(wo, m, alpha);
     let f = fresnel_dielectric(wo.dot(m), eta);
     if reflect {
         pdf_m / (4.0 * wo.dot(m).abs()) * f
@@ -63,7 +64,8 @@ pub(super) fn pdf(wo: Vec3, wi: Vec3, eta: f32, alpha: f32) -> f32 {
     }
 }
 
-/// Samples a microfacet normal, then reflects about it with probability F or refracts.
+/// Samples a microfacet normal visible from `wo`, then reflects about it with probability F
+/// or refracts.
 pub(super) fn sample(wo: Vec3, u_lobe: f32, u: Vec2, eta: f32, alpha: f32) -> Option<BsdfSample> {
     if wo.z == 0.0 {
         return None;
@@ -71,7 +73,7 @@ pub(super) fn sample(wo: Vec3, u_lobe: f32, u: Vec2, eta: f32, alpha: f32) -> Op
     // The microfacet normal faces +z whichever side wo is on; the Fresnel term
     // and the refraction then see from the sign of wo · m whether the light
     // leaves the inside.
-    let m = ggx_sample_normal(u, alpha);
+    let m = ggx_sample_visible(wo, u, alpha);
     let f = fresnel_dielectric(wo.dot(m), eta);
     let wi = if u_lobe < f {
         let wi = reflect_about(wo, m);
