@@ -98,35 +98,186 @@ fn modules(src: &Path) -> BTreeMap<String, PathBuf> {
             let Some(target) = line.strip_prefix("#[path = \"").and_then(|l| l.strip_suffix("\"]")) else {
                 continue;
             };
+            // The next item's `mod NAME;`, whatever its visibility.
             let Some(name) = lines
                 .find(|l| !l.starts_with("#["))
-                .and_then(|l| {
-                    l.trim_start_matches("pub(crate) ").trim_start_matches("pub ").strip_prefix("mod ")
-                })
-                .and_then(|l| l.strip_suffix(';'))
+                .and_then(|l| l.split_once("mod ").map(|(_, r)| r))
+                .map(|r| ident(r.trim_start()))
+                .filter(|n| !n.is_empty())
             else {
                 continue;
             };
             let file = f.parent().unwrap().join(target);
             let parent = by_file[f].clone();
-            let module = if parent.is_empty() { name.to_string() } else { format!("{parent}::{name}") };
+            let module = if parent.is_empty() { name } else { format!("{parent}::{name}") };
             by_file.insert(file, module);
         }
     }
     by_file.into_iter().map(|(f, m)| (m, f)).collect()
 }
 
-/// The paths a file names through `crate::` or `super::`, resolved against its module, one
-/// per item of a `{…}` group (their first segment is enough to find the file).
+/// `text` with its comments and string and character literals blanked (same length, same
+/// lines), so that a path in a doc comment or a `{` in a string is not read as code.
+fn code_only(text: &str) -> String {
+    let b = text.as_bytes();
+    let mut out = b.to_vec();
+    let blank = |out: &mut Vec<u8>, from: usize, to: usize| {
+        for c in &mut out[from..to.min(b.len())] {
+            if *c != b'\n' {
+                *c = b' ';
+            }
+        }
+    };
+    let mut i = 0;
+    while i < b.len() {
+        match b[i] {
+            b'/' if b.get(i + 1) == Some(&b'/') => {
+                let end = text[i..].find('\n').map_or(b.len(), |n| i + n);
+                blank(&mut out, i, end);
+                i = end;
+            }
+            b'/' if b.get(i + 1) == Some(&b'*') => {
+                let end = text[i + 2..].find("*/").map_or(b.len(), |n| i + 2 + n + 2);
+                blank(&mut out, i, end);
+                i = end;
+            }
+            b'r' if b.get(i + 1).is_some_and(|&c| c == b'"' || c == b'#')
+                && (i == 0 || !(b[i - 1].is_ascii_alphanumeric() || b[i - 1] == b'_')) =>
+            {
+                let hashes = b[i + 1..].iter().take_while(|&&c| c == b'#').count();
+                if b.get(i + 1 + hashes) != Some(&b'"') {
+                    i += 1;
+                    continue;
+                }
+                let close = format!("\"{}", "#".repeat(hashes));
+                let start = i + 2 + hashes;
+                let end = text[start..].find(&close).map_or(b.len(), |n| start + n + close.len());
+                blank(&mut out, i, end);
+                i = end;
+            }
+            b'"' => {
+                let mut j = i + 1;
+                while j < b.len() && b[j] != b'"' {
+                    j += if b[j] == b'\\' { 2 } else { 1 };
+                }
+                blank(&mut out, i, j + 1);
+                i = j + 1;
+            }
+            // A character literal ('x', '\n', '{'), not a lifetime ('a).
+            b'\'' if b.get(i + 2) == Some(&b'\'') || b.get(i + 1) == Some(&b'\\') => {
+                let end = text[i + 1..].find('\'').map_or(b.len(), |n| i + 1 + n + 1);
+                let end =
+                    if b.get(i + 1) == Some(&b'\\') && b.get(i + 2) == Some(&b'\'') { i + 4 } else { end };
+                blank(&mut out, i, end);
+                i = end;
+            }
+            _ => i += 1,
+        }
+    }
+    String::from_utf8(out).expect("blanking keeps UTF-8: only ASCII bytes are replaced")
+}
+
+/// The inline modules (`mod name { … }`) of a file's code: where each one's body starts
+/// and ends, and its name.
+fn inline_modules(code: &str) -> Vec<(usize, usize, String)> {
+    let b = code.as_bytes();
+    let mut found = Vec::new();
+    for (at, _) in code.match_indices("mod ") {
+        if at > 0 && (b[at - 1].is_ascii_alphanumeric() || b[at - 1] == b'_') {
+            continue;
+        }
+        let rest = &code[at + 4..];
+        let name: String =
+            rest.trim_start().chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
+        let after = rest.trim_start()[name.len()..].trim_start();
+        if name.is_empty() || !after.starts_with('{') {
+            continue;
+        }
+        let open = code.len() - after.len();
+        let mut depth = 0usize;
+        let mut end = code.len();
+        for (k, c) in code[open..].char_indices() {
+            match c {
+                '{' => depth += 1,
+                '}' => {
+                    depth -= 1;
+                    if depth == 0 {
+                        end = open + k;
+                        break;
+                    }
+                }
+                _ => {}
+            }
+        }
+        found.push((open, end, name));
+    }
+    found
+}
+
+fn ident(s: &str) -> String {
+    s.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect()
+}
+
+/// The items of a `{…}` group starting at `s` (just after its `{`), each as `base` and its
+/// own segments, inner groups followed; `self` names `base` itself.
+fn group_items(base: &[String], s: &str, out: &mut Vec<Vec<String>>) {
+    let mut depth = 0usize;
+    let mut start = 0;
+    let mut items = Vec::new();
+    for (k, c) in s.char_indices() {
+        match c {
+            '{' => depth += 1,
+            '}' if depth == 0 => {
+                items.push(&s[start..k]);
+                break;
+            }
+            '}' => depth -= 1,
+            ',' if depth == 0 => {
+                items.push(&s[start..k]);
+                start = k + 1;
+            }
+            _ => {}
+        }
+    }
+    for item in items {
+        let mut p = base.to_vec();
+        let mut rest = item.trim();
+        loop {
+            let seg = ident(rest);
+            if seg.is_empty() {
+                if let Some(inner) = rest.strip_prefix('{') {
+                    group_items(&p, inner, out);
+                    p.clear();
+                }
+                break;
+            }
+            rest = rest[seg.len()..].trim_start();
+            if seg != "self" {
+                p.push(seg);
+            }
+            match rest.strip_prefix("::") {
+                Some(r) => rest = r.trim_start(),
+                None => break,
+            }
+        }
+        if !p.is_empty() {
+            out.push(p);
+        }
+    }
+}
+
+/// The paths a file names through `crate::` or `super::`, resolved against the module they
+/// are written in (the file's, or an inline module's within it).
 fn named_paths(text: &str, module: &str) -> Vec<Vec<String>> {
-    let me: Vec<String> =
+    let code = code_only(text);
+    let inline = inline_modules(&code);
+    let file: Vec<String> =
         if module.is_empty() { vec![] } else { module.split("::").map(String::from).collect() };
-    let ident = |s: &str| s.chars().take_while(|c| c.is_alphanumeric() || *c == '_').collect::<String>();
     let mut out = Vec::new();
-    for (at, _) in text.match_indices("::") {
+    for (at, _) in code.match_indices("::") {
         // Only where a path starts: `crate::` or `super::` not preceded by an identifier
         // character or another `::`.
-        let head = &text[..at];
+        let head = &code[..at];
         let word: String = head.chars().rev().take_while(|c| c.is_alphanumeric() || *c == '_').collect();
         let word: String = word.chars().rev().collect();
         if word != "crate" && word != "super" {
@@ -136,36 +287,47 @@ fn named_paths(text: &str, module: &str) -> Vec<Vec<String>> {
         if before.ends_with("::") || before.ends_with(|c: char| c.is_alphanumeric() || c == '_') {
             continue;
         }
+        // The module this path is written in: the file's, and the inline ones around it.
+        let mut me = file.clone();
+        let mut around: Vec<&(usize, usize, String)> =
+            inline.iter().filter(|(s, e, _)| *s < at && at < *e).collect();
+        around.sort_by_key(|(s, _, _)| *s);
+        me.extend(around.into_iter().map(|(_, _, n)| n.clone()));
         let mut base: Vec<String> =
             if word == "crate" { vec![] } else { me[..me.len().saturating_sub(1)].to_vec() };
-        let mut rest = &text[at + 2..];
+        let mut rest = code[at + 2..].trim_start();
         loop {
             let id = ident(rest);
             if id == "super" {
                 base.pop();
-                rest = rest[id.len()..].strip_prefix("::").unwrap_or("");
-            } else if id.is_empty() && rest.starts_with('{') {
-                let group = &rest[1..rest.find('}').unwrap_or(rest.len())];
-                for item in group.split(',') {
-                    let first = ident(item.trim());
-                    if !first.is_empty() && first != "self" {
-                        let mut p = base.clone();
-                        p.push(first);
-                        out.push(p);
-                    }
+                rest = rest[id.len()..].trim_start().strip_prefix("::").unwrap_or("").trim_start();
+            } else if id.is_empty() {
+                if let Some(inner) = rest.strip_prefix('{') {
+                    group_items(&base, inner, &mut out);
                 }
                 break;
             } else {
                 let mut p = base.clone();
-                while let Some(seg) = Some(ident(rest)).filter(|s| !s.is_empty()) {
+                let mut r = rest;
+                loop {
+                    let seg = ident(r);
+                    if seg.is_empty() {
+                        if let Some(inner) = r.strip_prefix('{') {
+                            group_items(&p, inner, &mut out);
+                            p.clear();
+                        }
+                        break;
+                    }
                     p.push(seg.clone());
-                    rest = &rest[seg.len()..];
-                    match rest.strip_prefix("::") {
-                        Some(r) => rest = r,
+                    r = r[seg.len()..].trim_start();
+                    match r.strip_prefix("::") {
+                        Some(x) => r = x.trim_start(),
                         None => break,
                     }
                 }
-                out.push(p);
+                if !p.is_empty() {
+                    out.push(p);
+                }
                 break;
             }
         }
@@ -285,8 +447,30 @@ fn the_circle_checker_sees_circles() {
     std::fs::write(src.join("c.rs"), "pub struct C;\n#[cfg(test)]\n#[path = \"c_tests.rs\"]\nmod tests;\n")
         .unwrap();
     std::fs::write(src.join("c_tests.rs"), "use crate::a::Thing;\nuse super::C;\n").unwrap();
+    // An inline test module reaching a sibling through super::super, a nested group, and
+    // paths in a comment and a string that are not imports.
+    std::fs::create_dir_all(src.join("d")).unwrap();
+    std::fs::write(src.join("d/mod.rs"), "mod p;\nmod q;\nmod r;\nmod s;\n").unwrap();
+    std::fs::write(src.join("d/p.rs"), "use super::q::Q;\npub struct P;\n").unwrap();
+    std::fs::write(
+        src.join("d/q.rs"),
+        "pub struct Q;\n#[cfg(test)]\nmod tests {\n    use super::super::p::P;\n}\n",
+    )
+    .unwrap();
+    std::fs::write(src.join("d/r.rs"), "use crate::{d::{s::S, p}, c::C};\npub struct R;\n").unwrap();
+    std::fs::write(
+        src.join("d/s.rs"),
+        "/// see `super::r::R`\nconst T: &str = \"crate::d::r\";\npub struct S;\n",
+    )
+    .unwrap();
     let graph = file_graph(src);
-    assert_eq!(circles(&graph), vec![vec!["a::x".to_string(), "a::y".to_string()]], "{graph:?}");
+    assert_eq!(
+        circles(&graph),
+        vec![vec!["a::x".to_string(), "a::y".to_string()], vec!["d::p".to_string(), "d::q".to_string()]],
+        "{graph:?}"
+    );
+    assert_eq!(graph["d::r"], ["c", "d::p", "d::s"].map(String::from).into(), "{graph:?}");
+    assert!(graph["d::s"].is_empty(), "comments and strings are not imports: {graph:?}");
     assert!(graph["c::tests"].contains("a"), "{graph:?}");
     assert!(!graph["c::tests"].contains("c"), "a test file within its module: {graph:?}");
 }

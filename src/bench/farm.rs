@@ -417,7 +417,7 @@ pub async fn run(opts: FarmOptions) -> Result<()> {
                     }
                     let round_baseline =
                         opts.viewers.iter().position(|&v| v == 0).and_then(|i| measured[i].clone());
-                    for (&viewers, f) in opts.viewers.iter().zip(measured) {
+                    for (i, (&viewers, f)) in opts.viewers.iter().zip(measured).enumerate() {
                         let f = f.expect("every viewer count was measured");
                         let baseline = round_baseline.as_ref().filter(|_| viewers > 0);
                         let per_batch = f.cpu / f.commits.max(1) as f64;
@@ -438,10 +438,19 @@ pub async fn run(opts: FarmOptions) -> Result<()> {
                                 peak = peak.max(f.commits_per_s / (f.cpu / f.window));
                             }
                         }
-                        if viewers > 0 {
+                        // A case whose job ended, or that never left pass one, (or whose
+                        // baseline did) measures something else: it stays out of the summary.
+                        let comparable = f.note.is_empty() && baseline.is_some_and(|b| b.note.is_empty());
+                        if viewers > 0 && comparable {
                             if let Some(v) = vs0 {
-                                let key =
-                                    format!("{}x{} {workers}w {viewers}v {batch_ms} ms", size.0, size.1);
+                                // A viewer count given twice is two cases.
+                                let twice = opts.viewers.iter().filter(|&&n| n == viewers).count() > 1;
+                                let key = format!(
+                                    "{}x{} {workers}w {viewers}v{} {batch_ms} ms",
+                                    size.0,
+                                    size.1,
+                                    if twice { format!(" (#{})", i + 1) } else { String::new() }
+                                );
                                 match viewer_drop.iter_mut().find(|d| d.key == key) {
                                     Some(d) => d.push(v, f.updates_per_viewer_s.1),
                                     None => {

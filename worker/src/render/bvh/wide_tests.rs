@@ -1,0 +1,170 @@
+//! The wide traversals against the binary tree's (`reference.rs`), on adversarial lattices
+//! of boxes (a file of its own: it folds trees, and `fold.rs` builds on `wide.rs`).
+
+use glam::Vec3;
+
+use super::super::{build_binary, reference, Aabb, Binary};
+use super::Wide;
+use crate::render::geometry::Ray;
+use crate::render::sampler::hash_words;
+
+fn unit(words: &[u64]) -> f32 {
+    (hash_words(words) >> 40) as f32 / (1u64 << 24) as f32
+}
+
+/// Boxes on a coarse lattice, many flat and sharing faces, so that rays from lattice
+/// points along the axes start on faces and run inside slabs (0 × ∞ in the slab test).
+fn lattice_boxes(n: usize, seed: u64) -> Vec<Aabb> {
+    (0..n as u64)
+        .map(|i| {
+            let c = |k| (unit(&[seed, i, k]) * 8.0).floor();
+            let min = Vec3::new(c(0), c(1), c(2));
+            let size = Vec3::new(c(3), c(4), c(5)).min(Vec3::splat(2.0)) * Vec3::new(1.0, 0.5, 1.0);
+            Aabb { min, max: min + size }
+        })
+        .collect()
+}
+
+fn random_boxes(n: usize, seed: u64) -> Vec<Aabb> {
+    (0..n as u64)
+        .map(|i| {
+            let c = Vec3::new(unit(&[seed, i, 0]), unit(&[seed, i, 1]), unit(&[seed, i, 2])) * 100.0;
+            let r = Vec3::new(unit(&[seed, i, 3]), unit(&[seed, i, 4]), unit(&[seed, i, 5])) * 3.0;
+            Aabb { min: c - r, max: c + r }
+        })
+        .collect()
+}
+
+/// Boxes ever farther apart along a line: the binned SAH peels a few off at each
+/// level, a tree deeper than the traversal's stack in its frame.
+fn exponential_boxes(n: usize) -> Vec<Aabb> {
+    std::iter::successors(Some(1.0f32), |x| Some(x * 1.5))
+        .take(n)
+        .map(|x| Aabb { min: Vec3::new(x, 0.0, 0.0), max: Vec3::new(x + 0.5, 1.0, 1.0) })
+        .collect()
+}
+
+/// A ray from a lattice point or anywhere, its direction's components often ±0.
+fn ray(k: u64, scale: f32) -> Ray {
+    let u = |j| unit(&[k, j, 7]);
+    let origin = if k.is_multiple_of(2) {
+        Vec3::new((u(0) * 10.0).floor(), (u(1) * 10.0).floor() * 0.5, (u(2) * 10.0).floor()) - 1.0
+    } else {
+        Vec3::new(u(0), u(1), u(2)) * scale * 1.2 - 0.1 * scale
+    };
+    let comp = |j: u64| match (hash_words(&[k, j, 8]) % 5) as u8 {
+        0 => 0.0,
+        1 => -0.0,
+        _ => u(j + 3) - 0.5,
+    };
+    let mut dir = Vec3::new(comp(0), comp(1), comp(2));
+    if dir == Vec3::ZERO {
+        dir = Vec3::X;
+    }
+    Ray::new(origin, dir)
+}
+
+/// Both traversals, every call with its `t_max`: the nearest-hit one with hits at
+/// made-up distances (so `t_max` shrinks), the any-order one stopping after a made-up
+/// number of slots.
+fn calls(binary: &Binary, wide: &Wide, ray: &Ray, k: u64, t_max: f32) -> [(Vec<(usize, u32)>, f32); 4] {
+    let made_up = |slot: usize, t_max: f32| {
+        let h = hash_words(&[k, slot as u64, 9]);
+        h.is_multiple_of(3).then(|| t_max.min(100.0) * unit(&[h]))
+    };
+    let mut seen = [vec![], vec![]];
+    let ends = [
+        reference::traverse_slots(binary, ray, t_max, |s, t| {
+            seen[0].push((s, t.to_bits()));
+            made_up(s, t)
+        }),
+        wide.nearest(ray.origin, ray.dir, t_max, |s, t| {
+            seen[1].push((s, t.to_bits()));
+            made_up(s, t)
+        }),
+    ];
+    let stop = (hash_words(&[k, 10]) % 40) as usize;
+    let mut each = [vec![], vec![]];
+    reference::visit_slots(binary, ray, t_max, |s| {
+        each[0].push((s, 0));
+        each[0].len() < stop
+    });
+    wide.each(ray.origin, ray.dir, t_max, |s| {
+        each[1].push((s, 0));
+        each[1].len() < stop
+    });
+    let [a, b] = seen;
+    let [c, d] = each;
+    [(a, ends[0]), (b, ends[1]), (c, 0.0), (d, 0.0)]
+}
+
+/// The folded tree visits the slots the binary tree visits, in the same order and with
+/// the same `t_max` at each, for rays that start on faces and run along them too.
+#[test]
+fn wide_visits_what_the_binary_tree_visits() {
+    let sets = [
+        (lattice_boxes(3000, 1), 10.0),
+        (lattice_boxes(200, 2), 10.0),
+        (random_boxes(20_000, 3), 100.0),
+        (random_boxes(5, 4), 100.0),
+        (random_boxes(1, 5), 100.0),
+        (exponential_boxes(200), 100.0),
+    ];
+    let mut visits = 0;
+    let mut stacks = std::collections::BTreeSet::new();
+    for (set, (boxes, scale)) in sets.iter().enumerate() {
+        let binary = build_binary(boxes);
+        let wide = super::super::fold::fold(&binary.nodes);
+        stacks.insert(if wide.depth <= super::SMALL_STACK {
+            "small"
+        } else if wide.depth <= super::STACK {
+            "frame"
+        } else {
+            "heap"
+        });
+        wide.validate(&binary.indices, boxes).unwrap();
+        for k in 0..3000u64 {
+            let r = ray(k * 7 + set as u64, *scale);
+            for t_max in [f32::INFINITY, 5.0] {
+                let [a, b, c, d] = calls(&binary, &wide, &r, k, t_max);
+                assert_eq!(a, b, "set {set}, ray {k}: nearest-hit visits differ");
+                assert_eq!(c, d, "set {set}, ray {k}: any-order visits differ");
+                visits += a.0.len();
+            }
+        }
+    }
+    assert!(visits > 100_000, "only {visits} visits: the rays miss the boxes");
+    assert_eq!(stacks.len(), 3, "every stack size is exercised: {stacks:?}");
+}
+
+/// A box inside another is entered only if the outer one is, also where the slab test
+/// meets 0 × ∞: what lets the folded tree skip the binary nodes it swallowed.
+#[test]
+fn box_test_is_monotone_under_containment() {
+    let outer = Aabb { min: Vec3::new(0.0, 0.0, 0.0), max: Vec3::new(2.0, 2.0, 2.0) };
+    let inners = [
+        outer,
+        Aabb { min: Vec3::new(0.0, 1.0, 0.0), max: Vec3::new(2.0, 1.0, 2.0) },
+        Aabb { min: Vec3::new(0.0, 0.0, 0.0), max: Vec3::new(0.0, 2.0, 2.0) },
+        Aabb { min: Vec3::new(1.0, 1.0, 1.0), max: Vec3::new(2.0, 2.0, 2.0) },
+    ];
+    let coords = [-1.0, 0.0, 1.0, 2.0, 3.0];
+    let dirs = [0.0, -0.0, 1.0, -1.0, 0.5];
+    let mut checked = 0;
+    for o in coords.iter().flat_map(|&x| coords.iter().flat_map(move |&y| coords.map(|z| Vec3::new(x, y, z))))
+    {
+        for inv in dirs.iter().flat_map(|&x| dirs.iter().flat_map(move |&y| dirs.map(|z| Vec3::new(x, y, z))))
+        {
+            let inv = inv.recip();
+            for inner in &inners {
+                for t_max in [f32::INFINITY, 1.0] {
+                    if inner.hit(o, inv, t_max).is_some() {
+                        assert!(outer.hit(o, inv, t_max).is_some(), "origin {o}, 1/dir {inv}, {inner:?}");
+                        checked += 1;
+                    }
+                }
+            }
+        }
+    }
+    assert!(checked > 1000, "{checked} hits");
+}
