@@ -158,12 +158,15 @@ pub struct Publisher {
     /// The pixels marked `DIRTY` this tick.
     dirty: Vec<u32>,
     /// Tiles changed this tick, when it paints blocks of a tile or larger (then `dirty`
-    /// stays empty).
+    /// stays empty), each once.
     tiles: Vec<u32>,
+    /// Per tile, one bit: in `tiles` this tick.
+    in_tiles: Vec<u64>,
     /// Per tile, one bit: every pixel of it had samples at the previous tick.
     full: Vec<u64>,
     /// Pass-one blocks `(x0, y0, x1, y1)` whose mosaic changed this tick, too large to
-    /// mark pixel by pixel: painted whole (their sampled pixels too, which costs nothing
+    /// mark pixel by pixel (in a tick that paints by tile, the tiles they meet go into
+    /// `tiles` instead): painted whole (their sampled pixels too, which costs nothing
     /// at the coarse shifts a large changed area gets anyway).
     rects: Vec<(u32, u32, u32, u32)>,
     /// Scratch bitmap of the blocks a tick paints.
@@ -185,6 +188,7 @@ impl Publisher {
             dirty: Vec::new(),
             rects: Vec::new(),
             tiles: Vec::new(),
+            in_tiles: vec![0; (width.div_ceil(TILE) as usize * height.div_ceil(TILE) as usize).div_ceil(64)],
             full: vec![0; (width.div_ceil(TILE) as usize * height.div_ceil(TILE) as usize).div_ceil(64)],
             seen: Vec::new(),
         }
@@ -249,12 +253,21 @@ impl Publisher {
             let (was, full) = (self.full[word] & bit != 0, fb.tile_full(t));
             self.full[word] = if full { self.full[word] | bit } else { self.full[word] & !bit };
             if by_tile {
-                self.tiles.push(t as u32);
+                self.mark_tile(t);
                 if was && full {
                     continue;
                 }
             }
             fb.tile_changes(t, since, |index, count| self.changed(fb, index, count, by_tile));
+        }
+    }
+
+    /// Marks tile `t` to be painted whole this tick.
+    fn mark_tile(&mut self, t: usize) {
+        let (word, bit) = (t / 64, 1u64 << (t % 64));
+        if self.in_tiles[word] & bit == 0 {
+            self.in_tiles[word] |= bit;
+            self.tiles.push(t as u32);
         }
     }
 
@@ -275,7 +288,20 @@ impl Publisher {
             return;
         }
         let q = block_of(w, h, index % w, index / w);
-        if by_tile || q.area() > RECT_AREA {
+        if by_tile {
+            // Painted by tile: the tiles the block meets are what it adds (at a tile's shift
+            // or more a block holds whole tiles), each once, so that a tick's marks are
+            // bounded by the tiles however many pixels gained their first sample (a
+            // rectangle a pixel was 16 bytes each, hundreds of MB for a 4K pass one).
+            let tiles_x = w.div_ceil(TILE);
+            for ty in q.y / TILE..=(q.y + q.h - 1) / TILE {
+                for tx in q.x / TILE..=(q.x + q.w - 1) / TILE {
+                    self.mark_tile((ty * tiles_x + tx) as usize);
+                }
+            }
+            return;
+        }
+        if q.area() > RECT_AREA {
             // Pass one repaints every pixel once per level of the walk (a 4K frame: 11
             // times), which pixel by pixel was most of a tick.
             self.rects.push((q.x, q.y, q.x + q.w, q.y + q.h));
@@ -352,6 +378,9 @@ impl Publisher {
         };
         self.dirty.clear();
         self.rects.clear();
+        for &t in &self.tiles {
+            self.in_tiles[t as usize / 64] = 0;
+        }
         self.tiles.clear();
         // Single pixels are read once each, so only blocks of several are capped. Each
         // changed tile holds a changed pixel, so a block finer than a tile per changed tile

@@ -143,3 +143,48 @@ fn changes_in_more_tiles_than_blocks_are_painted_by_tile_then_refined() {
     }
     assert_eq!(shown(&o, &joined), fb.resolve());
 }
+
+/// Pass one painted by tile (a tight budget, more changed tiles than blocks), on an image
+/// whose pass-one blocks straddle tile edges: a pixel's first sample repaints its block's
+/// mosaic in every tile the block meets, so that refinement, once nothing changes, ends at
+/// the exact image; and a tick's marks are bounded by the tiles however many pixels
+/// changed.
+#[test]
+fn pass_one_painted_by_tile_repaints_every_tile_its_blocks_meet() {
+    let (w, h) = (150, 90); // 10 × 6 tiles, the last ones partial
+    let mut fb = Framebuffer::new(w, h);
+    let mut rng = Lcg(9);
+    let mut p = Publisher::new(w, h);
+    p.tick(&fb, 0);
+    let joined = fb.clone();
+    let mut o = Overlay::new(w, h);
+    let walk: Vec<(u32, u32)> = Walk::new(w, h).map(|q| (q.x, q.y)).collect();
+    let budget = 12 * BLOCK_BYTES;
+    // Parts of the walk small enough that some ticks change only some tiles.
+    let mut by_tile = 0;
+    for part in walk.chunks(walk.len() / 150 + 1) {
+        merge(&mut fb, part, 1, &mut rng);
+        let blocks = p.tick(&fb, budget);
+        if !p.tiles.is_empty() {
+            by_tile += 1;
+            assert!(blocks[0].shift >= TILE_SHIFT, "painted by tile");
+            assert!(
+                p.tiles.len() <= 60 && p.rects.is_empty(),
+                "{} tiles, {} rects",
+                p.tiles.len(),
+                p.rects.len()
+            );
+        }
+        paint(&mut o, &blocks);
+        // Refined to the exact image before the next part: a pixel that part's mosaic
+        // changes without marking it would stay as it was.
+        let mut ticks = 0;
+        while p.coarse() > 0 {
+            paint(&mut o, &p.tick(&fb, budget));
+            ticks += 1;
+            assert!(ticks < 2000, "refinement stalls");
+        }
+        assert_eq!(shown(&o, &joined), fb.resolve(), "pass one up to {:?}", part.last());
+    }
+    assert!(by_tile >= 5, "{by_tile} ticks painted by tile");
+}
