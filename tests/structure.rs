@@ -240,29 +240,37 @@ fn group_items(base: &[String], s: &str, out: &mut Vec<Vec<String>>) {
         }
     }
     for item in items {
-        let mut p = base.to_vec();
-        let mut rest = item.trim();
-        loop {
-            let seg = ident(rest);
-            if seg.is_empty() {
-                if let Some(inner) = rest.strip_prefix('{') {
-                    group_items(&p, inner, out);
-                    p.clear();
-                }
-                break;
+        path_item(base, item.trim(), out);
+    }
+}
+
+/// One path below `base` (`a::b`, `a::{b, c}`, `self`), written at `s`: each path it names
+/// goes into `out`, inner groups followed; `self` names `base` itself.
+fn path_item(base: &[String], s: &str, out: &mut Vec<Vec<String>>) {
+    let mut p = base.to_vec();
+    let mut named = false;
+    let mut rest = s;
+    loop {
+        let seg = ident(rest);
+        if seg.is_empty() {
+            if let Some(inner) = rest.strip_prefix('{') {
+                group_items(&p, inner, out);
+                named = false;
             }
-            rest = rest[seg.len()..].trim_start();
-            if seg != "self" {
-                p.push(seg);
-            }
-            match rest.strip_prefix("::") {
-                Some(r) => rest = r.trim_start(),
-                None => break,
-            }
+            break;
         }
-        if !p.is_empty() {
-            out.push(p);
+        rest = rest[seg.len()..].trim_start();
+        named = true;
+        if seg != "self" {
+            p.push(seg);
         }
+        match rest.strip_prefix("::") {
+            Some(r) => rest = r.trim_start(),
+            None => break,
+        }
+    }
+    if named && !p.is_empty() {
+        out.push(p);
     }
 }
 
@@ -296,41 +304,13 @@ fn named_paths(text: &str, module: &str) -> Vec<Vec<String>> {
         let mut base: Vec<String> =
             if word == "crate" { vec![] } else { me[..me.len().saturating_sub(1)].to_vec() };
         let mut rest = code[at + 2..].trim_start();
-        loop {
-            let id = ident(rest);
-            if id == "super" {
-                base.pop();
-                rest = rest[id.len()..].trim_start().strip_prefix("::").unwrap_or("").trim_start();
-            } else if id.is_empty() {
-                if let Some(inner) = rest.strip_prefix('{') {
-                    group_items(&base, inner, &mut out);
-                }
-                break;
-            } else {
-                let mut p = base.clone();
-                let mut r = rest;
-                loop {
-                    let seg = ident(r);
-                    if seg.is_empty() {
-                        if let Some(inner) = r.strip_prefix('{') {
-                            group_items(&p, inner, &mut out);
-                            p.clear();
-                        }
-                        break;
-                    }
-                    p.push(seg.clone());
-                    r = r[seg.len()..].trim_start();
-                    match r.strip_prefix("::") {
-                        Some(x) => r = x.trim_start(),
-                        None => break,
-                    }
-                }
-                if !p.is_empty() {
-                    out.push(p);
-                }
-                break;
-            }
+        while let Some(r) =
+            (ident(rest) == "super").then(|| rest[5..].trim_start()).and_then(|r| r.strip_prefix("::"))
+        {
+            base.pop();
+            rest = r.trim_start();
         }
+        path_item(&base, rest, &mut out);
     }
     out
 }
