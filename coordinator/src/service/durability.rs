@@ -19,6 +19,11 @@ use crate::farm::{Job, RestoreJobError, SubmitError};
 use crate::persist::{JobStore, LoadedJob, StoreError};
 use crate::store::Store;
 
+/// Test hook: a submitted scene's validation stops this many milliseconds once the scene
+/// is read and before the job is admitted, so a test can hold validation open for as long
+/// as it needs to watch the farm answer meanwhile (tests/big_submit.rs).
+pub const FAULT_STALL_VALIDATION_ENV: &str = "TESSERA_FAULT_STALL_VALIDATION_MS";
+
 /// The store behind a coordinator with a data directory, and what of each job it holds.
 pub(super) struct Durable {
     store: Mutex<Box<dyn JobStore>>,
@@ -212,10 +217,16 @@ impl CoordinatorService {
         let bytes = bundle.text.len() + bundle.assets.iter().map(|(_, a)| a.len()).sum::<usize>();
         info!(scene = %bundle.name, bytes, "validating a submitted scene");
         let this = self.clone();
+        let stall = std::env::var(FAULT_STALL_VALIDATION_ENV).ok().and_then(|v| v.parse().ok());
         let id = tokio::task::spawn_blocking(move || {
             let name = tessera_description::bounds::quoted(&bundle.name);
             let mut reservation = None;
             let mut job = Job::prepare_within(JobId(0), Arc::new(bundle), settings, priority, &mut |f| {
+                // Inside validation (the scene is read, the job not yet made): were the
+                // farm's lock held around validation, it would be held through the stall.
+                if let Some(ms) = stall {
+                    std::thread::sleep(Duration::from_millis(ms));
+                }
                 reservation = Some(this.budget.admit(&name, f)?);
                 Ok(())
             })?;

@@ -41,7 +41,7 @@ use crate::farm::Farm;
 
 pub use auth::{Auth, AuthError, Principal, Role, Tokens, DEFAULT_MAX_PRIORITY, MIN_TOKEN_CHARS};
 pub use budget::{default_budget, SUBMITS_AT_ONCE};
-pub use durability::{Recovery, Resumed, SubmitFailure};
+pub use durability::{Recovery, Resumed, SubmitFailure, FAULT_STALL_VALIDATION_ENV};
 pub use gate::Admission;
 pub use viewers::{ViewerUpdates, MAX_VIEWERS, MAX_VIEWERS_PER_JOB, WATCH_CHUNK_PIXELS, WATCH_DEFAULT_RATE};
 pub use workers::MAX_CREDIT;
