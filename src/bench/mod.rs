@@ -22,6 +22,7 @@ mod load;
 mod plot;
 mod rays;
 mod reference;
+mod samples;
 mod submit;
 mod viewers;
 
@@ -182,6 +183,26 @@ pub enum BenchCommand {
         #[arg(long)]
         threads: Option<usize>,
     },
+    /// The tracer alone: the scene rendered in this process (no farm, no image written),
+    /// samples per second per run and their median, and a checksum of the image's sums that
+    /// differs when two builds' images do. `--threads 1` runs the same instructions every
+    /// time (for callgrind).
+    Samples {
+        /// The scene file.
+        scene: PathBuf,
+        /// Samples per pixel [default: the scene's].
+        #[arg(long)]
+        spp: Option<u32>,
+        /// Image size WIDTHxHEIGHT [default: the scene's].
+        #[arg(long, value_parser = crate::parse_size)]
+        size: Option<(u32, u32)>,
+        /// Threads [default: one per core].
+        #[arg(long)]
+        threads: Option<usize>,
+        /// Runs (the median is reported) [default: 3].
+        #[arg(long, default_value_t = 3)]
+        runs: usize,
+    },
     /// The farm's overhead: `tessera render` with local workers against the same image
     /// traced in one process on the same cores, as a ratio, and the time to the first
     /// full-frame preview.
@@ -216,6 +237,23 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
         }
         BenchCommand::Rays { dir, mesh, repeats } => rays::run(&dir, mesh.as_deref(), repeats.max(1)),
         BenchCommand::Load { scene, runs, threads } => load::run(&scene, runs.max(1), threads),
+        BenchCommand::Samples { scene, spp, size, threads, runs } => {
+            if spp == Some(0) || threads == Some(0) || runs == 0 {
+                anyhow::bail!("--spp, --threads and --runs must be at least 1");
+            }
+            use tessera_description::limits::{MAX_PIXELS, MAX_SIDE, MAX_SPP};
+            if let Some(s) = spp.filter(|&s| s > MAX_SPP) {
+                anyhow::bail!("--spp {s}: at most {MAX_SPP}");
+            }
+            if let Some((w, h)) =
+                size.filter(|&(w, h)| w.max(h) > MAX_SIDE || u64::from(w) * u64::from(h) > MAX_PIXELS)
+            {
+                anyhow::bail!("--size {w}x{h}: at most {MAX_SIDE} a side and {MAX_PIXELS} pixels");
+            }
+            let threads = threads.unwrap_or_else(crate::cores);
+            samples::run(&scene, &samples::SamplesOptions { spp, size, threads, runs })?;
+            Ok(ExitCode::SUCCESS)
+        }
         BenchCommand::Farm(opts) => {
             if opts.spp < 2 || opts.credit == 0 || opts.workers.contains(&0) {
                 anyhow::bail!("--spp must be at least 2, --credit and every --workers at least 1");

@@ -85,7 +85,7 @@ impl<'a> Whitted<'a> {
     fn transmittance(&self, ray: &Ray, dist: f32) -> Vec3 {
         let mut tr = Vec3::ONE;
         for (s, m) in &self.spheres {
-            for _ in s.intersect_all(ray, dist).iter().flatten() {
+            for _ in 0..s.crossings(ray, dist) {
                 tr *= m.transmit;
             }
         }

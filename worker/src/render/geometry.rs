@@ -143,20 +143,29 @@ impl Sphere {
 
     /// The nearest hit in (0, t_max).
     pub fn intersect(&self, ray: &Ray, t_max: f32) -> Option<Hit> {
-        let (t0, t1) = self.roots(ray)?;
-        let t = if t0 > 0.0 { t0 } else { t1 };
-        (t > 0.0 && t < t_max).then(|| self.hit_at(ray, t))
+        self.candidate(ray, t_max).map(|t| self.hit_at(ray, t))
     }
 
-    /// Every hit in (0, t_max): up to two.
-    pub fn intersect_all(&self, ray: &Ray, t_max: f32) -> [Option<Hit>; 2] {
-        match self.roots(ray) {
-            Some((t0, t1)) => {
-                let h = |t: f32| (t > 0.0 && t < t_max).then(|| self.hit_at(ray, t));
-                [h(t0), h(t1)]
-            }
-            None => [None, None],
-        }
+    /// The distance of the nearest hit in (0, t_max): all a nearest-hit search needs,
+    /// [`Sphere::complete`] making the hit of the nearest only.
+    #[inline]
+    pub fn candidate(&self, ray: &Ray, t_max: f32) -> Option<f32> {
+        let (t0, t1) = self.roots(ray)?;
+        let t = if t0 > 0.0 { t0 } else { t1 };
+        (t > 0.0 && t < t_max).then_some(t)
+    }
+
+    /// The hit at distance `t` from [`Sphere::candidate`]: the one [`Sphere::intersect`] makes.
+    pub fn complete(&self, ray: &Ray, t: f32) -> Hit {
+        self.hit_at(ray, t)
+    }
+
+    /// How many times the ray crosses the sphere in (0, t_max), up to two, without making
+    /// the hits: a shadow ray needs only the count.
+    #[inline]
+    pub fn crossings(&self, ray: &Ray, t_max: f32) -> u32 {
+        self.roots(ray)
+            .map_or(0, |(t0, t1)| u32::from(t0 > 0.0 && t0 < t_max) + u32::from(t1 > 0.0 && t1 < t_max))
     }
 }
 

@@ -96,6 +96,8 @@ enum Candidate {
     Triangle(u32, f32, f32, f32),
     /// A still parallelogram: coordinates s, t in [-1, 1].
     Rect(u32, f32, f32, f32),
+    /// A still sphere: the distance alone.
+    Sphere(u32, f32),
 }
 
 /// A hit with what lies at it.
@@ -141,8 +143,8 @@ impl Scene {
     /// [`Scene::intersect`], with hits on materials with alpha tested when `ALPHA`.
     fn nearest<const ALPHA: bool>(&self, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceHit> {
         let w = &*self.world;
-        // An inline triangle's or a still parallelogram's hit is completed (point, normals,
-        // uv) only once it is known to be the nearest; it is the same hit
+        // An inline triangle's, a still parallelogram's or a still sphere's hit is completed
+        // (point, normals, uv) only once it is known to be the nearest; it is the same hit
         // `Primitive::intersect` would have made.
         let mut nearest: Option<Candidate> = None;
         let mut best: Option<SurfaceHit> = None;
@@ -159,11 +161,20 @@ impl Scene {
             triangles::SlotKind::Generic(i) => {
                 let prim = &w.prims[i as usize];
                 let alpha = ALPHA && w.surfaces.alpha[prim.material as usize];
-                if let (shape::Shape::Rect(r), None, false) = (&prim.shape, prim.motion, alpha) {
-                    let (t, s, tt) = r.candidate(ray, t_max)?;
-                    nearest = Some(Candidate::Rect(i, t, s, tt));
-                    best = None;
-                    return Some(t);
+                match (&prim.shape, prim.motion, alpha) {
+                    (shape::Shape::Rect(r), None, false) => {
+                        let (t, s, tt) = r.candidate(ray, t_max)?;
+                        nearest = Some(Candidate::Rect(i, t, s, tt));
+                        best = None;
+                        return Some(t);
+                    }
+                    (shape::Shape::Sphere(s), None, false) => {
+                        let t = s.candidate(ray, t_max)?;
+                        nearest = Some(Candidate::Sphere(i, t));
+                        best = None;
+                        return Some(t);
+                    }
+                    _ => {}
                 }
                 let mut hit = prim.intersect(ray, t_max, time, &w.meshes, &w.motions)?;
                 if alpha && !w.covers_hit(i, hit.p, hit.uv, ray, time) {
@@ -191,6 +202,11 @@ impl Scene {
             Some(Candidate::Rect(i, t, s, tt)) => {
                 if let shape::Shape::Rect(r) = &w.prims[i as usize].shape {
                     best = complete(i, Some(r.hit_at(t, s, tt)));
+                }
+            }
+            Some(Candidate::Sphere(i, t)) => {
+                if let shape::Shape::Sphere(s) = &w.prims[i as usize].shape {
+                    best = complete(i, Some(s.complete(ray, t)));
                 }
             }
             None => {}

@@ -47,27 +47,53 @@ fn unit_float(h: u64) -> f32 {
 /// (cycle walking) until it lands inside `0..len`.
 pub fn permute(i: u32, len: u32, key: u64) -> u32 {
     debug_assert!(i < len);
-    if len <= 1 {
-        return 0;
+    Permutation::new(len).apply(i, key)
+}
+
+/// The constants of [`permute`] for one length. A sampler's lengths (the sample count, the
+/// grid's sides) are fixed, so it keeps these instead of deriving them at every draw.
+#[derive(Debug, Clone, Copy)]
+struct Permutation {
+    len: u32,
+    /// The smallest power-of-two domain holding `len`, less one.
+    mask: u32,
+    /// The two xor-shifts that depend on the domain's bit count.
+    shift_half: u32,
+    shift_third: u32,
+}
+
+impl Permutation {
+    fn new(len: u32) -> Permutation {
+        if len <= 1 {
+            return Permutation { len, mask: 0, shift_half: 1, shift_third: 1 };
+        }
+        let mask = u32::MAX >> (len - 1).leading_zeros();
+        let bits = 32 - mask.leading_zeros();
+        Permutation { len, mask, shift_half: (bits / 2).max(1), shift_third: (bits / 3).max(1) }
     }
-    let mask = u32::MAX >> (len - 1).leading_zeros();
-    let bits = 32 - mask.leading_zeros();
-    let (k0, k1) = (key as u32, (key >> 32) as u32);
-    let mut x = i;
-    loop {
-        // Every step is invertible modulo 2^bits: xor with a key, multiply by an odd
-        // constant, xor-shift right, add a key.
-        x ^= k0 & mask;
-        x = x.wrapping_mul(0x2c1b_3c6d | 1) & mask;
-        x ^= x >> (bits / 2).max(1);
-        x = x.wrapping_add(k1) & mask;
-        x = x.wrapping_mul(0x297a_2d39 | 1) & mask;
-        x ^= x >> (bits / 3).max(1);
-        x ^= (k1 >> 7) & mask;
-        x = x.wrapping_mul(0x1b87_3593 | 1) & mask;
-        x ^= x >> 1;
-        if x < len {
-            return x;
+
+    #[inline]
+    fn apply(&self, i: u32, key: u64) -> u32 {
+        if self.len <= 1 {
+            return 0;
+        }
+        let (mask, (k0, k1)) = (self.mask, (key as u32, (key >> 32) as u32));
+        let mut x = i;
+        loop {
+            // Every step is invertible modulo 2^bits: xor with a key, multiply by an odd
+            // constant, xor-shift right, add a key.
+            x ^= k0 & mask;
+            x = x.wrapping_mul(0x2c1b_3c6d | 1) & mask;
+            x ^= x >> self.shift_half;
+            x = x.wrapping_add(k1) & mask;
+            x = x.wrapping_mul(0x297a_2d39 | 1) & mask;
+            x ^= x >> self.shift_third;
+            x ^= (k1 >> 7) & mask;
+            x = x.wrapping_mul(0x1b87_3593 | 1) & mask;
+            x ^= x >> 1;
+            if x < self.len {
+                return x;
+            }
         }
     }
 }
@@ -85,21 +111,41 @@ pub fn grid(n: u32) -> (u32, u32) {
     (m, n / m)
 }
 
-/// Sample `s` of an `n`-sample correlated multi-jittered pattern on an `m × rows` grid
-/// (`m · rows = n`), keyed by `key`.
-fn cmj(s: u32, (m, rows): (u32, u32), key: u64) -> Vec2 {
-    let (col, row) = (s % m, s / m);
-    // The fine-grid offsets are shuffled per pattern, so that columns and rows of the
-    // coarse grid do not line up.
-    let sx = permute(col, m, key ^ 0x51);
-    let sy = permute(row, rows, key ^ 0xa3);
-    // hash_words(&[key, s, 1]) and (&[key, s, 2]), sharing their first two steps.
-    let prefix = hash_step(hash_step(HASH_START, key), u64::from(s));
-    let jx = unit_float(hash_step(prefix, 1));
-    let jy = unit_float(hash_step(prefix, 2));
-    let x = (col as f32 + (sy as f32 + jx) / rows as f32) / m as f32;
-    let y = (row as f32 + (sx as f32 + jy) / m as f32) / rows as f32;
-    Vec2::new(x.min(ONE_MINUS_EPSILON), y.min(ONE_MINUS_EPSILON))
+/// The coarse grid of a sampler's correlated multi-jittered pattern and the permutations
+/// of its columns and rows.
+#[derive(Debug, Clone, Copy)]
+struct Cmj {
+    /// Columns and rows (`m · rows = n`).
+    m: u32,
+    rows: u32,
+    columns: Permutation,
+    row_order: Permutation,
+}
+
+impl Cmj {
+    fn new(n: u32) -> Cmj {
+        let (m, rows) = grid(n);
+        Cmj { m, rows, columns: Permutation::new(m), row_order: Permutation::new(rows) }
+    }
+
+    /// Sample `s` of the `n`-sample pattern keyed by `key`; `from_key` is
+    /// `hash_step(HASH_START, key)`, the state its jitter hashes start from.
+    #[inline]
+    fn sample(&self, s: u32, key: u64, from_key: u64) -> Vec2 {
+        let (m, rows) = (self.m, self.rows);
+        let (col, row) = (s % m, s / m);
+        // The fine-grid offsets are shuffled per pattern, so that columns and rows of the
+        // coarse grid do not line up.
+        let sx = self.columns.apply(col, key ^ 0x51);
+        let sy = self.row_order.apply(row, key ^ 0xa3);
+        // hash_words(&[key, s, 1]) and (&[key, s, 2]), sharing their first two steps.
+        let prefix = hash_step(from_key, u64::from(s));
+        let jx = unit_float(hash_step(prefix, 1));
+        let jy = unit_float(hash_step(prefix, 2));
+        let x = (col as f32 + (sy as f32 + jx) / rows as f32) / m as f32;
+        let y = (row as f32 + (sx as f32 + jy) / m as f32) / rows as f32;
+        Vec2::new(x.min(ONE_MINUS_EPSILON), y.min(ONE_MINUS_EPSILON))
+    }
 }
 
 /// The largest f32 below 1.
@@ -138,50 +184,110 @@ fn fixed_to_unit(x: u32) -> f32 {
     ((x >> 8) as f32 * (1.0 / (1u32 << 24) as f32)).min(ONE_MINUS_EPSILON)
 }
 
+/// What every draw of one dimension of one pixel shares, whatever the sample index: the
+/// dimension's key and the hash states that start from it.
+#[derive(Debug, Clone, Copy, Default)]
+struct DimensionKeys {
+    /// `hash_words(&[seed, pixel, dimension])`: keys the strata's order.
+    key: u64,
+    /// `mix64(key)`: keys the pattern (its jitter, Sobol's scrambling).
+    pattern: u64,
+    /// `hash_step(HASH_START, key)`: where 1-D jitter and independent draws start.
+    from_key: u64,
+    /// `hash_step(HASH_START, pattern)`: where the 2-D pattern's jitter starts.
+    from_pattern: u64,
+}
+
+impl DimensionKeys {
+    fn new(key: u64) -> DimensionKeys {
+        let pattern = mix64(key);
+        DimensionKeys {
+            key,
+            pattern,
+            from_key: hash_step(HASH_START, key),
+            from_pattern: hash_step(HASH_START, pattern),
+        }
+    }
+}
+
+/// Dimensions whose keys a sampler keeps for the pixel at hand: a Cook path of depth 8
+/// with a few lights draws about 30; deeper ones compute the rest at every draw.
+const KEPT_DIMENSIONS: usize = 64;
+
 /// The sample generator of one pixel sample; dimensions are drawn in a fixed order.
+///
+/// A worker renders a pixel's samples one after another, and everything a draw hashes
+/// before the sample index enters depends only on (seed, pixel, dimension): the sampler
+/// keeps that for the dimensions drawn so far in the current pixel, and draws the same
+/// bits as hashing every word from the start (`tests::kept_keys_draw_what_fresh_hashes_draw`).
 #[derive(Debug, Clone)]
 pub struct Sampler {
     kind: SamplerKind,
     seed: u64,
     spp: u32,
-    grid: (u32, u32),
+    order: Permutation,
+    cmj: Cmj,
     pixel: UVec2,
     /// The hash state after the seed and the pixel: every dimension's key starts there.
     pixel_key: u64,
     index: u32,
     dimension: u32,
+    /// The keys of dimensions `0..kept` of `pixel`.
+    keys: Box<[DimensionKeys; KEPT_DIMENSIONS]>,
+    kept: u32,
 }
 
 impl Sampler {
     /// A sampler for patterns of `spp` samples per pixel.
     pub fn new(kind: SamplerKind, seed: u64, spp: u32) -> Self {
         let spp = spp.max(1);
-        let mut sampler = Sampler {
+        Sampler {
             kind,
             seed,
             spp,
-            grid: grid(spp),
+            order: Permutation::new(spp),
+            cmj: Cmj::new(spp),
             pixel: UVec2::ZERO,
-            pixel_key: 0,
+            pixel_key: Self::key_of(seed, UVec2::ZERO),
             index: 0,
             dimension: 0,
-        };
-        sampler.start_pixel_sample(UVec2::ZERO, 0);
-        sampler
+            keys: Box::new([DimensionKeys::default(); KEPT_DIMENSIONS]),
+            kept: 0,
+        }
+    }
+
+    /// `hash_words(&[seed, pixel])`.
+    fn key_of(seed: u64, pixel: UVec2) -> u64 {
+        hash_words(&[seed, u64::from(pixel.x) | (u64::from(pixel.y) << 32)])
     }
 
     /// Positions the sampler at sample `index` of `pixel`; the next draw is dimension 0.
     pub fn start_pixel_sample(&mut self, pixel: UVec2, index: u32) {
-        self.pixel_key = hash_words(&[self.seed, u64::from(pixel.x) | (u64::from(pixel.y) << 32)]);
-        self.pixel = pixel;
+        if pixel != self.pixel {
+            self.pixel_key = Self::key_of(self.seed, pixel);
+            self.pixel = pixel;
+            self.kept = 0;
+        }
         self.index = index;
         self.dimension = 0;
     }
 
-    /// `hash_words(&[seed, pixel, dimension])`, from the state after seed and pixel.
+    /// The keys of the next dimension (`hash_words(&[seed, pixel, dimension])` and what
+    /// follows from it), kept or computed.
     #[inline]
-    fn dimension_key(&self) -> u64 {
-        hash_step(self.pixel_key, u64::from(self.dimension))
+    fn next_dimension(&mut self) -> DimensionKeys {
+        let d = self.dimension;
+        self.dimension += 1;
+        if d < self.kept {
+            return self.keys[d as usize];
+        }
+        let keys = DimensionKeys::new(hash_step(self.pixel_key, u64::from(d)));
+        // Dimensions are drawn in order from 0, so the next one to keep is `kept`.
+        if d == self.kept && (d as usize) < KEPT_DIMENSIONS {
+            self.keys[d as usize] = keys;
+            self.kept += 1;
+        }
+        keys
     }
 
     /// Dimensions drawn since `start_pixel_sample` (a 2-D draw counts once): what a sample
@@ -192,39 +298,35 @@ impl Sampler {
 
     /// The next 2-D dimension, following the pixel's pattern.
     pub fn get_2d(&mut self) -> Vec2 {
-        let key = self.dimension_key();
-        self.dimension += 1;
+        let k = self.next_dimension();
         if self.index >= self.spp || self.kind == SamplerKind::Independent {
-            // Beyond the pattern, or no pattern: plain random.
-            let h = hash_words(&[key, u64::from(self.index)]);
+            // Beyond the pattern, or no pattern: plain random (hash_words(&[key, index])).
+            let h = hash_step(k.from_key, u64::from(self.index));
             return Vec2::new(unit_float(h), unit_float(mix64(h)));
         }
         // Cook's random association: each dimension visits the strata in its own order.
-        let s = permute(self.index, self.spp, key);
+        let s = self.order.apply(self.index, k.key);
         match self.kind {
-            SamplerKind::Sobol => {
-                let k = mix64(key);
-                Vec2::new(
-                    fixed_to_unit(owen_scramble(s.reverse_bits(), k as u32)),
-                    fixed_to_unit(owen_scramble(sobol_dim1(s), (k >> 32) as u32)),
-                )
-            }
-            _ => cmj(s, self.grid, mix64(key)),
+            SamplerKind::Sobol => Vec2::new(
+                fixed_to_unit(owen_scramble(s.reverse_bits(), k.pattern as u32)),
+                fixed_to_unit(owen_scramble(sobol_dim1(s), (k.pattern >> 32) as u32)),
+            ),
+            _ => self.cmj.sample(s, k.pattern, k.from_pattern),
         }
     }
 
     /// The next 1-D dimension, following the pixel's pattern.
     pub fn get_1d(&mut self) -> f32 {
-        let key = self.dimension_key();
-        self.dimension += 1;
+        let k = self.next_dimension();
         if self.index >= self.spp || self.kind == SamplerKind::Independent {
-            return unit_float(hash_words(&[key, u64::from(self.index)]));
+            return unit_float(hash_step(k.from_key, u64::from(self.index)));
         }
-        let s = permute(self.index, self.spp, key);
+        let s = self.order.apply(self.index, k.key);
         match self.kind {
-            SamplerKind::Sobol => fixed_to_unit(owen_scramble(s.reverse_bits(), mix64(key) as u32)),
+            SamplerKind::Sobol => fixed_to_unit(owen_scramble(s.reverse_bits(), k.pattern as u32)),
             _ => {
-                let jitter = unit_float(hash_words(&[key, u64::from(s), 3]));
+                // hash_words(&[key, s, 3]).
+                let jitter = unit_float(hash_step(hash_step(k.from_key, u64::from(s)), 3));
                 ((s as f32 + jitter) / self.spp as f32).min(ONE_MINUS_EPSILON)
             }
         }
@@ -234,6 +336,89 @@ impl Sampler {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The draws of dimension `d` of sample `index` of `pixel`, hashed from the start as
+    /// the sampler's definition states them (no kept state): the oracle for the kept keys.
+    fn fresh_2d(kind: SamplerKind, seed: u64, spp: u32, pixel: UVec2, index: u32, d: u32) -> Vec2 {
+        let key = hash_words(&[seed, u64::from(pixel.x) | (u64::from(pixel.y) << 32), u64::from(d)]);
+        if index >= spp || kind == SamplerKind::Independent {
+            let h = hash_words(&[key, u64::from(index)]);
+            return Vec2::new(unit_float(h), unit_float(mix64(h)));
+        }
+        let s = permute(index, spp, key);
+        let k = mix64(key);
+        if kind == SamplerKind::Sobol {
+            return Vec2::new(
+                fixed_to_unit(owen_scramble(s.reverse_bits(), k as u32)),
+                fixed_to_unit(owen_scramble(sobol_dim1(s), (k >> 32) as u32)),
+            );
+        }
+        let (m, rows) = grid(spp);
+        let (col, row) = (s % m, s / m);
+        let (sx, sy) = (permute(col, m, k ^ 0x51), permute(row, rows, k ^ 0xa3));
+        let (jx, jy) =
+            (unit_float(hash_words(&[k, u64::from(s), 1])), unit_float(hash_words(&[k, u64::from(s), 2])));
+        let x = (col as f32 + (sy as f32 + jx) / rows as f32) / m as f32;
+        let y = (row as f32 + (sx as f32 + jy) / m as f32) / rows as f32;
+        Vec2::new(x.min(ONE_MINUS_EPSILON), y.min(ONE_MINUS_EPSILON))
+    }
+
+    /// [`fresh_2d`] for a 1-D draw.
+    fn fresh_1d(kind: SamplerKind, seed: u64, spp: u32, pixel: UVec2, index: u32, d: u32) -> f32 {
+        let key = hash_words(&[seed, u64::from(pixel.x) | (u64::from(pixel.y) << 32), u64::from(d)]);
+        if index >= spp || kind == SamplerKind::Independent {
+            return unit_float(hash_words(&[key, u64::from(index)]));
+        }
+        let s = permute(index, spp, key);
+        if kind == SamplerKind::Sobol {
+            return fixed_to_unit(owen_scramble(s.reverse_bits(), mix64(key) as u32));
+        }
+        let jitter = unit_float(hash_words(&[key, u64::from(s), 3]));
+        ((s as f32 + jitter) / spp as f32).min(ONE_MINUS_EPSILON)
+    }
+
+    /// The kept keys change no bit: pixels revisited in and out of turn, samples that draw
+    /// more or fewer dimensions than the one before (paths end at different depths), 1-D
+    /// and 2-D draws of one dimension in different samples, more dimensions than are kept,
+    /// indices beyond the pattern, every pattern and sample counts of every shape.
+    #[test]
+    fn kept_keys_draw_what_fresh_hashes_draw() {
+        let kinds = [SamplerKind::Stratified, SamplerKind::Sobol, SamplerKind::Independent];
+        for (kind, spp, seed) in
+            kinds.into_iter().flat_map(|k| [(k, 1, 3), (k, 7, 0), (k, 16, 9), (k, 60, 1)])
+        {
+            let mut sampler = Sampler::new(kind, seed, spp);
+            for step in 0..400u64 {
+                let h = hash_words(&[step, u64::from(spp)]);
+                // Mostly the same pixel again (as a batch walks its samples), sometimes another.
+                let pixel = if h % 4 == 0 {
+                    UVec2::new((h >> 8) as u32 % 3, (h >> 16) as u32 % 2)
+                } else {
+                    sampler.pixel
+                };
+                let index = (h >> 24) as u32 % (spp + 3);
+                let draws = (h >> 32) as u32 % (KEPT_DIMENSIONS as u32 + 12);
+                sampler.start_pixel_sample(pixel, index);
+                for d in 0..draws {
+                    if (h >> (d % 48)) & 1 == 0 {
+                        let want = fresh_2d(kind, seed, spp, pixel, index, d);
+                        assert_eq!(
+                            sampler.get_2d(),
+                            want,
+                            "{kind:?} spp {spp} {pixel} sample {index} dimension {d}"
+                        );
+                    } else {
+                        let want = fresh_1d(kind, seed, spp, pixel, index, d);
+                        assert_eq!(
+                            sampler.get_1d().to_bits(),
+                            want.to_bits(),
+                            "{kind:?} spp {spp} {pixel} sample {index} dimension {d}"
+                        );
+                    }
+                }
+            }
+        }
+    }
 
     #[test]
     fn permute_is_a_bijection() {

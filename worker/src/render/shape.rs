@@ -270,10 +270,10 @@ impl Primitive {
     /// How many times the ray's segment (0, t_max) crosses the surface: for shadow rays,
     /// which multiply the transmission of every crossing.
     pub fn crossings(&self, ray: &Ray, t_max: f32, time: f32, meshes: &[Mesh], motions: &[Motion]) -> u32 {
+        // A still shape's crossings are decided by its distances alone: no hit is made.
         match (&self.shape, self.motion) {
-            (Shape::Sphere(s), None) => {
-                s.intersect_all(ray, t_max).iter().filter(|h| h.is_some()).count() as u32
-            }
+            (Shape::Sphere(s), None) => s.crossings(ray, t_max),
+            (Shape::Rect(r), None) => u32::from(r.candidate(ray, t_max).is_some()),
             (Shape::Sphere(_), Some(_)) => {
                 let Some(first) = self.intersect(ray, t_max, time, meshes, motions) else { return 0 };
                 let beyond = Ray::new(ray.at(first.t), ray.dir);
