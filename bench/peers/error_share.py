@@ -19,7 +19,7 @@ llvm_path.configure()
 import numpy as np  # noqa: E402
 import mitsuba as mi  # noqa: E402
 import scenes  # noqa: E402
-from mitsuba_vs import read_exr, seeded_scene  # noqa: E402
+from mitsuba_vs import read_exr, seeded_scene, tessera_scene  # noqa: E402
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -41,8 +41,11 @@ def main():
     for seed in (1, 2):
         runs["mitsuba"].append(np.array(mi.render(scene, spp=a.spp, seed=seed), dtype=np.float64)[..., :3])
         out = os.path.join(tmp, f"t{seed}.exr")
-        cp = subprocess.run([a.tessera, "render", seeded_scene(os.path.join(a.scene_dir, f"{a.scene}.toml"), seed, tmp),
-                             "-o", out, "--spp", str(a.spp)], capture_output=True, text=True)
+        seeded = seeded_scene(tessera_scene(a.scene_dir, a.scene), seed)
+        h, w = ref.shape[:2]
+        cp = subprocess.run([a.tessera, "render", seeded, "-o", out, "--spp", str(a.spp), "--size", f"{w}x{h}"],
+                            capture_output=True, text=True)
+        os.remove(seeded)
         if cp.returncode != 0:
             sys.exit(f"tessera render failed: {cp.stderr.strip()[-400:]}")
         runs["tessera"].append(read_exr(out))

@@ -43,15 +43,22 @@ def time_to(err_target, rows):
     slope, icept = np.polyfit(lt, le, 1)
     return float(np.exp((math.log(err_target) - icept) / slope))
 
-def seeded_scene(path, seed, tmp):
-    """A copy of the scene file at `path` whose [render] table sets `seed` (in `tmp`; the
-    benchmark scenes have no assets, so the copy renders as the original)."""
+def tessera_scene(scene_dir, name):
+    """Tessera's file of scene `name`: scenes/<name>.toml, or where the spec says."""
+    spec = scenes.SPEC.get(name, {})
+    if "tessera_scene" in spec:
+        return os.path.join(scene_dir, os.path.relpath(spec["tessera_scene"], "scenes"))
+    return os.path.join(scene_dir, f"{name}.toml")
+
+def seeded_scene(path, seed):
+    """A copy of the scene file at `path` whose [render] table sets `seed`, beside the
+    original (so that the paths of its assets, such as the terrain's OBJ, still resolve)."""
     text = open(path).read()
     if "\n[render]\n" not in "\n" + text:
         sys.exit(f"{path}: no [render] table to set the seed in")
     if any(line.strip().startswith("seed") for line in text.splitlines()):
         sys.exit(f"{path}: already sets a seed")
-    out = os.path.join(tmp, f"seed{seed}-{os.path.basename(path)}")
+    out = os.path.join(os.path.dirname(os.path.abspath(path)), f".seed{seed}-{os.path.basename(path)}")
     with open(out, "w") as f:
         f.write(("\n" + text).replace("\n[render]\n", f"\n[render]\nseed = {seed}\n", 1)[1:])
     return out
@@ -87,11 +94,13 @@ def main():
                 out = os.path.join(tmp, f"{name}-{spp}.exr")
                 # Tessera is deterministic: without a seed of its own per run, every run
                 # would be the same image and the median of its errors one sample.
-                seeded = seeded_scene(os.path.join(a.scene_dir, f"{name}.toml"), 1 + r, tmp)
+                seeded = seeded_scene(tessera_scene(a.scene_dir, name), 1 + r)
                 t0 = time.perf_counter()
-                cp = subprocess.run([a.tessera, "render", seeded,
-                                     "-o", out, "--spp", str(spp)], capture_output=True, text=True)
+                # The reference's size: a scene may be compared smaller than its file says.
+                cp = subprocess.run([a.tessera, "render", seeded, "-o", out, "--spp", str(spp),
+                                     "--size", f"{w}x{h}"], capture_output=True, text=True)
                 tt.append(time.perf_counter() - t0)
+                os.remove(seeded)
                 if cp.returncode != 0:
                     sys.exit(f"tessera render failed: {cp.stderr.strip()[-400:]}")
                 te.append(rmse(read_exr(out), ref))
