@@ -1,6 +1,7 @@
 #!/usr/bin/env bash
-# Renders the two benchmark scenes (scenes/spheres.toml and
-# scenes/cornell.toml) at SPP samples per pixel with two seeds, compares each with
+# Renders the benchmark scenes (scenes/spheres.toml, scenes/cornell.toml and, once
+# `python3 scenes/generate-terrain.py` has written its mesh, the 1M-triangle
+# scenes/terrain/terrain.toml at 320x240) at SPP samples per pixel with two seeds, compares each with
 # Mitsuba 3's converged `cook` reference, and prints:
 #   rmse      error of our image against the reference (linear RGB, all pixels/channels)
 #   noise     our own noise: rmse between our two seeds / sqrt(2)
@@ -22,11 +23,23 @@ bin=${BIN:-target/release/tessera}
 tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT
 printf '%-8s %5s %10s %10s %10s %10s %10s\n' scene spp rmse noise "ref noise" bias "rmse[0,1]"
-for scene in spheres cornell; do
-  case $scene in spheres) ref_noise=0.00976 ;; cornell) ref_noise=0.00086 ;; esac
+for scene in spheres cornell terrain; do
+  file=scenes/$scene.toml size=()
+  case $scene in
+    spheres) ref_noise=0.00976 ;;
+    cornell) ref_noise=0.00086 ;;
+    terrain) ref_noise=0.00077 file=scenes/terrain/terrain.toml size=(--size 320x240)
+      if [ ! -f scenes/terrain/terrain.obj ]; then
+        echo "terrain: skipped (run python3 scenes/generate-terrain.py to write its mesh)"
+        continue
+      fi ;;
+  esac
   for seed in 1 2; do
-    sed "s/^\[render\]\$/[render]\nseed = $seed/" "scenes/$scene.toml" > "$tmp/$scene-$seed.toml"
-    "$bin" render "$tmp/$scene-$seed.toml" -o "$tmp/$scene-$seed.exr" --spp "$spp" 2>/dev/null
+    # Beside the original, so that the paths of its assets resolve.
+    seeded=$(dirname "$file")/.seed$seed-$(basename "$file")
+    sed "s/^\[render\]\$/[render]\nseed = $seed/" "$file" > "$seeded"
+    "$bin" render "$seeded" -o "$tmp/$scene-$seed.exr" --spp "$spp" "${size[@]}" 2>/dev/null || { rm -f "$seeded"; exit 1; }
+    rm -f "$seeded"
   done
   rmse=$("$bin" compare "$tmp/$scene-1.exr" "$refs/${scene}_cook.exr" | awk '{print $2}')
   between=$("$bin" compare "$tmp/$scene-1.exr" "$tmp/$scene-2.exr" | awk '{print $2}')
