@@ -16,7 +16,7 @@ use tessera_description::model::{Description, Location};
 use tessera_description::obj::{parse_obj_scanned, ParsedObj};
 use tessera_description::{Bundle, SceneError};
 
-use crate::render::bvh::Bvh;
+use crate::render::bvh::{Bvh, LeafPolicy};
 use crate::render::camera::Camera;
 use crate::render::light::{Light, LightChoice};
 use crate::render::{Scene, World};
@@ -110,7 +110,13 @@ fn build_observed(
         mark(Phase::Primitives);
         bounds
     };
-    let bvh = Bvh::build(&bounds);
+    let inline_triangles = shapes
+        .prims
+        .iter()
+        .filter(|p| matches!(p.shape, crate::render::shape::Shape::Triangle { .. }) && p.motion.is_none())
+        .count();
+    let policy = LeafPolicy::for_scene(inline_triangles, shapes.prims.len() - inline_triangles);
+    let bvh = Bvh::build_with(&bounds, policy);
     drop(bounds);
     mark(Phase::Bvh);
     let light_choice = LightChoice::new(&lights, scene_radius(&bvh));

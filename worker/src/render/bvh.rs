@@ -123,15 +123,49 @@ pub(super) struct Binary {
 const BINS: usize = 12;
 /// Leaves never hold more than this (when the SAH would keep more, split at the median).
 const MAX_LEAF: usize = 8;
-/// Cost of visiting a node relative to intersecting one primitive.
-const TRAVERSAL_COST: f32 = 1.0;
+
+/// What the builder's SAH weighs: a node visit against a primitive test, and the largest
+/// set it keeps as a leaf without weighing.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct LeafPolicy {
+    /// Cost of visiting a node relative to intersecting one primitive.
+    traversal_cost: f32,
+    /// Sets of at most this many primitives are leaves.
+    always_leaf: usize,
+}
+
+impl LeafPolicy {
+    /// For triangle meshes: an inline triangle's test costs about what a node's does, so
+    /// leaves of a few triangles pay (smaller trees, built faster).
+    pub const TRIANGLES: LeafPolicy = LeafPolicy { traversal_cost: 1.0, always_leaf: 2 };
+    /// For scenes of spheres and parallelograms: one of their tests costs several box
+    /// tests (a sphere's is in f64), and four boxes are tested at once, so the SAH may put
+    /// each in a leaf of its own. On the Cornell box it takes the primitives tested per ray
+    /// from 7.7 of 8 to a few, a quarter of the instructions per sample (docs/speed.md).
+    pub const SHAPES: LeafPolicy = LeafPolicy { traversal_cost: 0.25, always_leaf: 1 };
+
+    /// The policy for a scene whose primitives are `inline_triangles` triangles tested
+    /// from the BVH's slots and `others` other shapes.
+    pub fn for_scene(inline_triangles: usize, others: usize) -> LeafPolicy {
+        if others > inline_triangles {
+            LeafPolicy::SHAPES
+        } else {
+            LeafPolicy::TRIANGLES
+        }
+    }
+}
 
 impl Bvh {
     /// Builds the hierarchy over primitives with the given boxes. Subtrees of more than
     /// [`PARALLEL_MIN`] primitives build in parallel; every split depends only on the
     /// boxes, so the tree is the same for any number of threads.
     pub fn build(bounds: &[Aabb]) -> Bvh {
-        let Binary { nodes, indices } = build_binary(bounds);
+        Self::build_with(bounds, LeafPolicy::TRIANGLES)
+    }
+
+    /// [`Bvh::build`] with the leaves `policy` asks for.
+    pub fn build_with(bounds: &[Aabb], policy: LeafPolicy) -> Bvh {
+        let Binary { nodes, indices } = build_binary_with(bounds, policy);
         Bvh { wide: fold::fold(&nodes), indices }
     }
 
@@ -183,14 +217,20 @@ impl Bvh {
 }
 
 /// The builder's binary tree over primitives with the given boxes.
+#[cfg(test)]
 pub(super) fn build_binary(bounds: &[Aabb]) -> Binary {
+    build_binary_with(bounds, LeafPolicy::TRIANGLES)
+}
+
+/// [`build_binary`] with the leaves `policy` asks for.
+pub(super) fn build_binary_with(bounds: &[Aabb], policy: LeafPolicy) -> Binary {
     if bounds.is_empty() {
         return Binary::default();
     }
     use rayon::prelude::*;
     let boxes: Vec<PrimBox> =
         bounds.par_iter().map(|b| PrimBox { min: b.min.into(), max: b.max.into() }).collect();
-    let prims = Prims { boxes: &boxes };
+    let prims = Prims { boxes: &boxes, policy };
     let mut indices: Vec<u32> = (0..bounds.len() as u32).collect();
     let mut bins = vec![0u8; bounds.len()];
     let mut nodes = Vec::with_capacity(bounds.len() / 2);

@@ -4,12 +4,13 @@
 
 use glam::Vec3A;
 
-use super::{Aabb, Node, BINS, MAX_LEAF, TRAVERSAL_COST};
+use super::{Aabb, LeafPolicy, Node, BINS, MAX_LEAF};
 
 /// The primitives' boxes, read by index while building (moving the boxes with the indices
 /// instead was measured slower: a swap then moves 28 bytes, not 4).
 pub(super) struct Prims<'a> {
     pub(super) boxes: &'a [PrimBox],
+    pub(super) policy: LeafPolicy,
 }
 
 /// A primitive's box as the builder reads it: both corners in one aligned 32-byte record,
@@ -153,7 +154,7 @@ struct Split {
 /// bins and the partition both.
 fn split(p: &Prims, items: &mut [u32], bin_ids: &mut [u8], node_bounds: &Aabb, cb: &Aabb) -> Option<Split> {
     let n = items.len();
-    if n <= 2 {
+    if n <= p.policy.always_leaf {
         return None;
     }
     let extent = cb.max - cb.min;
@@ -205,7 +206,7 @@ fn split(p: &Prims, items: &mut [u32], bin_ids: &mut [u8], node_bounds: &Aabb, c
         }
     }
     let leaf_cost = node_bounds.surface_area() * n as f32;
-    let split_cost = TRAVERSAL_COST * node_bounds.surface_area() + best.0;
+    let split_cost = p.policy.traversal_cost * node_bounds.surface_area() + best.0;
     if best.0.is_infinite() || (split_cost >= leaf_cost && n <= MAX_LEAF) {
         return (n > MAX_LEAF).then(|| median(items));
     }

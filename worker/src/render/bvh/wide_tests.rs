@@ -3,7 +3,7 @@
 
 use glam::Vec3;
 
-use super::super::{build_binary, reference, Aabb, Binary};
+use super::super::{build_binary_with, reference, Aabb, Binary, LeafPolicy};
 use super::Wide;
 use crate::render::geometry::Ray;
 use crate::render::sampler::hash_words;
@@ -112,8 +112,11 @@ fn wide_visits_what_the_binary_tree_visits() {
     ];
     let mut visits = 0;
     let mut stacks = std::collections::BTreeSet::new();
-    for (set, (boxes, scale)) in sets.iter().enumerate() {
-        let binary = build_binary(boxes);
+    let policies = [LeafPolicy::TRIANGLES, LeafPolicy::SHAPES];
+    for (set, (boxes, scale, policy)) in
+        sets.iter().flat_map(|(b, s)| policies.map(|p| (b, s, p))).enumerate()
+    {
+        let binary = build_binary_with(boxes, policy);
         let wide = super::super::fold::fold(&binary.nodes);
         stacks.insert(if wide.depth <= super::SMALL_STACK {
             "small"
