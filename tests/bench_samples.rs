@@ -10,12 +10,14 @@ use std::time::Duration;
 
 /// The checksum the median line ends with.
 fn checksum(stdout: &str) -> String {
-    let line = stdout.lines().find(|l| l.starts_with("median")).unwrap_or_else(|| panic!("no median:\n{stdout}"));
+    let line =
+        stdout.lines().find(|l| l.starts_with("median")).unwrap_or_else(|| panic!("no median:\n{stdout}"));
     line.rsplit("checksum ").next().unwrap().trim().to_string()
 }
 
 fn bench(scene: &str, threads: &str) -> String {
-    let args = ["bench", "samples", scene, "--size", "40x30", "--spp", "5", "--threads", threads, "--runs", "2"];
+    let args =
+        ["bench", "samples", scene, "--size", "40x30", "--spp", "5", "--threads", threads, "--runs", "2"];
     let out = run_with_timeout(&args, Duration::from_secs(60));
     let stdout = String::from_utf8_lossy(&out.stdout).to_string();
     assert!(out.status.success(), "{stdout}\n{}", String::from_utf8_lossy(&out.stderr));
