@@ -21,7 +21,8 @@ if [ -z "${BIN:-}" ]; then
 fi
 bin=${BIN:-target/release/tessera}
 tmp=$(mktemp -d)
-trap 'rm -rf "$tmp"' EXIT
+seeded=
+trap 'rm -rf "$tmp"; [ -z "$seeded" ] || rm -f "$seeded"' EXIT
 printf '%-8s %5s %10s %10s %10s %10s %10s\n' scene spp rmse noise "ref noise" bias "rmse[0,1]"
 for scene in spheres cornell terrain; do
   file=scenes/$scene.toml size=()
@@ -36,10 +37,12 @@ for scene in spheres cornell terrain; do
   esac
   for seed in 1 2; do
     # Beside the original, so that the paths of its assets resolve.
-    seeded=$(dirname "$file")/.seed$seed-$(basename "$file")
+    seeded=$(mktemp "$(dirname "$file")/.seed$seed-XXXXXX.toml")
     sed "s/^\[render\]\$/[render]\nseed = $seed/" "$file" > "$seeded"
-    "$bin" render "$seeded" -o "$tmp/$scene-$seed.exr" --spp "$spp" "${size[@]}" 2>/dev/null || { rm -f "$seeded"; exit 1; }
+    grep -q "^seed = $seed\$" "$seeded" || { echo "$file: no [render] table to set the seed in" >&2; exit 1; }
+    "$bin" render "$seeded" -o "$tmp/$scene-$seed.exr" --spp "$spp" ${size[@]+"${size[@]}"} 2>/dev/null
     rm -f "$seeded"
+    seeded=
   done
   rmse=$("$bin" compare "$tmp/$scene-1.exr" "$refs/${scene}_cook.exr" | awk '{print $2}')
   between=$("$bin" compare "$tmp/$scene-1.exr" "$tmp/$scene-2.exr" | awk '{print $2}')

@@ -1,6 +1,6 @@
 //! End-to-end: `tessera bench samples` prints a row per run and the median, and its image
-//! checksum is the determinism contract in one line: the same for one and two threads, and
-//! different for another seed. Bad arguments get a one-line refusal. (The figures are not
+//! checksum tells images apart: the same for one and two threads (rows rendered in another
+//! interleaving, gathered in order) and another for another seed. Bad arguments get a one-line refusal. (The figures are not
 //! checked: a benchmark is not a test, but it must keep working.)
 
 mod common;
@@ -45,6 +45,8 @@ fn the_samples_benchmark_reports_runs_and_one_checksum_for_any_thread_count() {
     for (args, says) in [
         (vec!["bench", "samples", scene, "--spp", "0"], "--spp"),
         (vec!["bench", "samples", scene, "--threads", "0"], "--threads"),
+        (vec!["bench", "samples", scene, "--runs", "18446744073709551615"], "--runs at most 1000"),
+        (vec!["bench", "samples", scene, "--threads", "1000000"], "--threads at most 1024"),
         (vec!["bench", "samples", scene, "--spp", "99999999"], "--spp 99999999"),
         (vec!["bench", "samples", scene, "--size", "100000x100000"], "--size 100000x100000"),
         (vec!["bench", "samples", "no/such/scene.toml"], "no/such/scene.toml"),

@@ -41,11 +41,10 @@ def main():
     for seed in (1, 2):
         runs["mitsuba"].append(np.array(mi.render(scene, spp=a.spp, seed=seed), dtype=np.float64)[..., :3])
         out = os.path.join(tmp, f"t{seed}.exr")
-        seeded = seeded_scene(tessera_scene(a.scene_dir, a.scene), seed)
         h, w = ref.shape[:2]
-        cp = subprocess.run([a.tessera, "render", seeded, "-o", out, "--spp", str(a.spp), "--size", f"{w}x{h}"],
-                            capture_output=True, text=True)
-        os.remove(seeded)
+        with seeded_scene(tessera_scene(a.scene_dir, a.scene), seed) as seeded:
+            cp = subprocess.run([a.tessera, "render", seeded, "-o", out, "--spp", str(a.spp), "--size", f"{w}x{h}"],
+                                capture_output=True, text=True)
         if cp.returncode != 0:
             sys.exit(f"tessera render failed: {cp.stderr.strip()[-400:]}")
         runs["tessera"].append(read_exr(out))

@@ -1,19 +1,21 @@
 """Mitsuba 3 and Tessera side by side, in one run, on the benchmark scenes.
 
-    VENV/bin/python mitsuba_vs.py --tessera target/release/tessera [--scenes cornell,spheres]
+    VENV/bin/python mitsuba_vs.py --tessera target/release/tessera [--scenes cornell,spheres,terrain]
         [--spp 16,64,256] [--runs 3]
 
 For each scene and spp: Mitsuba 3's llvm_ad_rgb variant with a Cook-style integrator
 (cook_integrator.py: direct light with MIS at every hit, recursion along specular and
 glossy lobes, stop at diffuse) -- timed on its second call, kernel compiled, scene load
-excluded -- and `tessera render scenes/<scene>.toml --spp N` timed as a whole process.
+excluded -- and `tessera render SCENE --spp N --size WxH` timed as a whole process (SCENE is
+scenes/<scene>.toml, or the file scenes.py names: scenes/terrain/terrain.toml, whose mesh
+`python3 scenes/generate-terrain.py` writes; WxH the reference's size).
 Each run of either renderer has a seed of its own (1, 2, 3, ...). Both images are compared (RMSE over all pixels and linear RGB channels) with the
 converged references in docs/references/<scene>_cook.exr (--refs). Prints one row per (scene, spp) and,
 per scene, the time each needs to reach the error Tessera reaches at its largest spp
 (interpolated on the log-log error curve): the ratio that matters to someone rendering.
 Run it on an otherwise idle machine; both renderers use every core.
 """
-import argparse, math, os, subprocess, sys, tempfile, time
+import argparse, contextlib, math, os, subprocess, sys, tempfile, time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 import llvm_path  # noqa: E402
@@ -50,23 +52,28 @@ def tessera_scene(scene_dir, name):
         return os.path.join(scene_dir, os.path.relpath(spec["tessera_scene"], "scenes"))
     return os.path.join(scene_dir, f"{name}.toml")
 
+@contextlib.contextmanager
 def seeded_scene(path, seed):
     """A copy of the scene file at `path` whose [render] table sets `seed`, beside the
-    original (so that the paths of its assets, such as the terrain's OBJ, still resolve)."""
+    original (so that the paths of its assets, such as the terrain's OBJ, still resolve),
+    under a name of its own; removed when the block ends, however it ends."""
     text = open(path).read()
     if "\n[render]\n" not in "\n" + text:
         sys.exit(f"{path}: no [render] table to set the seed in")
     if any(line.strip().startswith("seed") for line in text.splitlines()):
         sys.exit(f"{path}: already sets a seed")
-    out = os.path.join(os.path.dirname(os.path.abspath(path)), f".seed{seed}-{os.path.basename(path)}")
-    with open(out, "w") as f:
-        f.write(("\n" + text).replace("\n[render]\n", f"\n[render]\nseed = {seed}\n", 1)[1:])
-    return out
+    fd, out = tempfile.mkstemp(dir=os.path.dirname(os.path.abspath(path)), prefix=f".seed{seed}-", suffix=".toml")
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(("\n" + text).replace("\n[render]\n", f"\n[render]\nseed = {seed}\n", 1)[1:])
+        yield out
+    finally:
+        os.remove(out)
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--tessera", required=True, help="path to the tessera binary")
-    p.add_argument("--scene-dir", default="scenes", help="folder with cornell.toml and spheres.toml")
+    p.add_argument("--scene-dir", default="scenes", help="Tessera's scenes folder (cornell.toml, spheres.toml, terrain/)")
     p.add_argument("--scenes", default="cornell,spheres")
     p.add_argument("--spp", default="16,64,256")
     p.add_argument("--runs", type=int, default=3, help="runs per renderer; medians are reported")
@@ -94,13 +101,12 @@ def main():
                 out = os.path.join(tmp, f"{name}-{spp}.exr")
                 # Tessera is deterministic: without a seed of its own per run, every run
                 # would be the same image and the median of its errors one sample.
-                seeded = seeded_scene(tessera_scene(a.scene_dir, name), 1 + r)
-                t0 = time.perf_counter()
-                # The reference's size: a scene may be compared smaller than its file says.
-                cp = subprocess.run([a.tessera, "render", seeded, "-o", out, "--spp", str(spp),
-                                     "--size", f"{w}x{h}"], capture_output=True, text=True)
-                tt.append(time.perf_counter() - t0)
-                os.remove(seeded)
+                with seeded_scene(tessera_scene(a.scene_dir, name), 1 + r) as seeded:
+                    t0 = time.perf_counter()
+                    # The reference's size: a scene may be compared smaller than its file says.
+                    cp = subprocess.run([a.tessera, "render", seeded, "-o", out, "--spp", str(spp),
+                                         "--size", f"{w}x{h}"], capture_output=True, text=True)
+                    tt.append(time.perf_counter() - t0)
                 if cp.returncode != 0:
                     sys.exit(f"tessera render failed: {cp.stderr.strip()[-400:]}")
                 te.append(rmse(read_exr(out), ref))

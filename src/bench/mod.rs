@@ -241,6 +241,11 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             if spp == Some(0) || threads == Some(0) || runs == 0 {
                 anyhow::bail!("--spp, --threads and --runs must be at least 1");
             }
+            // A benchmark's runs and threads, not a stress test: bounded so that a typo
+            // cannot ask for a billion threads or runs.
+            if runs > 1000 || threads.is_some_and(|t| t > 1024) {
+                anyhow::bail!("--runs at most 1000 and --threads at most 1024");
+            }
             use tessera_description::limits::{MAX_PIXELS, MAX_SIDE, MAX_SPP};
             if let Some(s) = spp.filter(|&s| s > MAX_SPP) {
                 anyhow::bail!("--spp {s}: at most {MAX_SPP}");

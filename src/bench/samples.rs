@@ -34,9 +34,10 @@ pub fn run(scene_path: &Path, opts: &SamplesOptions) -> Result<()> {
     scene.apply(opts.spp, opts.size);
     let (w, h, spp) = (scene.width, scene.height, scene.spp);
     let pool = rayon::ThreadPoolBuilder::new().num_threads(opts.threads).build().map_err(|e| anyhow!(e))?;
-    println!("scene {} ({w}x{h}, {spp} spp), {} threads, one process", scene_path.display(), opts.threads);
+    let threads = pool.current_num_threads();
+    println!("scene {} ({w}x{h}, {spp} spp), {threads} threads, one process", scene_path.display());
     let samples = f64::from(w) * f64::from(h) * f64::from(spp);
-    let mut times = Vec::with_capacity(opts.runs);
+    let mut times = Vec::new();
     let mut checksum = None;
     for run in 0..opts.runs {
         let start = Instant::now();
@@ -72,7 +73,7 @@ pub fn run(scene_path: &Path, opts: &SamplesOptions) -> Result<()> {
         "median {:.3} s, {:.3} Msamples/s, {:.3} Msamples/s per thread; image checksum {:016x}",
         median.as_secs_f64(),
         samples / median.as_secs_f64() / 1e6,
-        samples / median.as_secs_f64() / 1e6 / opts.threads as f64,
+        samples / median.as_secs_f64() / 1e6 / threads as f64,
         checksum.unwrap_or_default()
     );
     Ok(())

@@ -110,11 +110,11 @@ fn build_observed(
         mark(Phase::Primitives);
         bounds
     };
-    let inline_triangles = shapes
-        .prims
-        .iter()
-        .filter(|p| matches!(p.shape, crate::render::shape::Shape::Triangle { .. }) && p.motion.is_none())
-        .count();
+    let inline_triangles = {
+        use rayon::prelude::*;
+        let meshes = &shapes.meshes;
+        shapes.prims.par_iter().filter(|p| crate::render::triangles::inline(p, meshes).is_some()).count()
+    };
     let policy = LeafPolicy::for_scene(inline_triangles, shapes.prims.len() - inline_triangles);
     let bvh = Bvh::build_with(&bounds, policy);
     drop(bounds);

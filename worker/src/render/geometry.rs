@@ -127,7 +127,9 @@ impl Sphere {
         Some((t0 as f32, t1 as f32))
     }
 
-    fn hit_at(&self, ray: &Ray, t: f32) -> Hit {
+    /// The hit at distance `t` (from [`Sphere::candidate`]): the one [`Sphere::intersect`]
+    /// makes.
+    pub(crate) fn hit_at(&self, ray: &Ray, t: f32) -> Hit {
         let p = ray.at(t);
         // Reproject onto the surface: this bounds the error by the radius, not by t.
         let local = p - self.center;
@@ -147,17 +149,12 @@ impl Sphere {
     }
 
     /// The distance of the nearest hit in (0, t_max): all a nearest-hit search needs,
-    /// [`Sphere::complete`] making the hit of the nearest only.
+    /// [`Sphere::hit_at`] making the hit of the nearest only.
     #[inline]
     pub fn candidate(&self, ray: &Ray, t_max: f32) -> Option<f32> {
         let (t0, t1) = self.roots(ray)?;
         let t = if t0 > 0.0 { t0 } else { t1 };
         (t > 0.0 && t < t_max).then_some(t)
-    }
-
-    /// The hit at distance `t` from [`Sphere::candidate`]: the one [`Sphere::intersect`] makes.
-    pub fn complete(&self, ray: &Ray, t: f32) -> Hit {
-        self.hit_at(ray, t)
     }
 
     /// How many times the ray crosses the sphere in (0, t_max), up to two, without making

@@ -206,7 +206,7 @@ impl Scene {
             }
             Some(Candidate::Sphere(i, t)) => {
                 if let shape::Shape::Sphere(s) = &w.prims[i as usize].shape {
-                    best = complete(i, Some(s.complete(ray, t)));
+                    best = complete(i, Some(s.hit_at(ray, t)));
                 }
             }
             None => {}

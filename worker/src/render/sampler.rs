@@ -391,7 +391,7 @@ mod tests {
             for step in 0..400u64 {
                 let h = hash_words(&[step, u64::from(spp)]);
                 // Mostly the same pixel again (as a batch walks its samples), sometimes another.
-                let pixel = if h % 4 == 0 {
+                let pixel = if h.is_multiple_of(4) {
                     UVec2::new((h >> 8) as u32 % 3, (h >> 16) as u32 % 2)
                 } else {
                     sampler.pixel
@@ -401,10 +401,11 @@ mod tests {
                 sampler.start_pixel_sample(pixel, index);
                 for d in 0..draws {
                     if (h >> (d % 48)) & 1 == 0 {
-                        let want = fresh_2d(kind, seed, spp, pixel, index, d);
+                        let (got, want) = (sampler.get_2d(), fresh_2d(kind, seed, spp, pixel, index, d));
+                        let bits = |v: Vec2| (v.x.to_bits(), v.y.to_bits());
                         assert_eq!(
-                            sampler.get_2d(),
-                            want,
+                            bits(got),
+                            bits(want),
                             "{kind:?} spp {spp} {pixel} sample {index} dimension {d}"
                         );
                     } else {
@@ -416,6 +417,44 @@ mod tests {
                         );
                     }
                 }
+            }
+        }
+    }
+
+    /// `permute` as it was written before its constants were kept per length: the oracle
+    /// for [`Permutation`].
+    fn permute_reference(i: u32, len: u32, key: u64) -> u32 {
+        if len <= 1 {
+            return 0;
+        }
+        let mask = u32::MAX >> (len - 1).leading_zeros();
+        let bits = 32 - mask.leading_zeros();
+        let (k0, k1) = (key as u32, (key >> 32) as u32);
+        let mut x = i;
+        loop {
+            x ^= k0 & mask;
+            x = x.wrapping_mul(0x2c1b_3c6d | 1) & mask;
+            x ^= x >> (bits / 2).max(1);
+            x = x.wrapping_add(k1) & mask;
+            x = x.wrapping_mul(0x297a_2d39 | 1) & mask;
+            x ^= x >> (bits / 3).max(1);
+            x ^= (k1 >> 7) & mask;
+            x = x.wrapping_mul(0x1b87_3593 | 1) & mask;
+            x ^= x >> 1;
+            if x < len {
+                return x;
+            }
+        }
+    }
+
+    #[test]
+    fn kept_permutation_constants_permute_as_before() {
+        for len in (1..=70).chain([100, 127, 128, 129, 1000, 1024, 4097, 65_536, 1 << 20]) {
+            let p = Permutation::new(len);
+            for k in 0..200u64 {
+                let key = hash_words(&[k, u64::from(len)]);
+                let i = (hash_words(&[key]) % u64::from(len)) as u32;
+                assert_eq!(p.apply(i, key), permute_reference(i, len, key), "len {len} i {i} key {key:x}");
             }
         }
     }

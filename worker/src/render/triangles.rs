@@ -50,6 +50,16 @@ impl Slot {
     }
 }
 
+/// The first corner and both edges of `prim` when its slot holds it inline: a still
+/// triangle whose normal is finite (one whose normal is not is never hit: the generic
+/// path says so). Everything else is intersected through its primitive.
+pub fn inline(prim: &Primitive, meshes: &[Mesh]) -> Option<(Vec3, Vec3, Vec3)> {
+    let (Shape::Triangle { mesh, tri }, None) = (&prim.shape, prim.motion) else { return None };
+    let [p0, p1, p2] = meshes[*mesh as usize].corners(*tri);
+    let (e1, e2) = (p1 - p0, p2 - p0);
+    normal(e1, e2).map(|_| (p0, e1, e2))
+}
+
 /// The slots of a BVH built over `prims`, in its leaf order (slot k holds primitive
 /// `bvh.indices()[k]`).
 pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Vec<Slot> {
@@ -58,17 +68,9 @@ pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Vec<Slot> {
     // A map in order: the same slots on any number of threads.
     bvh.indices()
         .par_iter()
-        .map(|&i| {
-            let generic = Slot { p0: Vec3::ZERO, e1: Vec3::ZERO, e2: Vec3::ZERO, prim: i | GENERIC };
-            let prim = &prims[i as usize];
-            let (Shape::Triangle { mesh, tri }, None) = (&prim.shape, prim.motion) else { return generic };
-            let [p0, p1, p2] = meshes[*mesh as usize].corners(*tri);
-            let (e1, e2) = (p1 - p0, p2 - p0);
-            // A triangle whose normal is not finite is never hit: the generic path says so.
-            if normal(e1, e2).is_none() {
-                return generic;
-            }
-            Slot { p0, e1, e2, prim: i }
+        .map(|&i| match inline(&prims[i as usize], meshes) {
+            Some((p0, e1, e2)) => Slot { p0, e1, e2, prim: i },
+            None => Slot { p0: Vec3::ZERO, e1: Vec3::ZERO, e2: Vec3::ZERO, prim: i | GENERIC },
         })
         .collect()
 }

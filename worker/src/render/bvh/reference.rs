@@ -6,7 +6,7 @@
 
 use glam::Vec3;
 
-use super::{Aabb, Binary, LeafPolicy, Node, BINS, MAX_LEAF};
+use super::{Aabb, Binary, Node, BINS, MAX_LEAF};
 use crate::render::geometry::Ray;
 
 pub(super) fn build(bounds: &[Aabb]) -> Binary {
@@ -48,7 +48,7 @@ pub(super) fn build(bounds: &[Aabb]) -> Binary {
 /// position and axis, or `None` for a leaf.
 fn split(idx: &mut [u32], bounds: &[Aabb], centroids: &[Vec3], node_bounds: &Aabb) -> Option<(usize, usize)> {
     let n = idx.len();
-    if n <= LeafPolicy::TRIANGLES.always_leaf {
+    if n <= 2 {
         return None;
     }
     let cb = Aabb::from_points(idx.iter().map(|&i| centroids[i as usize]));
@@ -97,7 +97,8 @@ fn split(idx: &mut [u32], bounds: &[Aabb], centroids: &[Vec3], node_bounds: &Aab
         }
     }
     let leaf_cost = node_bounds.surface_area() * n as f32;
-    let split_cost = LeafPolicy::TRIANGLES.traversal_cost * node_bounds.surface_area() + best.0;
+    // A node visit costs what a primitive test does.
+    let split_cost = node_bounds.surface_area() + best.0;
     if best.0.is_infinite() || (split_cost >= leaf_cost && n <= MAX_LEAF) {
         return (n > MAX_LEAF).then(|| median_split(idx, centroids, axis));
     }
