@@ -21,6 +21,9 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 const ADMIN_TOKEN: &str = "admin-token-0123456789abcdef";
+/// Samples per pixel of job 1 (the mesh at 400×300): enough that it is still rendering
+/// when the test pauses it at a quarter, however fast the tracer.
+const JOB1_SPP: u64 = 64;
 const VIEWER_TOKEN: &str = "viewer-token-0123456789abcdef";
 const WORKER_TOKEN: &str = "worker-token-0123456789abcdef";
 
@@ -295,7 +298,7 @@ fn the_dashboard_in_a_real_browser() {
     );
     page.fill("#submit-width", "400");
     page.fill("#submit-height", "300");
-    page.fill("#submit-spp", "12");
+    page.fill("#submit-spp", &JOB1_SPP.to_string());
     page.click("#submit-button");
     assert_eq!(page.submitted(long), 1);
     page.pick_files("#submit-scene", &[&scenes.join("spheres.toml")]);
@@ -368,22 +371,23 @@ fn the_dashboard_in_a_real_browser() {
     assert!(colours < w * h / 4, "not a mosaic: {colours} colours in {w}x{h}");
     eprintln!("the mosaic: update {i} of {} recorded: {c}", captures.len());
 
-    // Mid-render: a screenshot, then pause. Once the batches in flight are merged the
-    // canvas is exactly the coordinator's current image.
+    // Mid-render: pause, then a screenshot (taken before the pause, it gave a fast
+    // renderer the time to finish the job first). Once the batches in flight are merged
+    // the canvas is exactly the coordinator's current image.
     page.wait(
-        "Number(document.getElementById('status-line').dataset.progress) > 0.4",
+        "Number(document.getElementById('status-line').dataset.progress) > 0.25",
         long,
-        "job 1 at 40 %",
+        "job 1 at 25 %",
         "({...document.getElementById('status-line').dataset})",
     );
-    page.screenshot("dashboard-job.png");
     page.click("#job-pause");
     page.wait(
         "document.getElementById('job-state').dataset.state === 'paused'",
         long,
         "job 1 paused",
-        "document.getElementById('error').innerText",
+        "[document.getElementById('job-state').dataset.state, document.getElementById('error').innerText]",
     );
+    page.screenshot("dashboard-job.png");
     let start = Instant::now();
     loop {
         let before = page.status()["samplesDone"].clone();
@@ -400,7 +404,10 @@ fn the_dashboard_in_a_real_browser() {
         std::thread::sleep(Duration::from_millis(100));
     }
     let paused_at = page.status();
-    assert!(paused_at["samplesDone"].as_str().unwrap().parse::<u64>().unwrap() < w * h * 12, "{paused_at}");
+    assert!(
+        paused_at["samplesDone"].as_str().unwrap().parse::<u64>().unwrap() < w * h * JOB1_SPP,
+        "{paused_at}"
+    );
     page.click("#job-resume");
     page.wait(
         "['running', 'done'].includes(document.getElementById('job-state').dataset.state)",
