@@ -171,9 +171,9 @@ fn blur(w: Vec3, n: Vec3, alpha: f32, u: Vec2, side: f32) -> Vec3 {
     let tan2 = alpha * alpha * u.x / (1.0 - u.x).max(1e-12);
     let cos_t = 1.0 / (1.0 + tan2).sqrt();
     let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-    let phi = 2.0 * std::f32::consts::PI * u.y;
+    let (sin, cos) = math::sin_cos(2.0 * std::f32::consts::PI * u.y);
     let frame = Frame::new(w);
-    let d = frame.to_world(Vec3::new(sin_t * math::cos(phi), sin_t * math::sin(phi), cos_t)).normalize();
+    let d = frame.to_world(Vec3::new(sin_t * cos, sin_t * sin, cos_t)).normalize();
     // A lobe that dips through the surface is folded back, as a blurred mirror would.
     if d.dot(n) * side < 0.0 {
         (d - 2.0 * d.dot(n) * n).normalize()

@@ -355,7 +355,8 @@ fn sample_sphere_cone(sphere: &Sphere, p: Vec3, u: Vec2) -> Option<(Vec3, f32)> 
         let z = 1.0 - 2.0 * u.x;
         let r = (1.0 - z * z).max(0.0).sqrt();
         let phi = 2.0 * PI * u.y;
-        return Some((Vec3::new(r * math::cos(phi), r * math::sin(phi), z), 1.0 / (4.0 * PI)));
+        let (sin, cos) = math::sin_cos(phi);
+        return Some((Vec3::new(r * cos, r * sin, z), 1.0 / (4.0 * PI)));
     }
     // Work with 1 − cos θ, not cos θ: for a small or far sphere cos θmax rounds to 1 and
     // the cone would vanish, with an infinite density.
@@ -364,7 +365,8 @@ fn sample_sphere_cone(sphere: &Sphere, p: Vec3, u: Vec2) -> Option<(Vec3, f32)> 
     let (cos_t, sin_t) = (1.0 - k, (k * (2.0 - k)).max(0.0).sqrt());
     let phi = 2.0 * PI * u.y;
     let frame = Frame::new(to_c / d2.sqrt());
-    let wi = frame.to_world(Vec3::new(sin_t * math::cos(phi), sin_t * math::sin(phi), cos_t));
+    let (sin, cos) = math::sin_cos(phi);
+    let wi = frame.to_world(Vec3::new(sin_t * cos, sin_t * sin, cos_t));
     Some((wi.normalize(), 1.0 / (2.0 * PI * cone)))
 }
 

@@ -44,9 +44,10 @@ pub(super) fn ggx_sample_visible(w: Vec3, u: Vec2, alpha: f32) -> Vec3 {
     // A point on the disk, its upper half squeezed by the projection of the hemisphere.
     let r = u.x.sqrt();
     let phi = 2.0 * PI * u.y;
-    let p1 = r * math::cos(phi);
+    let (sin, cos) = math::sin_cos(phi);
+    let p1 = r * cos;
     let s = 0.5 * (1.0 + vh.z);
-    let p2 = (1.0 - s) * (1.0 - p1 * p1).max(0.0).sqrt() + s * (r * math::sin(phi));
+    let p2 = (1.0 - s) * (1.0 - p1 * p1).max(0.0).sqrt() + s * (r * sin);
     let nh = t1 * p1 + t2 * p2 + vh * (1.0 - p1 * p1 - p2 * p2).max(0.0).sqrt();
     Vec3::new(alpha * nh.x, alpha * nh.y, nh.z.max(1e-6)).normalize()
 }
@@ -66,8 +67,8 @@ pub(super) fn ggx_sample_normal(u: Vec2, alpha: f32) -> Vec3 {
     let tan2 = alpha * alpha * u.x / (1.0 - u.x).max(1e-12);
     let cos_t = 1.0 / (1.0 + tan2).sqrt();
     let sin_t = (1.0 - cos_t * cos_t).max(0.0).sqrt();
-    let phi = 2.0 * PI * u.y;
-    Vec3::new(sin_t * math::cos(phi), sin_t * math::sin(phi), cos_t)
+    let (sin, cos) = math::sin_cos(2.0 * PI * u.y);
+    Vec3::new(sin_t * cos, sin_t * sin, cos_t)
 }
 
 #[cfg(test)]

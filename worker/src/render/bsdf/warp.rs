@@ -20,5 +20,6 @@ pub fn concentric_disk(u: Vec2) -> Vec2 {
     } else {
         (o.y, std::f32::consts::FRAC_PI_2 - std::f32::consts::FRAC_PI_4 * (o.x / o.y))
     };
-    Vec2::new(r * math::cos(theta), r * math::sin(theta))
+    let (sin, cos) = math::sin_cos(theta);
+    Vec2::new(r * cos, r * sin)
 }
