@@ -8,8 +8,8 @@ use tonic::{Request, Response, Status};
 use tracing::info;
 
 use super::auth;
-use super::durability::SubmitFailure;
 use super::rpc::BoxStream;
+use super::submit::SubmitFailure;
 use crate::farm::SubmitError;
 use tessera_proto::convert;
 

@@ -1,15 +1,14 @@
-//! Durability: the job store behind the service, submission that is on disk before it is
-//! acknowledged, state changes written before they are acknowledged, the checkpointer, and
-//! jobs taken up again at start.
+//! Durability: the job store behind the service, state changes written before they are
+//! acknowledged, the checkpointer, and jobs taken up again at start. (Submission, which
+//! writes a job's row before it answers, is `submit.rs`.)
 
 use std::collections::HashMap;
 use std::path::Path;
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use tessera_description::bundle::Bundle;
 use tessera_description::ids::JobId;
-use tessera_description::job::{JobSettings, JobState};
+use tessera_description::job::JobState;
 use tonic::Status;
 use tracing::{debug, info, warn};
 
@@ -19,14 +18,9 @@ use crate::farm::{Job, RestoreJobError, SubmitError};
 use crate::persist::{JobStore, LoadedJob, StoreError};
 use crate::store::Store;
 
-/// Test hook: a submitted scene's validation stops this many milliseconds once the scene
-/// is read and before the job is admitted, so a test can hold validation open for as long
-/// as it needs to watch the farm answer meanwhile (tests/big_submit.rs).
-pub const FAULT_STALL_VALIDATION_ENV: &str = "TESSERA_FAULT_STALL_VALIDATION_MS";
-
 /// The store behind a coordinator with a data directory, and what of each job it holds.
 pub(super) struct Durable {
-    store: Mutex<Box<dyn JobStore>>,
+    pub(super) store: Mutex<Box<dyn JobStore>>,
     /// How often a job with new samples is checkpointed.
     interval: Duration,
     saved: Mutex<HashMap<JobId, Saved>>,
@@ -50,17 +44,6 @@ impl Saved {
             at: now,
         }
     }
-}
-
-/// Why a submission was not queued.
-#[derive(Debug, thiserror::Error)]
-pub enum SubmitFailure {
-    /// The scene or settings are refused.
-    #[error(transparent)]
-    Invalid(#[from] SubmitError),
-    /// The job could not be written to the data directory, so it was not queued.
-    #[error("the job could not be stored: {0}")]
-    Store(#[from] StoreError),
 }
 
 /// A job taken up again from a data directory.
@@ -190,71 +173,6 @@ impl CoordinatorService {
         this.durable =
             Some(Arc::new(Durable { store: Mutex::new(store), interval, saved: Mutex::new(saved) }));
         (this, recovery)
-    }
-
-    /// Queues a job with no owner (in-process, as `tessera render` does); see
-    /// [`CoordinatorService::submit_by`].
-    pub async fn submit(
-        &self,
-        bundle: Bundle,
-        settings: JobSettings,
-        priority: i32,
-    ) -> Result<JobId, SubmitFailure> {
-        self.submit_by(bundle, settings, priority, String::new()).await
-    }
-
-    /// Queues a job owned by `owner`. With a data directory the job is on disk, owner
-    /// included, before this returns. The scene is read and the job made before the farm
-    /// is touched.
-    pub async fn submit_by(
-        &self,
-        bundle: Bundle,
-        settings: JobSettings,
-        priority: i32,
-        owner: String,
-    ) -> Result<JobId, SubmitFailure> {
-        // A huge scene takes seconds to validate: say when it starts, not only when it is queued.
-        let bytes = bundle.text.len() + bundle.assets.iter().map(|(_, a)| a.len()).sum::<usize>();
-        info!(scene = %bundle.name, bytes, "validating a submitted scene");
-        let this = self.clone();
-        let stall = std::env::var(FAULT_STALL_VALIDATION_ENV).ok().and_then(|v| v.parse().ok());
-        let id = tokio::task::spawn_blocking(move || {
-            let name = tessera_description::bounds::quoted(&bundle.name);
-            let mut reservation = None;
-            let mut job = Job::prepare_within(JobId(0), Arc::new(bundle), settings, priority, &mut |f| {
-                // Inside validation (the scene is read, the job not yet made): were the
-                // farm's lock held around validation, it would be held through the stall.
-                if let Some(ms) = stall {
-                    std::thread::sleep(Duration::from_millis(ms));
-                }
-                reservation = Some(this.budget.admit(&name, f)?);
-                Ok(())
-            })?;
-            job.owner = owner;
-            // The store's lock is taken first and held until the job's row is written, so
-            // the checkpointer never writes a checkpoint of a job that has no row yet.
-            let mut store = this.durable.as_ref().map(|d| lock(&d.store));
-            let (id, record) = {
-                let mut farm = this.farm();
-                let id = farm.insert(job);
-                (id, farm.job(id).expect("just inserted").record())
-            };
-            if let Some(store) = store.as_mut() {
-                if let Err(e) = store.add_job(&record) {
-                    this.farm().remove_job(id);
-                    return Err(SubmitFailure::Store(e));
-                }
-            }
-            if let Some(r) = reservation {
-                r.assign(id);
-            }
-            Ok(id)
-        })
-        .await
-        .map_err(|e| SubmitFailure::Invalid(SubmitError::Internal(e.to_string())))??;
-        info!(%id, priority, "job queued");
-        self.notify();
-        Ok(id)
     }
 
     /// Records a job's new state on disk (paused, resumed, cancelled).
@@ -402,6 +320,9 @@ mod tests {
     use crate::checkpoint::Checkpoint;
     use crate::persist::{JobRecord, MemoryStore};
     use crate::scheduler::Completed;
+    use crate::service::SubmitFailure;
+    use tessera_description::bundle::Bundle;
+    use tessera_description::job::JobSettings;
 
     fn bundle() -> Bundle {
         Bundle {

@@ -22,6 +22,7 @@ pub mod probes;
 mod rpc;
 mod scan;
 mod scrape;
+mod submit;
 mod viewers;
 mod workers;
 
@@ -41,8 +42,9 @@ use crate::farm::Farm;
 
 pub use auth::{Auth, AuthError, Principal, Role, Tokens, DEFAULT_MAX_PRIORITY, MIN_TOKEN_CHARS};
 pub use budget::{default_budget, SUBMITS_AT_ONCE};
-pub use durability::{Recovery, Resumed, SubmitFailure, FAULT_STALL_VALIDATION_ENV};
+pub use durability::{Recovery, Resumed};
 pub use gate::Admission;
+pub use submit::{SubmitFailure, FAULT_STALL_VALIDATION_ENV};
 pub use viewers::{ViewerUpdates, MAX_VIEWERS, MAX_VIEWERS_PER_JOB, WATCH_CHUNK_PIXELS, WATCH_DEFAULT_RATE};
 pub use workers::MAX_CREDIT;
 

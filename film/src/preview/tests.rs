@@ -32,6 +32,24 @@ fn paint(overlay: &mut Overlay, blocks: &[Blocks]) {
     }
 }
 
+/// An empty image of `w` × `h` with its publisher past the baseline tick, the replica a
+/// viewer joined with then, that viewer's overlay, and the pass-one walk of the image.
+struct Joined {
+    fb: Framebuffer,
+    p: Publisher,
+    joined: Framebuffer,
+    o: Overlay,
+    walk: Vec<(u32, u32)>,
+}
+
+fn join_empty(w: u32, h: u32) -> Joined {
+    let fb = Framebuffer::new(w, h);
+    let mut p = Publisher::new(w, h);
+    p.tick(&fb, 0);
+    let walk = Walk::new(w, h).map(|q| (q.x, q.y)).collect();
+    Joined { joined: fb.clone(), fb, p, o: Overlay::new(w, h), walk }
+}
+
 /// With bytes to spare, every tick paints each changed pixel alone, so a viewer in step
 /// shows exactly the resolved image: through pass one (where a pixel's first sample
 /// repaints its block's mosaic), pass two, and a repair that empties pixels again.
@@ -69,13 +87,8 @@ fn with_enough_bytes_a_viewer_in_step_shows_the_exact_image() {
 #[test]
 fn a_tight_budget_paints_coarsely_then_refines_to_the_exact_image() {
     let (w, h) = (64, 48);
-    let mut fb = Framebuffer::new(w, h);
+    let Joined { mut fb, mut p, joined, mut o, walk: all } = join_empty(w, h);
     let mut rng = Lcg(3);
-    let mut p = Publisher::new(w, h);
-    p.tick(&fb, 0);
-    let joined = fb.clone();
-    let mut o = Overlay::new(w, h);
-    let all: Vec<(u32, u32)> = Walk::new(w, h).map(|q| (q.x, q.y)).collect();
     merge(&mut fb, &all, 4, &mut rng);
     let budget = 40 * BLOCK_BYTES;
     let blocks = p.tick(&fb, budget);
@@ -110,13 +123,8 @@ fn a_tight_budget_paints_coarsely_then_refines_to_the_exact_image() {
 #[test]
 fn changes_in_more_tiles_than_blocks_are_painted_by_tile_then_refined() {
     let (w, h) = (160, 96); // 10 × 6 tiles
-    let mut fb = Framebuffer::new(w, h);
+    let Joined { mut fb, mut p, joined, mut o, walk } = join_empty(w, h);
     let mut rng = Lcg(4);
-    let mut p = Publisher::new(w, h);
-    p.tick(&fb, 0);
-    let joined = fb.clone();
-    let mut o = Overlay::new(w, h);
-    let walk: Vec<(u32, u32)> = Walk::new(w, h).map(|q| (q.x, q.y)).collect();
     merge(&mut fb, &walk, 1, &mut rng);
     paint(&mut o, &p.tick(&fb, usize::MAX));
     assert_eq!(shown(&o, &joined), fb.resolve(), "pass one, painted exactly");
@@ -152,13 +160,8 @@ fn changes_in_more_tiles_than_blocks_are_painted_by_tile_then_refined() {
 #[test]
 fn pass_one_painted_by_tile_repaints_every_tile_its_blocks_meet() {
     let (w, h) = (150, 90); // 10 × 6 tiles, the last ones partial
-    let mut fb = Framebuffer::new(w, h);
+    let Joined { mut fb, mut p, joined, mut o, walk } = join_empty(w, h);
     let mut rng = Lcg(9);
-    let mut p = Publisher::new(w, h);
-    p.tick(&fb, 0);
-    let joined = fb.clone();
-    let mut o = Overlay::new(w, h);
-    let walk: Vec<(u32, u32)> = Walk::new(w, h).map(|q| (q.x, q.y)).collect();
     let budget = 12 * BLOCK_BYTES;
     // Parts of the walk small enough that some ticks change only some tiles.
     let mut by_tile = 0;
