@@ -9,16 +9,21 @@
 use crate::scheduler::Completed;
 use tessera_description::ids::JobId;
 
-/// Identifies the header part and its layout.
-const MAGIC: &[u8; 8] = b"TSRCKPT2";
+/// Identifies the header part and its layout: format 3 logs the pass-two batch sizes
+/// (`Completed::sizes`) after the merged ids, in a word counting them after the others.
+const MAGIC: &[u8; 8] = b"TSRCKPT3";
+/// Format 2, written before pass-two sizes followed the workers' speed: read back as a
+/// checkpoint whose sizes are the fixed ones (an empty log).
+const MAGIC_2: &[u8; 8] = b"TSRCKPT2";
 /// Pixels per part: 14 MB of accumulators, far below SQLite's 1 GB value limit, and a
 /// bounded buffer when reading back.
 pub const PART_PIXELS: usize = 1 << 19;
 /// Bytes a pixel takes: three u64 sums and a u32 count (and a u64 even-sample sum for jobs
 /// with a noise target).
 const PIXEL_BYTES: usize = 28;
-/// Words of the header after the magic, before the merged-batch ids.
-const HEADER_WORDS: usize = 11;
+/// Words of the header after the magic, before the merged-batch ids (one fewer in
+/// format 2, which has no count of sizes).
+const HEADER_WORDS: usize = 12;
 /// In header word 8: bit 0 says the pixel parts hold even-sample sums; bits 1..=3 are the
 /// job's AOV layers (`tessera_film::aov::Layout::bits`), whose sums follow the pixel parts
 /// in parts of their own, `PART_PIXELS` pixels each. A checkpoint written before AOV layers
@@ -119,7 +124,9 @@ impl Checkpoint {
     /// The checkpoint as parts: a header, then the pixels `PART_PIXELS` at a time.
     pub fn encode(&self) -> Vec<Part> {
         let pixel_parts = self.counts.len().div_ceil(PART_PIXELS);
-        let mut h = Vec::with_capacity(64 + self.completed.above.len() * 8);
+        let mut h = Vec::with_capacity(
+            8 * (1 + HEADER_WORDS) + self.completed.above.len() * 8 + self.completed.sizes.len() * 4,
+        );
         h.extend_from_slice(MAGIC);
         for v in [u64::from(self.width), u64::from(self.height), u64::from(self.spp), self.job.0] {
             h.extend_from_slice(&v.to_le_bytes());
@@ -132,8 +139,12 @@ impl Checkpoint {
         h.extend_from_slice(&flags.to_le_bytes());
         h.extend_from_slice(&(self.spent.as_millis() as u64).to_le_bytes());
         h.extend_from_slice(&(self.completed.above.len() as u64).to_le_bytes());
+        h.extend_from_slice(&(self.completed.sizes.len() as u64).to_le_bytes());
         for id in &self.completed.above {
             h.extend_from_slice(&id.to_le_bytes());
+        }
+        for size in &self.completed.sizes {
+            h.extend_from_slice(&size.to_le_bytes());
         }
         let mut parts = vec![Part::new(h)];
         for (k, (sums, counts)) in
@@ -173,7 +184,12 @@ impl Checkpoint {
         }
         let header = parts.first().ok_or(DecodeError::PartCount { expected: 1, found: 0 })?;
         let h = &header.data;
-        if h.len() < MAGIC.len() + HEADER_WORDS * 8 || &h[..8] != MAGIC {
+        let words = match h.get(..8) {
+            Some(m) if m == MAGIC => HEADER_WORDS,
+            Some(m) if m == MAGIC_2 => HEADER_WORDS - 1,
+            _ => return Err(DecodeError::Magic),
+        };
+        if h.len() < MAGIC.len() + words * 8 {
             return Err(DecodeError::Magic);
         }
         let word = |i: usize| u64::from_le_bytes(h[8 + i * 8..16 + i * 8].try_into().expect("8 bytes"));
@@ -187,11 +203,18 @@ impl Checkpoint {
         let aov_per_pixel = tessera_film::aov::Layout::from_bits(aov_layout)
             .ok_or(DecodeError::AovLayout(aov_layout))?
             .per_pixel();
-        let expected_len = (8 + HEADER_WORDS * 8).saturating_add(n_above.saturating_mul(8));
+        let n_sizes = if words == HEADER_WORDS { word(11) as usize } else { 0 };
+        let expected_len = (8 + words * 8)
+            .saturating_add(n_above.saturating_mul(8))
+            .saturating_add(n_sizes.saturating_mul(4));
         if h.len() != expected_len {
             return Err(DecodeError::PartLength { part: 0, expected: expected_len, got: h.len() });
         }
-        let above = (0..n_above).map(|i| word(HEADER_WORDS + i)).collect();
+        let above = (0..n_above).map(|i| word(words + i)).collect();
+        let sizes = h[8 + (words + n_above) * 8..]
+            .chunks_exact(4)
+            .map(|b| u32::from_le_bytes(b.try_into().expect("4 bytes")))
+            .collect();
         let pixels = width as usize * height as usize;
         let aov_parts = if aov_per_pixel > 0 { pixel_parts } else { 0 };
         if pixel_parts != pixels.div_ceil(PART_PIXELS) || parts.len() != pixel_parts + aov_parts + 1 {
@@ -243,7 +266,7 @@ impl Checkpoint {
             width,
             height,
             spp,
-            completed: Completed { below, above },
+            completed: Completed { below, above, sizes },
             nonfinite_samples,
             samples_done,
             sums,
@@ -268,7 +291,7 @@ mod tests {
             width,
             height,
             spp: 4,
-            completed: Completed { below: 12, above: vec![14, 15, 99] },
+            completed: Completed { below: 12, above: vec![14, 15, 99], sizes: vec![520, 7, 8192] },
             nonfinite_samples: 3,
             samples_done: counts.iter().map(|&c| u64::from(c)).sum(),
             sums: (0..n as u64).map(|i| [i, i * 3, u64::MAX - i]).collect(),
@@ -289,6 +312,21 @@ mod tests {
             assert_eq!(parts.len(), 1 + ((w * h) as usize).div_ceil(PART_PIXELS) + aov_parts);
             assert_eq!(Checkpoint::decode(&parts).unwrap(), c);
         }
+    }
+
+    /// A checkpoint of format 2 (no logged sizes: the word counting them and the sizes
+    /// are missing) reads back with an empty log, which restores the fixed sizes it was
+    /// cut with.
+    #[test]
+    fn format_2_reads_back_without_sizes() {
+        let mut c = sample(7, 4);
+        c.completed.sizes.clear();
+        let mut parts = c.encode();
+        let mut h = parts[0].data.clone();
+        h[..8].copy_from_slice(MAGIC_2);
+        h.drain(8 + 11 * 8..8 + 12 * 8);
+        parts[0] = Part::new(h);
+        assert_eq!(Checkpoint::decode(&parts).unwrap(), c);
     }
 
     /// Every single flipped bit, in the header or a pixel part, is caught by a checksum;

@@ -269,6 +269,8 @@ impl FakeWorker {
                 tokio::time::sleep(render).await;
             }
             let mut result = valid_result(&batch);
+            // As a real worker does: the coordinator sizes later batches from it.
+            result.render_micros = render.as_micros() as u64;
             edit(&batch, &mut result);
             let measuring = stats.measuring();
             let now = Instant::now();

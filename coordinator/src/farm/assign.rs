@@ -160,11 +160,13 @@ impl Farm {
                 (id, l.spec, l.attempt, false)
             }
             None => {
+                let threads = self.workers.values().map(|w| w.threads).fold(0u32, u32::saturating_add);
                 let pick = |job: &mut Job, speculate: bool| {
                     let lease = if speculate {
                         job.queue.lease_speculative(worker, token, now, SPECULATE_PATIENCE, SPECULATE_MIN_AGE)
                     } else {
-                        job.queue.lease_next(worker, token, now)
+                        let pace = job.speeds.pace(worker, threads);
+                        job.queue.lease_paced(worker, token, now, pace)
                     };
                     lease.map(|l| (l.spec.clone(), l.attempt))
                 };
@@ -309,12 +311,16 @@ impl Farm {
                     job.queue.schedule_round(tile, round + 1, next);
                 }
                 job.after_merge(r.nonfinite, now);
+                let turnaround = now.saturating_duration_since(lease.since);
+                job.speeds.book(worker, spec.sample_count(), r.render, turnaround);
                 self.lease_counters.samples_merged += spec.sample_count();
                 self.delivered(worker, &identity, job_id, &spec, lease.attempt, r);
                 self.book_rate(worker, spec.sample_count(), now);
             }
             Held::Repair(lease) => {
                 job.fence.repairs.finish(batch);
+                let turnaround = now.saturating_duration_since(lease.since);
+                job.speeds.book(worker, spec.sample_count(), r.render, turnaround);
                 job.framebuffer.merge(&spec.quads, samples, r.sums, r.even).expect("sums were checked above");
                 job.aov.merge(&spec.quads, samples, r.aov).expect("AOV sums were checked above");
                 self.lease_counters.samples_merged += spec.sample_count();

@@ -15,6 +15,7 @@ use crate::persist::JobRecord;
 use crate::scheduler::{Completed, PassQueue};
 
 use super::fence::JobFence;
+use super::pace::Speeds;
 use super::SubmitError;
 
 /// The window over which samples per second are measured.
@@ -50,6 +51,8 @@ pub struct Job {
     pub(super) rate: VecDeque<(Instant, u64)>,
     /// Tokens released, failures by identity, deliveries, audits and repairs.
     pub(super) fence: JobFence,
+    /// Each worker's speed on this job, for sizing its pass-two batches.
+    pub(super) speeds: Speeds,
     pub(super) nonfinite_samples: u64,
     /// Rendering time before a restart, counted against a time budget.
     pub(super) spent_before: Duration,
@@ -309,6 +312,7 @@ impl Job {
             finished: None,
             rate: VecDeque::new(),
             fence: JobFence::default(),
+            speeds: Speeds::default(),
             nonfinite_samples: 0,
             spent_before: Duration::ZERO,
             halted: None,

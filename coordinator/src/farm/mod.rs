@@ -12,6 +12,7 @@ mod fence;
 #[cfg(test)]
 mod hostile_tests;
 mod job;
+mod pace;
 mod repair;
 mod restore;
 mod strikes;
@@ -148,6 +149,7 @@ impl Assignment {
             nonfinite: 0,
             attempt: self.attempt,
             lease: &self.token.0,
+            render: Duration::ZERO,
         }
     }
 }
@@ -171,6 +173,10 @@ pub struct BatchResult<'a> {
     pub attempt: u32,
     /// The lease token the worker sent back.
     pub lease: &'a [u8],
+    /// How long the worker says the batch took it on one thread (zero: it did not say);
+    /// sizes its later batches (`pace.rs`), within bounds the coordinator's own clock
+    /// sets.
+    pub render: Duration,
 }
 
 /// Why a submission was refused.
@@ -469,6 +475,7 @@ impl Farm {
         let n = self.take_back_all(worker, false);
         self.lease_counters.taken_back_left += n as u64;
         self.workers.remove(&worker);
+        self.jobs.values_mut().for_each(|j| j.speeds.forget(worker));
         self.settle(now);
         n
     }

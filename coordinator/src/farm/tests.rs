@@ -300,3 +300,54 @@ fn aov_layers_are_checked_merged_and_restored_bit_for_bit() {
     assert_eq!(restarted.job(id).unwrap().aov(), clean.job(id).unwrap().aov());
     assert_eq!(restarted.job(id).unwrap().framebuffer(), clean.job(id).unwrap().framebuffer());
 }
+
+/// Each worker's pass-two batches take about `PASS_TWO_BATCH_TIME` at its own measured
+/// speed (a worker four times faster gets batches four times larger), and a job restored
+/// from a checkpoint of such a cut ends with the accumulators of a job cut at the fixed
+/// sizes.
+#[test]
+fn pass_two_batches_follow_each_worker_s_speed() {
+    use crate::scheduler::{Pass, PASS_TWO_BATCH_TIME};
+    let (w, h, spp) = (256, 256, 33);
+    let mut clean = Farm::new();
+    let id = clean.submit(bundle(), settings(w, h, spp), 0).unwrap();
+    let cw = clean.add_worker("clean".into(), 1, Instant::now());
+    work(&mut clean, cw, usize::MAX);
+
+    let mut farm = Farm::new();
+    assert_eq!(farm.submit(bundle(), settings(w, h, spp), 0).unwrap(), id);
+    let mut clock = Instant::now();
+    let fast = farm.add_worker("fast".into(), 1, clock);
+    let slow = farm.add_worker("slow".into(), 1, clock);
+    // Each renders a sample in 1 or 4 µs and says so; the clock moves as they render.
+    let mut last = [0usize; 2];
+    let mut pass_two = [0usize; 2];
+    while pass_two.iter().any(|&n| n < 3) {
+        for (k, (worker, micros)) in [(fast, 1), (slow, 4)].into_iter().enumerate() {
+            let a = farm.assign(worker, clock).unwrap();
+            let took = Duration::from_micros(a.batch.sample_count() * micros);
+            clock += took;
+            let sums = fake_sums(&a.batch);
+            let r = BatchResult { render: took, ..result(&a, &sums, None) };
+            farm.complete(worker, &r, clock).unwrap();
+            if a.batch.pass == Pass::Two {
+                pass_two[k] += 1;
+                last[k] = a.batch.quads.len();
+            }
+        }
+    }
+    let per_pixel = u64::from(spp - 1);
+    let batch_secs = PASS_TWO_BATCH_TIME.as_secs_f64();
+    assert_eq!(last[0] as u64, (1e6 * batch_secs) as u64 / per_pixel);
+    assert_eq!(last[1] as u64, (0.25e6 * batch_secs) as u64 / per_pixel);
+
+    let job = farm.job(id).unwrap();
+    let stored = LoadedJob { record: job.record(), checkpoint: Some(job.snapshot(clock).checkpoint()) };
+    let mut restarted = Farm::new();
+    restarted.restore(stored, clock).unwrap();
+    let b = restarted.add_worker("b".into(), 1, clock);
+    work(&mut restarted, b, usize::MAX);
+    let (got, want) = (restarted.job(id).unwrap(), clean.job(id).unwrap());
+    assert_eq!(got.state, JobState::Done);
+    assert_eq!(got.framebuffer().accumulators(), want.framebuffer().accumulators());
+}

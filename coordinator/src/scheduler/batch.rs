@@ -95,15 +95,20 @@ pub enum CompleteError {
     },
 }
 
-/// Which batches of a job are merged: every id below `below`, and the ids in `above`. This
-/// is all a checkpoint needs besides the framebuffer, because the cut of the walk into
-/// batches is deterministic: the same image and spp give the same batches with the same ids.
+/// Which batches of a job are merged: every id below `below`, and the ids in `above`; and
+/// the pixels of every pass-two batch cut, in id order. This is all a checkpoint needs
+/// besides the framebuffer, because the cut of the walk into batches is deterministic
+/// given those sizes: the same image, spp and sizes give the same batches with the same
+/// ids. (Pass one's sizes are fixed; pass two's follow the workers' speed.)
 #[derive(Debug, Clone, Default, PartialEq, Eq)]
 pub struct Completed {
     /// Every batch id below this one is merged.
     pub below: u64,
     /// Merged ids above `below`, ascending (those finished out of order).
     pub above: Vec<u64>,
+    /// Pixels of each pass-two batch cut, in id order (empty for jobs in rounds, and in
+    /// checkpoints written before sizes were paced: their sizes are the fixed ones).
+    pub sizes: Vec<u32>,
 }
 
 impl Completed {
@@ -141,6 +146,12 @@ pub enum RestoreError {
         tile: u32,
         /// The count found.
         count: u32,
+    },
+    /// A pass-two batch size no cut makes.
+    #[error("the checkpoint cuts a pass-two batch of {pixels} pixels (1..={max} expected)", max = super::PASS_TWO_MAX_PIXELS)]
+    BatchSize {
+        /// The size found.
+        pixels: u32,
     },
     /// The merged ids are not ascending, or repeat one below `below`.
     #[error("the checkpoint's list of merged batches is not ascending above {below}")]

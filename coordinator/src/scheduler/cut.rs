@@ -9,11 +9,16 @@ use std::iter::Peekable;
 use tessera_description::ids::BatchId;
 use tessera_film::quadtree::{Quad, Walk};
 
+use std::collections::VecDeque;
+
 use super::rounds::Rounds;
-use super::{BatchSpec, Pass, PASS_ONE_FIRST, PASS_ONE_MAX, PASS_TWO_MAX_PIXELS, PASS_TWO_SAMPLES};
+use super::{
+    BatchSpec, Pace, Pass, PASS_ONE_FIRST, PASS_ONE_MAX, PASS_TWO_FLOOR_SAMPLES, PASS_TWO_MAX_PIXELS,
+    PASS_TWO_SAMPLES,
+};
 
 /// A walk of the image cut into batches whose size doubles from `PASS_ONE_FIRST` to
-/// `PASS_ONE_MAX` (pass one) or is fixed by the spp (pass two).
+/// `PASS_ONE_MAX` (pass one) or is given by the caller (pass two).
 #[derive(Debug)]
 struct WalkCut {
     walk: Peekable<Walk>,
@@ -25,19 +30,17 @@ impl WalkCut {
         WalkCut { walk: Walk::new(width, height).peekable(), next_pass_one_size: PASS_ONE_FIRST }
     }
 
-    /// The next run of the walk for `pass`, and whether the walk is exhausted after it
-    /// (known at once, the walk is peeked, so that the last merge can finish the job).
-    fn take(&mut self, pass: Pass, spp: u32) -> (Vec<Quad>, bool) {
+    /// The next run of the walk for `pass` (`pixels` of it in pass two), and whether the
+    /// walk is exhausted after it (known at once, the walk is peeked, so that the last
+    /// merge can finish the job).
+    fn take(&mut self, pass: Pass, pixels: usize) -> (Vec<Quad>, bool) {
         let size = match pass {
             Pass::One => {
                 let size = self.next_pass_one_size;
                 self.next_pass_one_size = (size * 2).min(PASS_ONE_MAX);
                 size
             }
-            Pass::Two => {
-                let per_pixel = u64::from(spp - 1);
-                (PASS_TWO_SAMPLES / per_pixel).clamp(1, PASS_TWO_MAX_PIXELS as u64) as usize
-            }
+            Pass::Two => pixels,
         };
         let quads: Vec<Quad> = self.walk.by_ref().take(size).collect();
         let exhausted = self.walk.peek().is_none();
@@ -49,6 +52,11 @@ impl WalkCut {
 /// sequence's frames are stacked, frame k in rows `k · height ..`: pass one walks every
 /// frame in turn, in frame order, before pass two walks them again, so the whole sequence
 /// previews before any frame refines. A batch never spans two frames.
+///
+/// Pass one's sizes are fixed; pass two's follow the speed of the worker each batch is cut
+/// for (`Pace`), so they are not a function of the image alone: every pass-two size is
+/// logged in id order, a checkpoint keeps the log, and a restore replays it to cut the
+/// same batches again.
 #[derive(Debug)]
 pub(super) struct FixedSpp {
     width: u32,
@@ -61,6 +69,12 @@ pub(super) struct FixedSpp {
     /// Frames stacked, and the one being walked.
     frames: u32,
     frame: u32,
+    /// Pixels of each pass-two batch cut so far, in id order.
+    log: Vec<u32>,
+    /// Sizes a restore cuts pass-two batches to before any pace counts.
+    replay: VecDeque<u32>,
+    /// Pass-two pixels cut so far (every frame).
+    pass_two_cut: u64,
 }
 
 impl FixedSpp {
@@ -74,21 +88,58 @@ impl FixedSpp {
             cut_all: width == 0 || height == 0 || frames == 0,
             frames,
             frame: 0,
+            log: Vec::new(),
+            replay: VecDeque::new(),
+            pass_two_cut: 0,
         }
     }
 
+    /// Pixels of the next pass-two batch: a replayed size, else what the worker renders
+    /// in a batch's time (`Pace::samples`, the old fixed `PASS_TWO_SAMPLES` until it is
+    /// measured), shrunk near the end of the pass so that the farm's threads finish
+    /// together (guided self-scheduling: at most half of a thread's share of what is left,
+    /// but not below `PASS_TWO_FLOOR_SAMPLES`, where batches would be all overhead).
+    fn pass_two_pixels(&mut self, pace: Pace) -> usize {
+        if let Some(p) = self.replay.pop_front() {
+            return p as usize;
+        }
+        let per_pixel = u64::from(self.spp - 1);
+        let want = pace.samples.unwrap_or(PASS_TWO_SAMPLES) / per_pixel;
+        let total = u64::from(self.width) * u64::from(self.height) * u64::from(self.frames);
+        let left = total.saturating_sub(self.pass_two_cut);
+        let share = match pace.threads {
+            0 => u64::MAX,
+            t => left.div_ceil(2 * u64::from(t)).max(PASS_TWO_FLOOR_SAMPLES / per_pixel),
+        };
+        want.min(share).clamp(1, PASS_TWO_MAX_PIXELS as u64) as usize
+    }
+
+    /// Sizes for the next pass-two batches, from a checkpoint's log (`sizes`), checked.
+    pub(super) fn replay(&mut self, sizes: &[u32]) -> Result<(), u32> {
+        if let Some(&bad) = sizes.iter().find(|&&p| p == 0 || p as usize > PASS_TWO_MAX_PIXELS) {
+            return Err(bad);
+        }
+        self.replay = sizes.iter().copied().collect();
+        Ok(())
+    }
+
+    /// Pixels of each pass-two batch cut so far, in id order.
+    pub(super) fn log(&self) -> &[u32] {
+        &self.log
+    }
+
     /// Cuts the next batch, moving on to pass two when pass one is cut.
-    pub(super) fn cut(&mut self, next_id: &mut u64) -> Option<BatchSpec> {
+    pub(super) fn cut(&mut self, next_id: &mut u64, pace: Pace) -> Option<BatchSpec> {
         loop {
             if self.cut_all {
                 return None;
             }
             let pass = self.pass;
-            let samples = match pass {
-                Pass::One => 0..1,
-                Pass::Two => 1..self.spp,
+            let (samples, pixels) = match pass {
+                Pass::One => (0..1, 0),
+                Pass::Two => (1..self.spp, self.pass_two_pixels(pace)),
             };
-            let (mut quads, exhausted) = self.walk.take(pass, self.spp);
+            let (mut quads, exhausted) = self.walk.take(pass, pixels);
             let offset = self.frame * self.height;
             if offset > 0 {
                 quads.iter_mut().for_each(|q| q.y += offset);
@@ -106,7 +157,15 @@ impl FixedSpp {
                 }
             }
             if quads.is_empty() {
+                if pass == Pass::Two {
+                    // No batch came of the size: it stands for the next one, replayed or not.
+                    self.replay.push_front(pixels as u32);
+                }
                 continue;
+            }
+            if pass == Pass::Two {
+                self.log.push(pixels as u32);
+                self.pass_two_cut += quads.len() as u64;
             }
             let id = BatchId(*next_id);
             *next_id += 1;
@@ -156,7 +215,7 @@ impl InRounds {
             if self.cut_all {
                 return None;
             }
-            let (quads, exhausted) = self.walk.take(Pass::One, 1);
+            let (quads, exhausted) = self.walk.take(Pass::One, 0);
             if exhausted {
                 self.cut_all = true;
                 self.pass_one_batches = Some(*next_id + u64::from(!quads.is_empty()));
@@ -214,9 +273,9 @@ pub(super) enum Cut {
 }
 
 impl Cut {
-    pub(super) fn cut(&mut self, next_id: &mut u64) -> Option<BatchSpec> {
+    pub(super) fn cut(&mut self, next_id: &mut u64, pace: Pace) -> Option<BatchSpec> {
         match self {
-            Cut::Fixed(f) => f.cut(next_id),
+            Cut::Fixed(f) => f.cut(next_id, pace),
             Cut::Rounds(r) => r.cut(next_id),
         }
     }
@@ -233,6 +292,21 @@ impl Cut {
         match self {
             Cut::Fixed(f) => f.pass(),
             Cut::Rounds(r) => r.pass(),
+        }
+    }
+
+    /// The two passes' cut, if this is one.
+    pub(super) fn fixed(&self) -> Option<&FixedSpp> {
+        match self {
+            Cut::Fixed(f) => Some(f),
+            Cut::Rounds(_) => None,
+        }
+    }
+
+    pub(super) fn fixed_mut(&mut self) -> Option<&mut FixedSpp> {
+        match self {
+            Cut::Fixed(f) => Some(f),
+            Cut::Rounds(_) => None,
         }
     }
 

@@ -20,10 +20,29 @@ pub const PASS_ONE_FIRST: usize = 16;
 /// Pixels in a pass-one batch once the sizes have doubled up from `PASS_ONE_FIRST`:
 /// ~4 ms of tracing for a simple scene, large enough that per-batch overhead vanishes.
 pub const PASS_ONE_MAX: usize = 2048;
-/// Samples aimed at per pass-two batch; the pixel count follows from the spp.
+/// Samples in a pass-two batch for a worker whose speed is not measured yet; the pixel
+/// count follows from the spp.
 pub const PASS_TWO_SAMPLES: u64 = 32_768;
 /// The most pixels in a pass-two batch (bounds message sizes at low spp).
 pub const PASS_TWO_MAX_PIXELS: usize = 8192;
+/// The fewest samples the end of pass two shrinks batches to (~2 ms of one thread on a
+/// simple scene): below that a batch is mostly its round trip.
+pub const PASS_TWO_FLOOR_SAMPLES: u64 = 4096;
+/// What one pass-two batch should take a worker's thread once its speed is measured:
+/// long enough that a batch's round trip and merge are ~1 % of it, short enough that a
+/// pass ends within a fraction of a second of its last batch and previews refine often.
+pub const PASS_TWO_BATCH_TIME: Duration = Duration::from_millis(100);
+
+/// What sizes a pass-two batch cut for a worker: its speed and the farm's.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct Pace {
+    /// Samples the worker renders on one thread in `PASS_TWO_BATCH_TIME`, once measured;
+    /// `None`: `PASS_TWO_SAMPLES`.
+    pub samples: Option<u64>,
+    /// Render threads of the workers sharing the job (0: unknown), for shrinking the
+    /// batches at the end of the pass so that they finish together.
+    pub threads: u32,
+}
 
 /// The batches of one job: those not cut yet (the rest of the walk), those waiting to be
 /// leased again, those leased, and how many are done.
@@ -194,9 +213,12 @@ impl PassQueue {
         {
             return Err(RestoreError::Unordered { below: completed.below });
         }
+        if let Some(f) = q.cut.fixed_mut() {
+            f.replay(&completed.sizes).map_err(|pixels| RestoreError::BatchSize { pixels })?;
+        }
         let end = completed.end();
         while q.next_id < end {
-            let Some(spec) = q.cut.cut(&mut q.next_id) else {
+            let Some(spec) = q.cut.cut(&mut q.next_id, Pace::default()) else {
                 let id = completed.above.last().copied().unwrap_or(end - 1);
                 return Err(RestoreError::NoSuchBatch { id, batches: q.next_id, width, height, spp: q.spp });
             };
@@ -205,6 +227,11 @@ impl PassQueue {
             } else {
                 q.retry.insert(spec.id, (spec, 0));
             }
+        }
+        if let Some(f) = q.cut.fixed_mut() {
+            // Sizes logged past the last merged batch were cut but not merged: the next
+            // cuts are paced afresh.
+            f.replay(&[]).expect("no sizes are valid");
         }
         q.done_below = completed.below;
         q.done_above = completed.above.iter().copied().collect();
@@ -224,9 +251,13 @@ impl PassQueue {
         }
     }
 
-    /// The merged batches, for a checkpoint.
+    /// The merged batches and the pass-two sizes cut, for a checkpoint.
     pub fn completed(&self) -> Completed {
-        Completed { below: self.done_below, above: self.done_above.iter().copied().collect() }
+        Completed {
+            below: self.done_below,
+            above: self.done_above.iter().copied().collect(),
+            sizes: self.cut.fixed().map_or_else(Vec::new, |f| f.log().to_vec()),
+        }
     }
 
     fn mark_done(&mut self, id: BatchId) {
@@ -316,12 +347,24 @@ impl PassQueue {
             && self.cut.rounds().is_none_or(|r| r.rounds.finished())
     }
 
-    /// Leases the next batch to `worker`: a batch taken back from another worker first
-    /// (oldest first), else a new one off the walk.
+    /// Leases the next batch to `worker`, a new one cut at the fixed sizes (`lease_paced`
+    /// with no pace).
     pub fn lease_next(&mut self, worker: WorkerId, token: LeaseToken, now: Instant) -> Option<&Lease> {
+        self.lease_paced(worker, token, now, Pace::default())
+    }
+
+    /// Leases the next batch to `worker`: a batch taken back from another worker first
+    /// (oldest first), else a new one off the walk, of pass two's sized by `pace`.
+    pub fn lease_paced(
+        &mut self,
+        worker: WorkerId,
+        token: LeaseToken,
+        now: Instant,
+        pace: Pace,
+    ) -> Option<&Lease> {
         let (spec, attempt) = match self.retry.pop_first() {
             Some((_, (spec, attempts))) => (spec, attempts + 1),
-            None => match self.cut.cut(&mut self.next_id) {
+            None => match self.cut.cut(&mut self.next_id, pace) {
                 Some(spec) => (spec, 1),
                 None => (self.cut.rounds_mut()?.next_round()?, 1),
             },

@@ -184,16 +184,128 @@ fn restore_resumes_exactly_the_unmerged_batches() {
         }
         assert!(r.is_finished());
         assert_eq!(r.samples_done(), r.samples_total());
-        assert_eq!(r.completed(), Completed { below: all.len() as u64, above: vec![] });
+        assert_eq!((r.completed().below, r.completed().above), (all.len() as u64, vec![]));
     }
 }
 
 #[test]
 fn restore_refuses_batches_the_job_does_not_have() {
-    let done = Completed { below: 0, above: vec![5, 100_000] };
+    let done = Completed { below: 0, above: vec![5, 100_000], sizes: vec![] };
     assert!(matches!(PassQueue::restore(8, 8, 2, &done), Err(RestoreError::NoSuchBatch { id: 100_000, .. })));
-    let unordered = Completed { below: 3, above: vec![2] };
+    let unordered = Completed { below: 3, above: vec![2], sizes: vec![] };
     assert!(matches!(PassQueue::restore(8, 8, 2, &unordered), Err(RestoreError::Unordered { .. })));
+    for pixels in [0, PASS_TWO_MAX_PIXELS as u32 + 1] {
+        let bad = Completed { below: 0, above: vec![], sizes: vec![3, pixels] };
+        assert_eq!(PassQueue::restore(8, 8, 2, &bad).unwrap_err(), RestoreError::BatchSize { pixels });
+    }
+}
+
+/// Pass two's batches are as large as the worker's pace asks (in samples, so pixels ×
+/// (spp − 1)), the fixed `PASS_TWO_SAMPLES` without one, within 1..=`PASS_TWO_MAX_PIXELS`;
+/// pass one's sizes ignore the pace.
+#[test]
+fn pass_two_batches_follow_the_pace() {
+    let now = Instant::now();
+    let mut q = PassQueue::new(256, 256, 9);
+    let fast = Pace { samples: Some(8 * 1000), threads: 0 };
+    let mut first = Vec::new();
+    while q.pass() == Pass::One {
+        first.push(q.lease_paced(WorkerId(1), TOKEN, now, fast).unwrap().spec.quads.len());
+    }
+    let mut fixed = PassQueue::new(256, 256, 9);
+    let fixed_sizes: Vec<usize> = drain(&mut fixed, now).iter().map(|b| b.quads.len()).collect();
+    // The lease that moved the cut to pass two was still pass one's, and cut alike.
+    assert_eq!(first[..], fixed_sizes[..first.len()]);
+    assert_eq!(q.lease_paced(WorkerId(1), TOKEN, now, fast).unwrap().spec.quads.len(), 1000);
+    let slow = Pace { samples: Some(8 * 3), threads: 0 };
+    assert_eq!(q.lease_paced(WorkerId(2), TOKEN, now, slow).unwrap().spec.quads.len(), 3);
+    let crawl = Pace { samples: Some(1), threads: 0 };
+    assert_eq!(q.lease_paced(WorkerId(2), TOKEN, now, crawl).unwrap().spec.quads.len(), 1);
+    let unmeasured = q.lease_paced(WorkerId(3), TOKEN, now, Pace::default()).unwrap();
+    assert_eq!(unmeasured.spec.quads.len() as u64, PASS_TWO_SAMPLES / 8);
+    let huge = Pace { samples: Some(u64::MAX), threads: 0 };
+    assert_eq!(q.lease_paced(WorkerId(1), TOKEN, now, huge).unwrap().spec.quads.len(), PASS_TWO_MAX_PIXELS);
+    assert_eq!(q.completed().sizes, vec![1000, 3, 1, 4096, PASS_TWO_MAX_PIXELS as u32]);
+}
+
+/// With the farm's thread count known, the end of pass two is shared out: no batch is
+/// more than half a thread's share of the pixels left, or the floor, whichever is more;
+/// every pixel still gets exactly its samples.
+#[test]
+fn the_end_of_pass_two_is_shared_among_the_threads() {
+    let now = Instant::now();
+    let (w, h, spp) = (200u32, 150u32, 5u32);
+    let mut q = PassQueue::new(w, h, spp);
+    let pace = Pace { samples: Some(4 * 8192), threads: 2 };
+    let floor = (PASS_TWO_FLOOR_SAMPLES / 4) as usize;
+    let mut left = (w * h) as usize;
+    let mut sizes = Vec::new();
+    let mut samples = vec![0u32; left];
+    while let Some(l) = q.lease_paced(WorkerId(1), TOKEN, now, pace) {
+        let b = l.spec.clone();
+        for p in &b.quads {
+            samples[(p.y * w + p.x) as usize] += b.samples.end - b.samples.start;
+        }
+        if b.pass == Pass::Two {
+            assert!(b.quads.len() <= left.div_ceil(4).max(floor).min(8192), "{} of {left}", b.quads.len());
+            left -= b.quads.len();
+            sizes.push(b.quads.len());
+        }
+        q.complete(b.id, now).unwrap();
+    }
+    assert!(samples.iter().all(|&s| s == spp));
+    assert!(q.is_finished());
+    assert_eq!(sizes[0], (w * h) as usize / 4, "the first batch is a quarter of the pass");
+    assert!(sizes.windows(2).all(|s| s[0] >= s[1]), "{sizes:?}");
+    assert!(sizes[..sizes.len() - 1].iter().all(|&s| s >= floor), "{sizes:?}");
+}
+
+/// Restored from a checkpoint taken mid-pass-two, a queue whose pass-two sizes followed
+/// different paces cuts the batches up to the last merged one exactly as before (ids,
+/// pixels), and the rest at any pace covers every pixel exactly once more.
+#[test]
+fn restore_replays_the_paced_sizes() {
+    let now = Instant::now();
+    let (w, h, spp) = (90u32, 70u32, 6u32);
+    let paces = [Some(5 * 700), Some(5 * 37), None, Some(5 * 3000), Some(1)];
+    let mut q = PassQueue::new(w, h, spp);
+    let mut leased = Vec::new();
+    for k in 0.. {
+        let pace = Pace { samples: paces[k % paces.len()], threads: 0 };
+        let Some(l) = q.lease_paced(WorkerId(1), TOKEN, now, pace) else { break };
+        leased.push(l.spec.clone());
+        if leased.len() == 40 {
+            break;
+        }
+    }
+    assert!(leased.last().unwrap().pass == Pass::Two);
+    let merged: Vec<&BatchSpec> = leased.iter().step_by(3).collect();
+    for b in &merged {
+        q.complete(b.id, now).unwrap();
+    }
+    let done = q.completed();
+    let mut r = PassQueue::restore(w, h, spp, &done).unwrap();
+    assert_eq!(r.samples_done(), q.samples_done());
+    let mut samples = vec![0u32; (w * h) as usize];
+    for b in &merged {
+        for p in &b.quads {
+            samples[(p.y * w + p.x) as usize] += b.samples.end - b.samples.start;
+        }
+    }
+    let end = done.end();
+    while let Some(l) = r.lease_paced(WorkerId(2), TOKEN, now, Pace { samples: Some(5 * 111), threads: 0 }) {
+        let b = l.spec.clone();
+        if b.id.0 < end {
+            assert_eq!(Some(&b), leased.iter().find(|o| o.id == b.id), "batch {} cut anew", b.id.0);
+        }
+        for p in &b.quads {
+            samples[(p.y * w + p.x) as usize] += b.samples.end - b.samples.start;
+        }
+        r.complete(b.id, now).unwrap();
+    }
+    assert!(samples.iter().all(|&s| s == spp));
+    assert!(r.is_finished());
+    assert_eq!(r.samples_done(), r.samples_total());
 }
 
 /// A sequence's frames, stacked: every frame's pass one is cut before any frame's pass

@@ -355,7 +355,7 @@ mod tests {
                 width: 8,
                 height: 8,
                 spp: 3,
-                completed: Completed { below: 1, above: vec![] },
+                completed: Completed { below: 1, ..Completed::default() },
                 nonfinite_samples: 0,
                 samples_done: 16,
                 sums: vec![[0; 3]; 64],

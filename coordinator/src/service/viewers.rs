@@ -452,6 +452,7 @@ pub(super) mod tests {
             nonfinite: 0,
             attempt: lease.attempt,
             lease: &lease.token.0,
+            render: std::time::Duration::ZERO,
         };
         service.farm().complete(w, &r, Instant::now()).unwrap();
         service.notify();

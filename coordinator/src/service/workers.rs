@@ -226,6 +226,7 @@ impl CoordinatorService {
                         nonfinite: res.nonfinite_samples,
                         attempt: res.attempt,
                         lease: &res.lease,
+                        render: std::time::Duration::from_micros(res.render_micros),
                     };
                     let done = self.merge(id, &result, now);
                     match done {
