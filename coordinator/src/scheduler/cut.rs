@@ -4,12 +4,11 @@
 //! rounds over tiles (jobs with a time budget or noise target). The lease machinery in
 //! `PassQueue` is the same for both.
 
+use std::collections::VecDeque;
 use std::iter::Peekable;
 
 use tessera_description::ids::BatchId;
 use tessera_film::quadtree::{Quad, Walk};
-
-use std::collections::VecDeque;
 
 use super::rounds::Rounds;
 use super::{
