@@ -56,6 +56,11 @@ enum Command {
         /// Seconds of silence after which a worker's batches go to others [default: 10].
         #[arg(long, default_value_t = 10.0)]
         worker_timeout: f64,
+        /// Seconds a pass-two batch should take one of a worker's threads, once the
+        /// worker's speed on the job is measured: shorter refines previews more often and
+        /// costs more round trips [default: 0.1; 0.005 to 60].
+        #[arg(long, default_value_t = 0.1)]
+        batch_time: f64,
         /// Keep jobs and their checkpoints in this directory, and take up every unfinished
         /// job found there at start. Without it, jobs live in memory only.
         #[arg(long, env = "TESSERA_DATA")]
@@ -317,6 +322,7 @@ async fn run(command: Command) -> Result<ExitCode> {
         Command::Coordinator {
             listen,
             worker_timeout,
+            batch_time,
             data,
             checkpoint_interval,
             memory_budget,
@@ -329,6 +335,7 @@ async fn run(command: Command) -> Result<ExitCode> {
                 .map_err(|e| anyhow::anyhow!("--audit-fraction: {e}"))?;
             let timing = tessera_coordinator::Timing {
                 silence_timeout: seconds("--worker-timeout", worker_timeout)?,
+                batch_time: batch_time_arg(batch_time)?,
                 ..Default::default()
             };
             let data = match data {
@@ -479,6 +486,15 @@ pub fn seconds(flag: &str, value: f64) -> Result<std::time::Duration> {
         anyhow::bail!("{flag} must be a positive number of seconds, got {value}");
     }
     Ok(std::time::Duration::from_secs_f64(value))
+}
+
+/// `--batch-time`: long enough that a batch is more than its round trip, short enough
+/// that a worker's lease is taken back (`--worker-timeout`) long after its batch is done.
+fn batch_time_arg(value: f64) -> Result<std::time::Duration> {
+    if !(0.005..=60.0).contains(&value) {
+        anyhow::bail!("--batch-time must be between 0.005 and 60 seconds, got {value}");
+    }
+    seconds("--batch-time", value)
 }
 
 /// Waits for Ctrl-C or SIGTERM (what `kill` and service managers send).

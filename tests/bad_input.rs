@@ -90,6 +90,10 @@ fn bad_arguments_are_refused_before_work() {
     assert!(left.is_empty(), "a refused render left {left:?} behind");
     let o = run(&["render", scene]);
     assert!(!o.status.success() && String::from_utf8_lossy(&o.stderr).contains("--output"));
+    for bad in ["0", "0.001", "61", "NaN"] {
+        let e = stderr_of(&["coordinator", "--listen", "127.0.0.1:0", "--batch-time", bad]);
+        assert!(e.contains("--batch-time must be between 0.005 and 60 seconds"), "{bad}: {e}");
+    }
 }
 
 #[test]

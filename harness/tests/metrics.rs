@@ -28,8 +28,11 @@ async fn until(h: &Harness, what: &str, done: impl Fn(&str) -> bool) -> String {
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn stream_events_show_in_the_metrics() {
-    let timing =
-        Timing { heartbeat: Duration::from_millis(100), silence_timeout: Duration::from_millis(300) };
+    let timing = Timing {
+        heartbeat: Duration::from_millis(100),
+        silence_timeout: Duration::from_millis(300),
+        ..Default::default()
+    };
     let h = Harness::start_with(timing).await.unwrap();
     let job = h.submit_small(32, 32, 4).await.unwrap();
     let _viewer = FakeViewer::watch(&h.channel(), job.0, 0.0, false).await.unwrap();

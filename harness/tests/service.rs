@@ -147,8 +147,11 @@ async fn a_batch_failed_three_times_fails_the_job_with_a_message() {
 /// a frozen machine does not hold a job up; the job then completes exactly.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_silent_workers_leases_are_taken_back_after_the_timeout() {
-    let timing =
-        Timing { heartbeat: Duration::from_millis(100), silence_timeout: Duration::from_millis(300) };
+    let timing = Timing {
+        heartbeat: Duration::from_millis(100),
+        silence_timeout: Duration::from_millis(300),
+        ..Default::default()
+    };
     let h = Harness::start_with(timing).await.unwrap();
     let job = h.submit_small(W, H, SPP).await.unwrap();
     let mut viewer = FakeViewer::watch(&h.channel(), job.0, 0.0, true).await.unwrap();

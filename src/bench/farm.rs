@@ -41,8 +41,13 @@ pub struct FarmOptions {
     /// 0 answers at once and finds the coordinator's ceiling [default: 20,0].
     #[arg(long, value_delimiter = ',', default_value = "20,0")]
     pub batch_ms: Vec<f64>,
+    /// The coordinator's `--batch-time` in ms, the time it paces pass-two batches to at
+    /// each worker's measured speed; without it each case uses its --batch-ms (at least 5),
+    /// so that fake workers get batches of 32768 samples, as with fixed sizes.
+    #[arg(long)]
+    pub batch_time: Option<f64>,
     /// Samples per pixel of the job: pass two's batches are 32768 / (spp - 1) pixels
-    /// [default: 1024].
+    /// at the default batch time [default: 1024].
     #[arg(long, default_value_t = 1024)]
     pub spp: u32,
     /// Credit each fake worker keeps (a real worker keeps 2 per thread) [default: 2].
@@ -117,9 +122,10 @@ fn percentiles(mut v: Vec<u64>) -> Option<(f64, f64)> {
 }
 
 /// A coordinator process on a free loopback port, its log drained; killed when dropped.
-pub(super) async fn start_coordinator() -> Result<(Child, String)> {
+pub(super) async fn start_coordinator(args: &[String]) -> Result<(Child, String)> {
     let mut child = Command::new(std::env::current_exe()?)
         .args(["coordinator", "--listen", "127.0.0.1:0"])
+        .args(args)
         .env("RUST_LOG", "info")
         .stdin(Stdio::null())
         .stdout(Stdio::null())
@@ -159,7 +165,9 @@ async fn case(
     batch_ms: f64,
     ticks: f64,
 ) -> Result<Figures> {
-    let (mut coord, url) = start_coordinator().await?;
+    // The batch time the coordinator paces to (seconds; it refuses below 5 ms).
+    let pace_ms = opts.batch_time.unwrap_or(batch_ms).max(5.0);
+    let (mut coord, url) = start_coordinator(&["--batch-time".into(), (pace_ms / 1e3).to_string()]).await?;
     let pid = coord.id().ok_or_else(|| anyhow!("the coordinator has no pid"))?.to_string();
     let channel = tessera_harness::connect(&url).await?;
     let settings = pb::RenderSettings { spp: opts.spp, width, height, ..Default::default() };
@@ -358,12 +366,19 @@ pub async fn run(opts: FarmOptions) -> Result<()> {
     if opts.batch_ms.iter().any(|b| !(b.is_finite() && *b >= 0.0)) {
         bail!("--batch-ms must be non-negative milliseconds");
     }
+    if opts.batch_time.is_some_and(|b| !(5.0..=60_000.0).contains(&b)) {
+        bail!("--batch-time must be between 5 and 60000 ms");
+    }
     let ticks = clock_ticks();
     let real = real_batch_time(opts.spp)?;
     println!(
-        "coordinator: a child process on loopback; fake workers: 1 thread, credit {}, a pass-two batch of {} \
-         samples answered after --batch-ms (smaller batches proportionally sooner); {} spp; {:.1} s measured \
-         per case after pass one; viewers ask for {} updates/s and read {}",
+        "coordinator: a child process on loopback, pacing pass-two batches to {}; fake workers: 1 thread, credit \
+         {}, a pass-two batch of {} samples answered after --batch-ms (other sizes in proportion); {} spp; {:.1} s \
+         measured per case after pass one; viewers ask for {} updates/s and read {}",
+        match opts.batch_time {
+            Some(ms) => format!("{ms} ms"),
+            None => "each case's --batch-ms (at least 5 ms)".into(),
+        },
         opts.credit,
         REFERENCE_BATCH_SAMPLES,
         opts.spp,

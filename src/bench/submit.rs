@@ -145,7 +145,7 @@ pub async fn run(opts: SubmitOptions) -> Result<()> {
         bail!("the scene counts {} triangles, expected {total}", summary.triangles);
     }
 
-    let (mut coord, url) = super::farm::start_coordinator().await?;
+    let (mut coord, url) = super::farm::start_coordinator(&[]).await?;
     let pid = coord.id().ok_or_else(|| anyhow!("the coordinator has no pid"))?;
     let config = EndpointConfig::new(&url)?;
     let mut submitter = tessera_proto::connect::client(&config).await?;

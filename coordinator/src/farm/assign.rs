@@ -161,11 +161,12 @@ impl Farm {
             }
             None => {
                 let threads = self.workers.values().map(|w| w.threads).fold(0u32, u32::saturating_add);
+                let batch_time = self.batch_time();
                 let pick = |job: &mut Job, speculate: bool| {
                     let lease = if speculate {
                         job.queue.lease_speculative(worker, token, now, SPECULATE_PATIENCE, SPECULATE_MIN_AGE)
                     } else {
-                        let pace = job.speeds.pace(worker, threads);
+                        let pace = job.speeds.pace(worker, threads, batch_time);
                         job.queue.lease_paced(worker, token, now, pace)
                     };
                     lease.map(|l| (l.spec.clone(), l.attempt))

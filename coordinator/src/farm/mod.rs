@@ -300,6 +300,8 @@ pub struct Farm {
     /// Lease tokens and audit choices (see `entropy.rs`).
     entropy: Entropy,
     audit: AuditPolicy,
+    /// What a paced pass-two batch should take one thread (`None`: `PASS_TWO_BATCH_TIME`).
+    batch_time: Option<Duration>,
 }
 
 impl Farm {
@@ -321,6 +323,20 @@ impl Farm {
     /// How often delivered batches are audited.
     pub fn audit_policy(&self) -> AuditPolicy {
         self.audit
+    }
+
+    /// Sets what a pass-two batch should take one of a worker's threads once the worker's
+    /// speed on the job is measured (the default, `PASS_TWO_BATCH_TIME`, suits most
+    /// farms; shorter refines previews more often and costs more round trips). The
+    /// batches cut stay within `PASS_TWO_MAX_PIXELS`, and the end of a pass still shrinks
+    /// them; a restored job replays the sizes it logged whatever the batch time.
+    pub fn set_batch_time(&mut self, batch_time: Duration) {
+        self.batch_time = Some(batch_time);
+    }
+
+    /// What a paced pass-two batch should take one thread.
+    pub fn batch_time(&self) -> Duration {
+        self.batch_time.unwrap_or(crate::scheduler::PASS_TWO_BATCH_TIME)
     }
 
     /// Validates and queues a job, in one step (tests and in-process tools; the service

@@ -1,6 +1,6 @@
 //! Each worker's measured speed on a job, which sizes the pass-two batches cut for it: a
 //! fast worker gets batches that take as long on its threads as a slow worker's smaller
-//! ones (`PASS_TWO_BATCH_TIME`), so neither the round trips of a fast tracer nor the tail
+//! ones (the farm's batch time, `PASS_TWO_BATCH_TIME` unless set), so neither the round trips of a fast tracer nor the tail
 //! of a slow machine's last batch cost the farm its speed.
 //!
 //! Speed is samples per second on one render thread (a worker renders one batch per
@@ -11,7 +11,7 @@ use std::time::Duration;
 
 use tessera_description::ids::WorkerId;
 
-use crate::scheduler::{Pace, PASS_TWO_BATCH_TIME};
+use crate::scheduler::Pace;
 
 /// The weight the past keeps at each new batch: the last ~4 batches dominate, so a
 /// worker whose machine got busy is re-measured within a second.
@@ -57,9 +57,9 @@ impl Speeds {
     }
 
     /// The pace of pass-two batches cut for `worker` while the farm has `threads` render
-    /// threads.
-    pub(super) fn pace(&self, worker: WorkerId, threads: u32) -> Pace {
-        let samples = self.speed(worker).map(|v| (v * PASS_TWO_BATCH_TIME.as_secs_f64()).max(1.0) as u64);
+    /// threads: what it renders on one thread in `batch_time`.
+    pub(super) fn pace(&self, worker: WorkerId, threads: u32, batch_time: Duration) -> Pace {
+        let samples = self.speed(worker).map(|v| (v * batch_time.as_secs_f64()).max(1.0) as u64);
         Pace { samples, threads }
     }
 
@@ -82,11 +82,13 @@ mod tests {
     #[test]
     fn a_worker_s_speed_is_its_samples_over_its_render_time() {
         let mut s = Speeds::default();
-        assert_eq!(s.pace(W, 2), Pace { samples: None, threads: 2 });
+        assert_eq!(s.pace(W, 2, ms(100)), Pace { samples: None, threads: 2 });
         s.book(W, 10_000, ms(10), ms(25));
         assert_eq!(s.speed(W), Some(1e6));
-        // 100 ms of one thread at a million samples a second.
-        assert_eq!(s.pace(W, 2).samples, Some(100_000));
+        // 100 ms of one thread at a million samples a second; a farm set to 20 ms batches
+        // cuts a fifth.
+        assert_eq!(s.pace(W, 2, ms(100)).samples, Some(100_000));
+        assert_eq!(s.pace(W, 2, ms(20)).samples, Some(20_000));
         // A slower batch pulls the speed down, weighted by its size.
         s.book(W, 10_000, ms(40), ms(60));
         let v = s.speed(W).unwrap();

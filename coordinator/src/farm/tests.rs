@@ -301,25 +301,13 @@ fn aov_layers_are_checked_merged_and_restored_bit_for_bit() {
     assert_eq!(restarted.job(id).unwrap().framebuffer(), clean.job(id).unwrap().framebuffer());
 }
 
-/// Each worker's pass-two batches take about `PASS_TWO_BATCH_TIME` at its own measured
-/// speed (a worker four times faster gets batches four times larger), and a job restored
-/// from a checkpoint of such a cut ends with the accumulators of a job cut at the fixed
-/// sizes.
-#[test]
-fn pass_two_batches_follow_each_worker_s_speed() {
-    use crate::scheduler::{Pass, PASS_TWO_BATCH_TIME};
-    let (w, h, spp) = (256, 256, 33);
-    let mut clean = Farm::new();
-    let id = clean.submit(bundle(), settings(w, h, spp), 0).unwrap();
-    let cw = clean.add_worker("clean".into(), 1, Instant::now());
-    work(&mut clean, cw, usize::MAX);
-
-    let mut farm = Farm::new();
-    assert_eq!(farm.submit(bundle(), settings(w, h, spp), 0).unwrap(), id);
-    let mut clock = Instant::now();
+/// Two workers, one rendering a sample in 1 µs and one in 4 µs and saying so, work on
+/// `farm`'s job until each has had three pass-two batches; returns the clock and the
+/// pixels of each one's last pass-two batch.
+fn race(farm: &mut Farm, mut clock: Instant) -> (Instant, [usize; 2]) {
+    use crate::scheduler::Pass;
     let fast = farm.add_worker("fast".into(), 1, clock);
     let slow = farm.add_worker("slow".into(), 1, clock);
-    // Each renders a sample in 1 or 4 µs and says so; the clock moves as they render.
     let mut last = [0usize; 2];
     let mut pass_two = [0usize; 2];
     while pass_two.iter().any(|&n| n < 3) {
@@ -336,6 +324,25 @@ fn pass_two_batches_follow_each_worker_s_speed() {
             }
         }
     }
+    (clock, last)
+}
+
+/// Each worker's pass-two batches take about `PASS_TWO_BATCH_TIME` at its own measured
+/// speed (a worker four times faster gets batches four times larger), and a job restored
+/// from a checkpoint of such a cut ends with the accumulators of a job cut at the fixed
+/// sizes.
+#[test]
+fn pass_two_batches_follow_each_worker_s_speed() {
+    use crate::scheduler::PASS_TWO_BATCH_TIME;
+    let (w, h, spp) = (256, 256, 33);
+    let mut clean = Farm::new();
+    let id = clean.submit(bundle(), settings(w, h, spp), 0).unwrap();
+    let cw = clean.add_worker("clean".into(), 1, Instant::now());
+    work(&mut clean, cw, usize::MAX);
+
+    let mut farm = Farm::new();
+    assert_eq!(farm.submit(bundle(), settings(w, h, spp), 0).unwrap(), id);
+    let (clock, last) = race(&mut farm, Instant::now());
     let per_pixel = u64::from(spp - 1);
     let batch_secs = PASS_TWO_BATCH_TIME.as_secs_f64();
     assert_eq!(last[0] as u64, (1e6 * batch_secs) as u64 / per_pixel);
@@ -350,4 +357,17 @@ fn pass_two_batches_follow_each_worker_s_speed() {
     let (got, want) = (restarted.job(id).unwrap(), clean.job(id).unwrap());
     assert_eq!(got.state, JobState::Done);
     assert_eq!(got.framebuffer().accumulators(), want.framebuffer().accumulators());
+}
+
+/// A farm set to shorter batches (`--batch-time`) cuts each worker's batches to that time
+/// at its speed.
+#[test]
+fn the_farm_s_batch_time_sets_the_paced_size() {
+    let mut farm = Farm::new();
+    farm.set_batch_time(Duration::from_millis(25));
+    assert_eq!(farm.batch_time(), Duration::from_millis(25));
+    farm.submit(bundle(), settings(256, 256, 33), 0).unwrap();
+    let (_, last) = race(&mut farm, Instant::now());
+    // 25 ms at a million and at a quarter million samples a second, 32 samples a pixel.
+    assert_eq!(last, [25_000 / 32, 6_250 / 32]);
 }

@@ -60,11 +60,18 @@ pub struct Timing {
     /// Silence after which a worker's leases are taken back: several heartbeats, so that
     /// a busy network or a paused scheduler does not cost work.
     pub silence_timeout: Duration,
+    /// What a pass-two batch should take one of a worker's threads once its speed is
+    /// measured (`Farm::set_batch_time`).
+    pub batch_time: Duration,
 }
 
 impl Default for Timing {
     fn default() -> Self {
-        Timing { heartbeat: Duration::from_secs(2), silence_timeout: Duration::from_secs(10) }
+        Timing {
+            heartbeat: Duration::from_secs(2),
+            silence_timeout: Duration::from_secs(10),
+            batch_time: crate::scheduler::PASS_TWO_BATCH_TIME,
+        }
     }
 }
 
@@ -140,8 +147,10 @@ impl CoordinatorService {
     pub fn with_memory_budget(timing: Timing, bytes: u64) -> Self {
         let (changed, _) = watch::channel(0);
         let (shutdown, _) = watch::channel(false);
+        let mut farm = Farm::new();
+        farm.set_batch_time(timing.batch_time);
         CoordinatorService {
-            farm: Arc::new(Mutex::new(Farm::new())),
+            farm: Arc::new(Mutex::new(farm)),
             changed: Arc::new(changed),
             shutdown: Arc::new(shutdown),
             timing,
