@@ -160,7 +160,7 @@ impl Farm {
                 (id, l.spec, l.attempt, false)
             }
             None => {
-                let threads = self.workers.values().map(|w| w.threads).fold(0u32, u32::saturating_add);
+                let threads = self.render_threads();
                 let batch_time = self.batch_time();
                 let pick = |job: &mut Job, speculate: bool| {
                     let lease = if speculate {

@@ -371,3 +371,22 @@ fn the_farm_s_batch_time_sets_the_paced_size() {
     // 25 ms at a million and at a quarter million samples a second, 32 samples a pixel.
     assert_eq!(last, [25_000 / 32, 6_250 / 32]);
 }
+
+/// The farm's count of render threads follows workers joining and leaving (it sizes the
+/// end of pass two's batches).
+#[test]
+fn render_threads_follow_the_workers() {
+    let mut farm = Farm::new();
+    let now = Instant::now();
+    let a = farm.add_worker("a".into(), 8, now);
+    let b = farm.add_worker("b".into(), 3, now);
+    assert_eq!(farm.render_threads(), 11);
+    farm.remove_worker(a, now);
+    assert_eq!(farm.render_threads(), 3);
+    // Removing twice, or a worker never seen, changes nothing.
+    farm.remove_worker(a, now);
+    farm.remove_worker(WorkerId(999), now);
+    assert_eq!(farm.render_threads(), 3);
+    farm.remove_worker(b, now);
+    assert_eq!(farm.render_threads(), 0);
+}
