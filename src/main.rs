@@ -488,8 +488,8 @@ pub fn seconds(flag: &str, value: f64) -> Result<std::time::Duration> {
     Ok(std::time::Duration::from_secs_f64(value))
 }
 
-/// `--batch-time`: long enough that a batch is more than its round trip, short enough
-/// that a worker's lease is taken back (`--worker-timeout`) long after its batch is done.
+/// `--batch-time`: below 5 ms a batch would be mostly its round trip; above a minute a
+/// job's last batches, and its previews, would wait that long on one worker.
 fn batch_time_arg(value: f64) -> Result<std::time::Duration> {
     if !(0.005..=60.0).contains(&value) {
         anyhow::bail!("--batch-time must be between 0.005 and 60 seconds, got {value}");

@@ -1,7 +1,8 @@
 //! Each worker's measured speed on a job, which sizes the pass-two batches cut for it: a
 //! fast worker gets batches that take as long on its threads as a slow worker's smaller
-//! ones (the farm's batch time, `PASS_TWO_BATCH_TIME` unless set), so neither the round trips of a fast tracer nor the tail
-//! of a slow machine's last batch cost the farm its speed.
+//! ones (the farm's batch time, `PASS_TWO_BATCH_TIME` unless set), so neither the round
+//! trips of a fast tracer nor the tail of a slow machine's last batch cost the farm its
+//! speed.
 //!
 //! Speed is samples per second on one render thread (a worker renders one batch per
 //! thread), measured per job because scenes differ a hundredfold in a sample's cost.
