@@ -60,7 +60,9 @@ impl Speeds {
     /// The pace of pass-two batches cut for `worker` while the farm has `threads` render
     /// threads: what it renders on one thread in `batch_time`.
     pub(super) fn pace(&self, worker: WorkerId, threads: u32, batch_time: Duration) -> Pace {
-        let samples = self.speed(worker).map(|v| (v * batch_time.as_secs_f64()).max(1.0) as u64);
+        // Rounded, not truncated: a speed measured as exactly 10⁶ a second comes out of the
+        // decayed sums a few ulps either side, and must not cut one pixel fewer on one side.
+        let samples = self.speed(worker).map(|v| (v * batch_time.as_secs_f64()).round().max(1.0) as u64);
         Pace { samples, threads }
     }
 
@@ -96,6 +98,20 @@ mod tests {
         assert!(v < 1e6 && v > 10_000.0 / 0.040, "{v}");
         s.forget(W);
         assert_eq!(s.speed(W), None);
+    }
+
+    /// A worker whose every batch takes exactly a microsecond a sample gets exactly the
+    /// batch time's worth, whatever rounding its decayed sums carry.
+    #[test]
+    fn an_exact_speed_paces_exactly() {
+        let mut s = Speeds::default();
+        for n in 1..=40u64 {
+            // Batches of n + 1 samples (the eighth's sums come out at 99 999.999… a
+            // second when truncated).
+            let took = Duration::from_micros(n + 1);
+            s.book(W, n + 1, took, took);
+            assert_eq!(s.pace(W, 1, ms(100)).samples, Some(100_000), "after batch {n}");
+        }
     }
 
     #[test]
