@@ -1,22 +1,22 @@
 //! Folding the builder's binary tree into the wide nodes rays traverse (`wide.rs` says
 //! why the folded tree visits what the binary one visits): each wide node takes a binary
 //! node's two children and opens the largest interior one (by surface area) until it has
-//! four lanes or only leaves, keeping the split axes of the nodes it opened for its visit
+//! eight lanes or only leaves, keeping the split axes of the nodes it opened for its visit
 //! orders.
 
 use glam::Vec4;
 
-use super::wide::{Node4, Wide};
+use super::wide::{Node8, Wide, WIDTH};
 use super::Node;
 
 /// Folds the binary tree (in the builder's depth-first layout) into wide nodes.
 pub(super) fn fold(binary: &[Node]) -> Wide {
-    let mut nodes = Vec::with_capacity(binary.len() / 3 + 1);
+    let mut nodes = Vec::with_capacity(binary.len() / (WIDTH - 1) + 1);
     let depth = match binary.first() {
         None => 0,
         Some(root) if root.count > 0 => {
             // A root leaf: one lane.
-            nodes.push(node4(&[(root, 0)], 1, [0; 8]));
+            nodes.push(node(&[(root, 0)], 1, [0; 24]));
             1
         }
         Some(_) => fold_node(binary, 0, &mut nodes),
@@ -26,23 +26,24 @@ pub(super) fn fold(binary: &[Node]) -> Wide {
 
 /// A wide node over binary nodes `kids` (in depth-first order), `lanes` of them, with the
 /// visit orders `order`; interior kids' lanes point at `child` given alongside.
-fn node4(kids: &[(&Node, u32)], lanes: usize, order: [u8; 8]) -> Node4 {
-    let mut n = Node4 {
-        min: [Vec4::ZERO; 3],
-        max: [Vec4::ZERO; 3],
-        child: [0; 4],
-        count: [0; 4],
+fn node(kids: &[(&Node, u32)], lanes: usize, order: [u8; 24]) -> Node8 {
+    let mut n = Node8 {
+        min: [[Vec4::ZERO; 2]; 3],
+        max: [[Vec4::ZERO; 2]; 3],
+        child: [0; WIDTH],
+        counts: 0,
         order,
-        lanes: (1u8 << lanes) - 1,
+        lanes: ((1u32 << lanes) - 1) as u8,
     };
     for (lane, (kid, child)) in kids.iter().enumerate() {
         for a in 0..3 {
-            n.min[a][lane] = kid.bounds.min[a];
-            n.max[a][lane] = kid.bounds.max[a];
+            n.min[a][lane / 4][lane % 4] = kid.bounds.min[a];
+            n.max[a][lane / 4][lane % 4] = kid.bounds.max[a];
         }
         if kid.count > 0 {
             n.child[lane] = kid.offset;
-            n.count[lane] = u8::try_from(kid.count).expect("leaves hold at most MAX_LEAF slots");
+            // MAX_LEAF < 16 (asserted in wide.rs).
+            n.counts |= kid.count << (4 * lane);
         } else {
             n.child[lane] = *child;
         }
@@ -57,19 +58,19 @@ enum Part {
     Open(usize),
 }
 
-/// The binary nodes a wide node holds: up to three opened binary nodes (the first is the
+/// The binary nodes a wide node holds: up to seven opened binary nodes (the first is the
 /// wide node's own), each with its split axis and its two children, first child first;
 /// the children not opened are its lanes. Fixed arrays, no allocation: the fold makes one
 /// per wide node.
 struct Opened {
-    axis: [u8; 3],
-    parts: [[Part; 2]; 3],
+    axis: [u8; WIDTH - 1],
+    parts: [[Part; 2]; WIDTH - 1],
     len: usize,
 }
 
 impl Opened {
     fn new(binary: &[Node], b: usize) -> Opened {
-        let mut o = Opened { axis: [0; 3], parts: [[Part::Kid(0); 2]; 3], len: 0 };
+        let mut o = Opened { axis: [0; WIDTH - 1], parts: [[Part::Kid(0); 2]; WIDTH - 1], len: 0 };
         o.push(binary, b);
         o
     }
@@ -98,13 +99,13 @@ impl Opened {
     /// The lanes' binary nodes: in depth-first order (first child first) without `signs`;
     /// with them, in the order a ray with those direction signs visits them (at each opened
     /// node, its second child first when the direction is negative on its axis).
-    fn kids(&self, signs: Option<usize>) -> ([usize; 4], usize) {
-        let mut out = ([0; 4], 0);
+    fn kids(&self, signs: Option<usize>) -> ([usize; WIDTH], usize) {
+        let mut out = ([0; WIDTH], 0);
         self.walk(0, signs, &mut out);
         out
     }
 
-    fn walk(&self, at: usize, signs: Option<usize>, out: &mut ([usize; 4], usize)) {
+    fn walk(&self, at: usize, signs: Option<usize>, out: &mut ([usize; WIDTH], usize)) {
         let [a, b] = self.parts[at];
         let swap = signs.is_some_and(|s| s & (1 << self.axis[at]) != 0);
         for p in if swap { [b, a] } else { [a, b] } {
@@ -133,26 +134,27 @@ fn largest(binary: &[Node], kids: &[usize]) -> Option<usize> {
 
 /// Appends the wide subtree of interior binary node `b` to `nodes` (the node, then its
 /// children's subtrees in lane order); returns the most stack entries its traversal needs.
-fn fold_node(binary: &[Node], b: usize, nodes: &mut Vec<Node4>) -> usize {
+fn fold_node(binary: &[Node], b: usize, nodes: &mut Vec<Node8>) -> usize {
     let mut part = Opened::new(binary, b);
     let (mut kids, mut lanes) = part.kids(None);
-    while lanes < 4 {
+    while lanes < WIDTH {
         let Some(k) = largest(binary, &kids[..lanes]) else { break };
         part.open(binary, k);
         (kids, lanes) = part.kids(None);
     }
     let kids = &kids[..lanes];
-    let mut order = [0u8; 8];
-    for (signs, o) in order.iter_mut().enumerate() {
+    let mut order = [0u8; 24];
+    for (signs, o) in order.chunks_exact_mut(3).enumerate() {
         let (visit, n) = part.kids(Some(signs));
-        *o = visit[..n].iter().enumerate().fold(0, |acc, (k, b)| {
+        let bits = visit[..n].iter().enumerate().fold(0u32, |acc, (k, b)| {
             let lane = kids.iter().position(|x| x == b).expect("a lane of this node");
-            acc | (lane as u8) << (2 * k)
+            acc | (lane as u32) << (3 * k)
         });
+        o.copy_from_slice(&bits.to_le_bytes()[..3]);
     }
     let at = nodes.len();
-    nodes.push(node4(&[], 1, order));
-    let mut with = [(&binary[b], 0u32); 4];
+    nodes.push(node(&[], 1, order));
+    let mut with = [(&binary[b], 0u32); WIDTH];
     let mut deepest = 0;
     for (lane, &k) in kids.iter().enumerate() {
         with[lane].0 = &binary[k];
@@ -161,7 +163,7 @@ fn fold_node(binary: &[Node], b: usize, nodes: &mut Vec<Node4>) -> usize {
             deepest = deepest.max(fold_node(binary, k, nodes));
         }
     }
-    nodes[at] = node4(&with[..lanes], lanes, order);
+    nodes[at] = node(&with[..lanes], lanes, order);
     // All of a node's lanes are on the stack at once when it is visited; while a child's
     // subtree is, at most the other lanes are.
     lanes.max(lanes - 1 + deepest)

@@ -1,15 +1,16 @@
-//! The BVH as rays traverse it: four children to a node, their four boxes tested at once
-//! in SIMD lanes (glam's `Vec4`: SSE2 on x86-64, plain floats with `scalar-math`).
+//! The BVH as rays traverse it: eight children to a node, their eight boxes tested at once
+//! in two groups of SIMD lanes (glam's `Vec4`: SSE2 on x86-64, plain floats with
+//! `scalar-math`).
 //!
 //! The tree is the binary one the builder makes, folded: each wide node takes a binary
-//! node's children and opens the largest of them until it has four. A ray visits the same
+//! node's children and opens the largest of them until it has eight. A ray visits the same
 //! leaves in the same order as it visits the binary tree (`tests::wide_visits_what_the_binary_tree_visits`),
 //! so the nearest hit among equal distances and the order in which shadow rays multiply
 //! transmissions keep their bits. Two facts make that so:
 //! - *Same order.* The binary traversal goes to the near child first by the sign of the
 //!   ray's direction on the node's split axis. A folded node keeps the axes of the binary
 //!   nodes it swallowed, and so has one visit order of its lanes for each of the eight sign
-//!   patterns a direction can have (`Node4::order`).
+//!   patterns a direction can have (`Node8::order`).
 //! - *Same visits.* The binary traversal skips a child whose box the ray does not enter
 //!   before the current `t_max`; the wide one tests a child's box at the parent against
 //!   the parent's `t_max` and tests the entry distance again against the current `t_max`
@@ -18,31 +19,64 @@
 //!   tested, and need not be: a box inside another is entered only if that one is
 //!   ([`Aabb::hit`] is monotone under containment, the reason for its rule on slabs the ray
 //!   runs inside of), and `t_max` only shrinks.
+//!
+//! Why eight and not four: on a million triangles a random ray's walk is a chain of
+//! dependent loads, most of them misses of the L2 cache; a node of eight is one level in
+//! three fewer than a node of four, and its four cache lines are adjacent, so they arrive
+//! together (docs/speed.md, "Seventh part").
 
 use glam::{Vec3, Vec4};
 
-use super::{slab_widening, Aabb};
+use super::{slab_widening, Aabb, MAX_LEAF};
 
-/// One node: the boxes of up to four children, lane by lane.
+/// Children to a node.
+pub(super) const WIDTH: usize = 8;
+/// Groups of four SIMD lanes to a node.
+const GROUPS: usize = WIDTH / 4;
+/// Bits of a lane's index in a visit order and a stack entry.
+const LANE_BITS: u32 = 3;
+// A leaf's slot count is kept in four bits.
+const _: () = assert!(MAX_LEAF < 16);
+
+/// One node: the boxes of up to eight children, lane by lane, in four cache lines.
 #[derive(Debug, Clone, Copy)]
 #[repr(C, align(64))]
-pub(super) struct Node4 {
-    /// Lower corners: x, y and z of the four children.
-    pub(super) min: [Vec4; 3],
+pub(super) struct Node8 {
+    /// Lower corners: x, y and z of the eight children, four lanes to a group.
+    pub(super) min: [[Vec4; GROUPS]; 3],
     /// Upper corners.
-    pub(super) max: [Vec4; 3],
+    pub(super) max: [[Vec4; GROUPS]; 3],
     /// An interior child's node; a leaf's first slot.
-    pub(super) child: [u32; 4],
-    /// A leaf's slot count; 0 for an interior child.
-    pub(super) count: [u8; 4],
+    pub(super) child: [u32; WIDTH],
+    /// A leaf's slot count, four bits a lane (lane k in bits 4k..4k+4); 0 for an interior
+    /// child.
+    pub(super) counts: u32,
     /// For each sign pattern of the ray's direction (bit k set: negative on axis k), the
-    /// order to visit the lanes in, two bits a lane, the first in the low bits.
-    pub(super) order: [u8; 8],
+    /// order to visit the lanes in: three bytes, three bits a lane, the first in the low
+    /// bits.
+    pub(super) order: [u8; 3 * 8],
     /// Bit k set: lane k holds a child.
     pub(super) lanes: u8,
 }
 
-/// A child to visit: its lane (node × 4 + lane) and the distance at which the ray enters it.
+const _: () = assert!(std::mem::size_of::<Node8>() == 256);
+
+impl Node8 {
+    /// Lane `lane`'s slot count (0: an interior child).
+    #[inline(always)]
+    pub(super) fn count(&self, lane: usize) -> usize {
+        (self.counts >> (4 * lane) & 0xF) as usize
+    }
+
+    /// The visit order of the lanes for direction signs `signs`, three bits a lane.
+    #[inline(always)]
+    pub(super) fn order(&self, signs: usize) -> u32 {
+        let o = &self.order[3 * signs..3 * signs + 3];
+        u32::from_le_bytes([o[0], o[1], o[2], 0])
+    }
+}
+
+/// A child to visit: its lane (node × 8 + lane) and the distance at which the ray enters it.
 #[derive(Debug, Clone, Copy, Default)]
 struct Entry {
     t: f32,
@@ -78,37 +112,45 @@ impl RayLanes {
     }
 }
 
-impl Node4 {
+impl Node8 {
     /// The lanes whose boxes the ray enters before `t_max` (bit k for lane k) and the
     /// entry distances: [`Aabb::hit`] four at a time, with the same decisions. Without
     /// `EXACT` the slab test cannot meet NaN (no direction component is zero and the boxes
     /// and origin are finite), and then lane-wise min and max differ from `f32::min`/`max`
     /// only in the sign of a zero, which comparisons cannot see.
     #[inline(always)]
-    fn hit<const EXACT: bool>(&self, r: &RayLanes, t_max: f32) -> (u32, [f32; 4]) {
-        let mut enter = Vec4::ZERO;
-        let mut exit = Vec4::INFINITY;
-        for a in 0..3 {
-            let t0 = (self.min[a] - r.origin[a]) * r.inv[a];
-            let t1 = (self.max[a] - r.origin[a]) * r.inv[a];
-            let (mut near, mut far) = (t0.min(t1), t0.max(t1));
-            if EXACT {
-                let inside = t0.is_nan_mask() | t1.is_nan_mask();
-                near = Vec4::select(inside, Vec4::NEG_INFINITY, near);
-                far = Vec4::select(inside, Vec4::INFINITY, far);
+    fn hit<const EXACT: bool>(&self, r: &RayLanes, t_max: f32) -> (u32, [f32; WIDTH]) {
+        let mut mask = 0;
+        let mut entries = [0.0; WIDTH];
+        // A node with four children or fewer (near the leaves) tests one group.
+        let groups = if self.lanes >> 4 == 0 { 1 } else { GROUPS };
+        for g in 0..groups {
+            let mut enter = Vec4::ZERO;
+            let mut exit = Vec4::INFINITY;
+            for a in 0..3 {
+                let t0 = (self.min[a][g] - r.origin[a]) * r.inv[a];
+                let t1 = (self.max[a][g] - r.origin[a]) * r.inv[a];
+                let (mut near, mut far) = (t0.min(t1), t0.max(t1));
+                if EXACT {
+                    let inside = t0.is_nan_mask() | t1.is_nan_mask();
+                    near = Vec4::select(inside, Vec4::NEG_INFINITY, near);
+                    far = Vec4::select(inside, Vec4::INFINITY, far);
+                }
+                enter = enter.max(near);
+                exit = exit.min(far);
             }
-            enter = enter.max(near);
-            exit = exit.min(far);
+            let exit = (exit * slab_widening()).min(Vec4::splat(t_max));
+            mask |= enter.cmple(exit).bitmask() << (4 * g);
+            entries[4 * g..4 * g + 4].copy_from_slice(&enter.to_array());
         }
-        let exit = (exit * slab_widening()).min(Vec4::splat(t_max));
-        (enter.cmple(exit).bitmask() & u32::from(self.lanes), enter.to_array())
+        (mask & u32::from(self.lanes), entries)
     }
 }
 
 /// The wide tree.
 #[derive(Debug, Clone, Default)]
 pub(super) struct Wide {
-    nodes: Vec<Node4>,
+    nodes: Vec<Node8>,
     /// The most entries a traversal's stack can hold.
     depth: usize,
 }
@@ -116,7 +158,7 @@ pub(super) struct Wide {
 impl Wide {
     /// The folded nodes (`fold::fold`), root first, whose traversals need at most `depth`
     /// stack entries.
-    pub(super) fn new(nodes: Vec<Node4>, depth: usize) -> Wide {
+    pub(super) fn new(nodes: Vec<Node8>, depth: usize) -> Wide {
         assert!(nodes.len() < (1 << 30), "more BVH nodes than a stack entry can name");
         Wide { nodes, depth }
     }
@@ -168,12 +210,12 @@ impl Wide {
             let n = &self.nodes[node];
             let (mask, enter) = n.hit::<EXACT>(r, t_max);
             if mask != 0 {
-                let order = u32::from(n.order[r.signs]);
+                let order = n.order(r.signs);
                 // Last to visit goes deepest into the stack.
                 for k in (0..n.lanes.count_ones()).rev() {
-                    let lane = (order >> (2 * k)) & 3;
+                    let lane = (order >> (LANE_BITS * k)) & 7;
                     if mask & (1 << lane) != 0 {
-                        stack[top] = Entry { t: enter[lane as usize], at: (node as u32) << 2 | lane };
+                        stack[top] = Entry { t: enter[lane as usize], at: (node as u32) << LANE_BITS | lane };
                         top += 1;
                     }
                 }
@@ -188,8 +230,8 @@ impl Wide {
                 if e.t > t_max {
                     continue;
                 }
-                let (p, lane) = (&self.nodes[(e.at >> 2) as usize], (e.at & 3) as usize);
-                let (first, count) = (p.child[lane] as usize, p.count[lane] as usize);
+                let (p, lane) = (&self.nodes[(e.at >> LANE_BITS) as usize], (e.at & 7) as usize);
+                let (first, count) = (p.child[lane] as usize, p.count(lane));
                 if count == 0 {
                     node = first;
                     break;
@@ -231,9 +273,9 @@ impl Wide {
             let n = &self.nodes[node];
             let (mask, _) = n.hit::<EXACT>(r, t_max);
             // Lanes are in the binary tree's depth-first order: the last goes deepest.
-            for lane in (0..4).rev() {
+            for lane in (0..WIDTH as u32).rev() {
                 if mask & (1 << lane) != 0 {
-                    stack[top] = Entry { t: 0.0, at: (node as u32) << 2 | lane };
+                    stack[top] = Entry { t: 0.0, at: (node as u32) << LANE_BITS | lane };
                     top += 1;
                 }
             }
@@ -244,8 +286,8 @@ impl Wide {
                 }
                 top -= 1;
                 let at = stack[top].at;
-                let (p, lane) = (&self.nodes[(at >> 2) as usize], (at & 3) as usize);
-                let (first, count) = (p.child[lane] as usize, p.count[lane] as usize);
+                let (p, lane) = (&self.nodes[(at >> LANE_BITS) as usize], (at & 7) as usize);
+                let (first, count) = (p.child[lane] as usize, p.count(lane));
                 if count == 0 {
                     node = first;
                     break;
@@ -270,7 +312,7 @@ impl Wide {
         let mut stack = vec![(0usize, None::<Aabb>)];
         while let Some((i, outer)) = stack.pop() {
             let n = &self.nodes[i];
-            for lane in 0..4 {
+            for lane in 0..WIDTH {
                 if n.lanes & (1 << lane) == 0 {
                     continue;
                 }
@@ -278,7 +320,7 @@ impl Wide {
                 if outer.is_some_and(|o| !o.contains(&b)) {
                     return Err(format!("node {i} lane {lane} outside its parent's box"));
                 }
-                let (first, count) = (n.child[lane] as usize, n.count[lane] as usize);
+                let (first, count) = (n.child[lane] as usize, n.count(lane));
                 if count == 0 {
                     stack.push((first, Some(b)));
                     continue;
@@ -302,15 +344,16 @@ impl Wide {
     /// The box of everything.
     pub(super) fn bounds(&self) -> Aabb {
         self.nodes.first().map_or(Aabb::EMPTY, |n| {
-            (0..4).filter(|l| n.lanes & (1 << l) != 0).fold(Aabb::EMPTY, |b, l| b.union(n.lane_box(l)))
+            (0..WIDTH).filter(|l| n.lanes & (1 << l) != 0).fold(Aabb::EMPTY, |b, l| b.union(n.lane_box(l)))
         })
     }
 }
 
-impl Node4 {
+impl Node8 {
     fn lane_box(&self, lane: usize) -> Aabb {
-        let min = Vec3::new(self.min[0][lane], self.min[1][lane], self.min[2][lane]);
-        let max = Vec3::new(self.max[0][lane], self.max[1][lane], self.max[2][lane]);
+        let (g, l) = (lane / 4, lane % 4);
+        let min = Vec3::new(self.min[0][g][l], self.min[1][g][l], self.min[2][g][l]);
+        let max = Vec3::new(self.max[0][g][l], self.max[1][g][l], self.max[2][g][l]);
         Aabb { min, max }
     }
 }
