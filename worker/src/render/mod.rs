@@ -92,8 +92,8 @@ pub struct World {
 /// the surface coordinates its completion needs.
 #[derive(Debug, Clone, Copy)]
 enum Candidate {
-    /// An inline triangle: barycentrics b1, b2.
-    Triangle(u32, f32, f32, f32),
+    /// An inline triangle, by its slot: barycentrics b1, b2.
+    Triangle(usize, f32, f32, f32),
     /// A still parallelogram: coordinates s, t in [-1, 1].
     Rect(u32, f32, f32, f32),
     /// A still sphere: the distance alone.
@@ -154,7 +154,7 @@ impl Scene {
                 if ALPHA && !w.covers_slot(i, b1, b2, ray) {
                     return None;
                 }
-                nearest = Some(Candidate::Triangle(i, t, b1, b2));
+                nearest = Some(Candidate::Triangle(k, t, b1, b2));
                 best = None;
                 Some(t)
             }
@@ -194,8 +194,15 @@ impl Scene {
             })
         };
         match nearest {
-            Some(Candidate::Triangle(i, t, b1, b2)) => {
-                if let shape::Shape::Triangle { mesh, tri } = w.prims[i as usize].shape {
+            Some(Candidate::Triangle(k, t, b1, b2)) => {
+                let (slot, i) = (&w.slots[k], w.slots[k].index());
+                if let Some(material) = slot.plain_material() {
+                    // Neither the primitive nor its mesh is read (`triangles`'s comment).
+                    best = slot.plain_hit(t, b1, b2).map(|mut hit| {
+                        hit.prim = i;
+                        SurfaceHit { hit, material, light: None }
+                    });
+                } else if let shape::Shape::Triangle { mesh, tri } = w.prims[i as usize].shape {
                     best = complete(i, w.meshes[mesh as usize].hit_at(tri, t, b1, b2));
                 }
             }
@@ -265,7 +272,16 @@ impl Scene {
                         Some((_, b1, b2)) if ALPHA => w.covers_slot(i, b1, b2, ray),
                         hit => hit.is_some(),
                     };
-                    (i, u32::from(hit))
+                    if !hit {
+                        // Nothing crossed (`open` is true while the visit goes on).
+                        return true;
+                    }
+                    if let Some(material) = w.slots[k].plain_material() {
+                        // No light, and the material from the slot: the primitive is not read.
+                        open = pass(material, false);
+                        return open;
+                    }
+                    (i, 1)
                 }
                 triangles::SlotKind::Generic(i) => {
                     let prim = &w.prims[i as usize];

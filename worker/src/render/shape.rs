@@ -124,11 +124,8 @@ impl Mesh {
     /// The hit of triangle `tri` at ray parameter `t` and barycentrics `b1`, `b2` found by
     /// [`moller_trumbore`]; `None` when its normal is not finite (a degenerate triangle).
     pub fn hit_at(&self, tri: u32, t: f32, b1: f32, b2: f32) -> Option<Hit> {
-        let [p0, p1, p2] = self.corners(tri);
-        let n = normal(p1 - p0, p2 - p0)?;
-        let b0 = 1.0 - b1 - b2;
-        let p = p0 * b0 + p1 * b1 + p2 * b2;
-        let p_error = ((p0 * b0).abs() + (p1 * b1).abs() + (p2 * b2).abs()) * gamma(7);
+        let mut hit = plain_hit(self.corners(tri), t, b1, b2)?;
+        let (n, b0) = (hit.n, 1.0 - b1 - b2);
         let c = &self.tris[tri as usize];
         let (n, ns) = if c[0][1] != u32::MAX {
             let s =
@@ -139,13 +136,27 @@ impl Mesh {
         } else {
             (n, n)
         };
-        let uv = if c[0][2] != u32::MAX {
-            self.uv[c[0][2] as usize] * b0 + self.uv[c[1][2] as usize] * b1 + self.uv[c[2][2] as usize] * b2
-        } else {
-            Vec2::new(b1, b2)
-        };
-        Some(Hit { t, p, p_error, n, ns, uv, prim: 0 })
+        if c[0][2] != u32::MAX {
+            hit.uv = self.uv[c[0][2] as usize] * b0
+                + self.uv[c[1][2] as usize] * b1
+                + self.uv[c[2][2] as usize] * b2;
+        }
+        (hit.n, hit.ns) = (n, ns);
+        Some(hit)
     }
+}
+
+/// The hit of the triangle with corners `p` at ray parameter `t` and barycentrics `b1`,
+/// `b2`, as its mesh would complete it without normals or texture coordinates (its
+/// geometric normal, uv = (b1, b2)); `None` when its normal is not finite. The one
+/// completion: the mesh's and the slots' give the same bits.
+#[inline]
+pub fn plain_hit([p0, p1, p2]: [Vec3; 3], t: f32, b1: f32, b2: f32) -> Option<Hit> {
+    let n = normal(p1 - p0, p2 - p0)?;
+    let b0 = 1.0 - b1 - b2;
+    let p = p0 * b0 + p1 * b1 + p2 * b2;
+    let p_error = ((p0 * b0).abs() + (p1 * b1).abs() + (p2 * b2).abs()) * gamma(7);
+    Some(Hit { t, p, p_error, n, ns: n, uv: Vec2::new(b1, b2), prim: 0 })
 }
 
 /// The unit normal `e1 × e2` of a triangle with edges `e1`, `e2`, if finite (a triangle

@@ -2,7 +2,7 @@
 //! files (a file of its own: the builder it needs depends on this module).
 
 use glam::Vec3;
-use tessera_description::bundle::Bundle;
+use tessera_description::bundle::{Assets, Bundle};
 
 use crate::render::geometry::{Hit, Ray};
 use crate::render::sampler::hash_words;
@@ -43,6 +43,27 @@ fn old_blocked(s: &Scene, ray: &Ray, dist: f32, time: f32) -> Vec<u32> {
     crossed
 }
 
+/// Plain triangles (an OBJ without normals or texture coordinates, emitting nothing),
+/// half of them translucent so that shadow rays multiply transmissions, beside the torus
+/// knot's triangles with normals and texture coordinates.
+fn plain_scene(root: &std::path::Path) -> Scene {
+    struct Files(Vec<(&'static str, Vec<u8>)>);
+    impl Assets for Files {
+        fn get(&self, path: &str) -> Option<&[u8]> {
+            self.0.iter().find(|(p, _)| *p == path).map(|(_, b)| &b[..])
+        }
+    }
+    let read = |p: &'static str| (p, std::fs::read(root.join("assets").join(p)).unwrap());
+    let files = Files(vec![read("lamp.obj"), read("torus_knot.obj")]);
+    let text = "[render]\nwidth = 1\nheight = 1\nspp = 1\n[camera]\nposition = [0, 0, 5]\n\
+                look_at = [0, 0, 0]\nfov = 40\n[materials.m]\ntype = \"lambert\"\nalbedo = 0.5\n\
+                [materials.t]\ntype = \"classic\"\ntransmit = [0.5, 0.7, 0.9]\n\
+                [[mesh]]\nfile = \"lamp.obj\"\nmaterial = \"m\"\n\
+                [[mesh]]\nfile = \"lamp.obj\"\nmaterial = \"t\"\ntransform = { scale = 0.7 }\n\
+                [[mesh]]\nfile = \"torus_knot.obj\"\nmaterial = \"t\"\ntransform = { scale = 0.3 }\n";
+    crate::build::parse_scene_with_assets("plain.toml", text, &files).unwrap()
+}
+
 fn bits(h: &Hit) -> Vec<u32> {
     let mut v = vec![h.t.to_bits(), h.prim];
     for x in [h.p, h.p_error, h.n, h.ns] {
@@ -53,13 +74,22 @@ fn bits(h: &Hit) -> Vec<u32> {
 }
 
 /// The slots give the same hits, bit for bit, as every primitive through its own
-/// test, and the same shadows, on random rays into the mesh, motion and shadow scenes.
+/// test, and the same shadows, on random rays into the mesh, motion, shadow and emitting
+/// scenes: inline triangles with and without normals and texture coordinates, plain ones
+/// completed from their slots, emitting ones, moving ones.
 #[test]
 fn slots_hit_what_the_primitives_hit_bit_for_bit() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
-    for name in ["mesh.toml", "motion_blur.toml", "translucency.toml", "showcase.toml"] {
-        let bundle = Bundle::read(&root.join(name)).unwrap();
-        let scene = crate::build::parse_bundle(&bundle).unwrap();
+    let mut plain = 0;
+    let names = ["mesh.toml", "motion_blur.toml", "translucency.toml", "showcase.toml", "emissive_mesh.toml"];
+    let scenes = names
+        .iter()
+        .map(|name| {
+            (name.to_string(), crate::build::parse_bundle(&Bundle::read(&root.join(name)).unwrap()).unwrap())
+        })
+        .chain([("plain meshes".to_string(), plain_scene(&root))]);
+    for (name, scene) in scenes {
+        plain += scene.world.slots.iter().filter(|s| s.plain_material().is_some()).count();
         let b = scene.world.bvh.bounds();
         let (c, r) = (b.centroid(), (b.max - b.min).length());
         let (mut hits, mut crossings) = (0, 0);
@@ -106,4 +136,5 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
             "{name}: {hits} hits, {crossings} crossings: the rays miss the scene"
         );
     }
+    assert!(plain > 0, "no plain triangle slot was tested");
 }
