@@ -123,6 +123,44 @@ fn the_summary_costs_cover_the_renderer_types() {
     assert!(size(std::mem::size_of::<glam::Vec3>()) <= s::VEC3_BYTES);
 }
 
+/// The summary's BVH cost per primitive covers the peak of building one (the binary tree
+/// of at most two nodes per primitive and the primitives' bounds, beside the folded nodes
+/// and indices) and the slots kept after, on the trees that take the most nodes per
+/// primitive: one primitive to a leaf (scenes of spheres and parallelograms) and small
+/// triangle leaves, on scattered boxes and on boxes in a row.
+#[test]
+fn the_summary_bvh_cost_covers_the_nodes_and_slots() {
+    use crate::render::bvh::{Aabb, Bvh, LeafPolicy};
+    use crate::render::sampler::hash_words;
+    use tessera_description::summary as s;
+    let unit = |w: &[u64]| (hash_words(w) >> 40) as f32 / (1u64 << 24) as f32;
+    let scattered: Vec<Aabb> = (0..20_000u64)
+        .map(|i| {
+            let c = glam::Vec3::new(unit(&[i, 0]), unit(&[i, 1]), unit(&[i, 2])) * 100.0;
+            Aabb { min: c, max: c + unit(&[i, 3]) }
+        })
+        .collect();
+    let row: Vec<Aabb> = (0..20_000)
+        .map(|i| Aabb {
+            min: glam::Vec3::new(i as f32, 0.0, 0.0),
+            max: glam::Vec3::new(i as f32 + 0.5, 1.0, 1.0),
+        })
+        .collect();
+    // The primitives' bounds are held while the tree is built.
+    let building = Bvh::BUILD_BYTES_PER_PRIMITIVE + std::mem::size_of::<Aabb>();
+    let slot = std::mem::size_of::<crate::render::triangles::Slot>();
+    for (name, boxes) in [("scattered", &scattered), ("row", &row)] {
+        for policy in [LeafPolicy::TRIANGLES, LeafPolicy::SHAPES] {
+            let bvh = Bvh::build_with(boxes, policy);
+            let per = (bvh.bytes() + boxes.len() * (building + slot)) as f64 / boxes.len() as f64;
+            assert!(
+                per <= s::BVH_BYTES_PER_PRIMITIVE as f64,
+                "{name} {policy:?}: {per:.1} bytes a primitive"
+            );
+        }
+    }
+}
+
 #[test]
 fn geometry_a_transform_overflows_fails_the_build_at_the_object() {
     struct One(&'static [u8]);

@@ -176,6 +176,17 @@ impl Bvh {
         self.wide.bounds()
     }
 
+    /// The bytes its nodes and primitive indices take (what the memory estimate of
+    /// `tessera_description::summary` must cover).
+    pub fn bytes(&self) -> usize {
+        self.wide.bytes() + std::mem::size_of_val(&self.indices[..])
+    }
+
+    /// The most bytes per primitive a build holds beside what [`Bvh::bytes`] counts: the
+    /// binary tree (at most two nodes per primitive) and the builder's boxes and bins.
+    pub const BUILD_BYTES_PER_PRIMITIVE: usize =
+        2 * std::mem::size_of::<Node>() + std::mem::size_of::<PrimBox>() + std::mem::size_of::<u8>();
+
     /// The primitive in each slot of the leaf order: a leaf holds slots `offset..offset +
     /// count`.
     pub fn indices(&self) -> &[u32] {

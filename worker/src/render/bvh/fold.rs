@@ -6,7 +6,7 @@
 
 use glam::Vec4;
 
-use super::wide::{Node8, Wide, WIDTH};
+use super::wide::{Node8, Wide, GROUPS, ORDERS, WIDTH};
 use super::Node;
 
 /// Folds the binary tree (in the builder's depth-first layout) into wide nodes.
@@ -16,7 +16,7 @@ pub(super) fn fold(binary: &[Node]) -> Wide {
         None => 0,
         Some(root) if root.count > 0 => {
             // A root leaf: one lane.
-            nodes.push(node(&[(root, 0)], 1, [0; 24]));
+            nodes.push(node(&[(root, 0)], 1, [0; ORDERS]));
             1
         }
         Some(_) => fold_node(binary, 0, &mut nodes),
@@ -26,10 +26,10 @@ pub(super) fn fold(binary: &[Node]) -> Wide {
 
 /// A wide node over binary nodes `kids` (in depth-first order), `lanes` of them, with the
 /// visit orders `order`; interior kids' lanes point at `child` given alongside.
-fn node(kids: &[(&Node, u32)], lanes: usize, order: [u8; 24]) -> Node8 {
+fn node(kids: &[(&Node, u32)], lanes: usize, order: [u8; ORDERS]) -> Node8 {
     let mut n = Node8 {
-        min: [[Vec4::ZERO; 2]; 3],
-        max: [[Vec4::ZERO; 2]; 3],
+        min: [[Vec4::ZERO; GROUPS]; 3],
+        max: [[Vec4::ZERO; GROUPS]; 3],
         child: [0; WIDTH],
         counts: 0,
         order,
@@ -143,7 +143,7 @@ fn fold_node(binary: &[Node], b: usize, nodes: &mut Vec<Node8>) -> usize {
         (kids, lanes) = part.kids(None);
     }
     let kids = &kids[..lanes];
-    let mut order = [0u8; 24];
+    let mut order = [0u8; ORDERS];
     for (signs, o) in order.chunks_exact_mut(3).enumerate() {
         let (visit, n) = part.kids(Some(signs));
         let bits = visit[..n].iter().enumerate().fold(0u32, |acc, (k, b)| {

@@ -32,9 +32,13 @@ use super::{slab_widening, Aabb, MAX_LEAF};
 /// Children to a node.
 pub(super) const WIDTH: usize = 8;
 /// Groups of four SIMD lanes to a node.
-const GROUPS: usize = WIDTH / 4;
+pub(super) const GROUPS: usize = WIDTH / 4;
 /// Bits of a lane's index in a visit order and a stack entry.
 const LANE_BITS: u32 = 3;
+/// A lane's index among those bits.
+const LANE: u32 = (1 << LANE_BITS) - 1;
+/// Bytes of a node's visit orders: three for each of the eight sign patterns.
+pub(super) const ORDERS: usize = 3 * 8;
 // A leaf's slot count is kept in four bits.
 const _: () = assert!(MAX_LEAF < 16);
 
@@ -54,7 +58,7 @@ pub(super) struct Node8 {
     /// For each sign pattern of the ray's direction (bit k set: negative on axis k), the
     /// order to visit the lanes in: three bytes, three bits a lane, the first in the low
     /// bits.
-    pub(super) order: [u8; 3 * 8],
+    pub(super) order: [u8; ORDERS],
     /// Bit k set: lane k holds a child.
     pub(super) lanes: u8,
 }
@@ -159,7 +163,7 @@ impl Wide {
     /// The folded nodes (`fold::fold`), root first, whose traversals need at most `depth`
     /// stack entries.
     pub(super) fn new(nodes: Vec<Node8>, depth: usize) -> Wide {
-        assert!(nodes.len() < (1 << 30), "more BVH nodes than a stack entry can name");
+        assert!(nodes.len() <= 1 << (32 - LANE_BITS), "more BVH nodes than a stack entry can name");
         Wide { nodes, depth }
     }
 
@@ -213,7 +217,7 @@ impl Wide {
                 let order = n.order(r.signs);
                 // Last to visit goes deepest into the stack.
                 for k in (0..n.lanes.count_ones()).rev() {
-                    let lane = (order >> (LANE_BITS * k)) & 7;
+                    let lane = (order >> (LANE_BITS * k)) & LANE;
                     if mask & (1 << lane) != 0 {
                         stack[top] = Entry { t: enter[lane as usize], at: (node as u32) << LANE_BITS | lane };
                         top += 1;
@@ -230,7 +234,7 @@ impl Wide {
                 if e.t > t_max {
                     continue;
                 }
-                let (p, lane) = (&self.nodes[(e.at >> LANE_BITS) as usize], (e.at & 7) as usize);
+                let (p, lane) = (&self.nodes[(e.at >> LANE_BITS) as usize], (e.at & LANE) as usize);
                 let (first, count) = (p.child[lane] as usize, p.count(lane));
                 if count == 0 {
                     node = first;
@@ -286,7 +290,7 @@ impl Wide {
                 }
                 top -= 1;
                 let at = stack[top].at;
-                let (p, lane) = (&self.nodes[(at >> LANE_BITS) as usize], (at & 7) as usize);
+                let (p, lane) = (&self.nodes[(at >> LANE_BITS) as usize], (at & LANE) as usize);
                 let (first, count) = (p.child[lane] as usize, p.count(lane));
                 if count == 0 {
                     node = first;
@@ -339,6 +343,11 @@ impl Wide {
             Some(k) => Err(format!("slot {k} in no leaf")),
             None => Ok(()),
         }
+    }
+
+    /// The bytes of the nodes.
+    pub(super) fn bytes(&self) -> usize {
+        std::mem::size_of_val(&self.nodes[..])
     }
 
     /// The box of everything.
