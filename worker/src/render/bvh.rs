@@ -2,7 +2,7 @@
 //! heuristic. It sees only boxes: the caller keeps the primitives and intersects them in a
 //! closure, so the same BVH serves spheres, rectangles, triangles and moving objects (whose
 //! box covers their whole motion over the shutter). The builder makes a binary tree
-//! (`build.rs`); rays traverse it folded into nodes of four (`fold.rs`, `wide.rs`), which
+//! (`build.rs`); rays traverse it folded into nodes of eight (`fold.rs`, `wide.rs`), which
 //! visit the same leaves in the same order.
 
 use glam::Vec3;
@@ -140,7 +140,7 @@ impl LeafPolicy {
     pub const TRIANGLES: LeafPolicy = LeafPolicy { traversal_cost: 1.0, always_leaf: 2 };
     /// For scenes made mostly of other shapes than still triangles (spheres,
     /// parallelograms, moving primitives): one of their tests costs several box tests (a
-    /// sphere's is in f64), and four boxes are tested at once, so the SAH may put each in
+    /// sphere's is in f64), and a node's boxes are tested at once, so the SAH may put each in
     /// a leaf of its own. On the Cornell box (160×90, 16 spp) it takes the primitives a
     /// nearest-hit ray tests from 7.9 of 8 to 1.1, a shadow ray's from 8.0 to 0.03, and a
     /// quarter of the instructions per sample (docs/speed.md).
