@@ -96,7 +96,26 @@ impl Opened {
         }
     }
 
-    /// The lanes' binary nodes: in depth-first order (first child first) without `signs`;
+    /// Renames the lanes' binary nodes to their lane numbers (their depth-first order), so
+    /// that the walks for the visit orders name lanes without looking them up.
+    fn number_lanes(&mut self) {
+        let mut next = 0;
+        self.number(0, &mut next);
+    }
+
+    fn number(&mut self, at: usize, next: &mut usize) {
+        for j in 0..2 {
+            match self.parts[at][j] {
+                Part::Kid(_) => {
+                    self.parts[at][j] = Part::Kid(*next);
+                    *next += 1;
+                }
+                Part::Open(i) => self.number(i, next),
+            }
+        }
+    }
+
+    /// The lanes' binary nodes (or lane numbers, once numbered): in depth-first order (first child first) without `signs`;
     /// with them, in the order a ray with those direction signs visits them (at each opened
     /// node, its second child first when the direction is negative on its axis).
     fn kids(&self, signs: Option<usize>) -> ([usize; WIDTH], usize) {
@@ -143,13 +162,11 @@ fn fold_node(binary: &[Node], b: usize, nodes: &mut Vec<Node8>) -> usize {
         (kids, lanes) = part.kids(None);
     }
     let kids = &kids[..lanes];
+    part.number_lanes();
     let mut order = [0u8; ORDERS];
     for (signs, o) in order.chunks_exact_mut(3).enumerate() {
         let (visit, n) = part.kids(Some(signs));
-        let bits = visit[..n].iter().enumerate().fold(0u32, |acc, (k, b)| {
-            let lane = kids.iter().position(|x| x == b).expect("a lane of this node");
-            acc | (lane as u32) << (3 * k)
-        });
+        let bits = visit[..n].iter().enumerate().fold(0u32, |acc, (k, &lane)| acc | (lane as u32) << (3 * k));
         o.copy_from_slice(&bits.to_le_bytes()[..3]);
     }
     let at = nodes.len();
