@@ -13,8 +13,8 @@ pub const PRIMITIVE_BYTES: u64 = 96;
 /// Bytes per primitive in the BVH, at the peak of building it and after: the binary tree
 /// (at most two nodes of 36 bytes a primitive), the builder's boxes and bins (33), the
 /// primitives' bounds (24), the slot a primitive keeps in leaf order (44), and the folded
-/// nodes of eight with the primitive's index (67 on the trees with the most nodes per
-/// primitive; a worker test measures them).
+/// nodes of eight with the primitive's index (75: up to 67 measured on the trees with the
+/// most nodes per primitive, by a worker test that holds the total to this constant).
 pub const BVH_BYTES_PER_PRIMITIVE: u64 = 2 * 36 + 33 + 24 + 44 + 75;
 /// Bytes per triangle: three corners of (position, normal, uv) indices.
 pub const TRIANGLE_BYTES: u64 = 36;

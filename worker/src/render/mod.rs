@@ -195,7 +195,8 @@ impl Scene {
         };
         match nearest {
             Some(Candidate::Triangle(k, t, b1, b2)) => {
-                let (slot, i) = (&w.slots[k], w.slots[k].index());
+                let slot = &w.slots[k];
+                let i = slot.index();
                 if let Some(material) = slot.plain_material() {
                     // Neither the primitive nor its mesh is read (`triangles`'s comment).
                     best = slot.plain_hit(t, b1, b2).map(|mut hit| {

@@ -29,7 +29,7 @@ pub struct Slot {
     /// The primitive's index, with [`GENERIC`] set unless the slot is an inline triangle
     /// and [`PLAIN`] set if it is a plain one.
     prim: u32,
-    /// A plain triangle's material.
+    /// The primitive's material, read only for a plain triangle.
     material: u32,
 }
 

@@ -115,8 +115,8 @@ impl Opened {
         }
     }
 
-    /// The lanes' binary nodes (or lane numbers, once numbered): in depth-first order (first child first) without `signs`;
-    /// with them, in the order a ray with those direction signs visits them (at each opened
+    /// The lanes' binary nodes (or lane numbers, once numbered): in depth-first order
+    /// (first child first) without `signs`; with them, in the order a ray with those direction signs visits them (at each opened
     /// node, its second child first when the direction is negative on its axis).
     fn kids(&self, signs: Option<usize>) -> ([usize; WIDTH], usize) {
         let mut out = ([0; WIDTH], 0);
