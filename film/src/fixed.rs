@@ -21,8 +21,13 @@ pub fn to_fixed(v: f32) -> Option<u64> {
     if !v.is_finite() {
         return None;
     }
-    let clamped = v.clamp(0.0, SAMPLE_MAX);
-    Some((f64::from(clamped) * SCALE).round() as u64)
+    let x = f64::from(v.clamp(0.0, SAMPLE_MAX)) * SCALE;
+    // `f64::round` is a call into compiler-builtins on baseline x86-64 (no SSE4.1), paid per
+    // channel of every sample. Here `x` is non-negative and below 2^48, so truncating it is
+    // exact and so is the fraction left over: rounding that half up gives `round`'s bits
+    // (`rounds_as_f64_round`).
+    let whole = x as u64;
+    Some(whole + u64::from(x - whole as f64 >= 0.5))
 }
 
 /// The mean radiance of `count` samples whose fixed-point sum is `sum`.
@@ -58,6 +63,21 @@ mod tests {
         assert_eq!(to_fixed(f32::INFINITY), None);
         assert_eq!(to_fixed(-1.0), Some(0));
         assert_eq!(to_fixed(1e30), to_fixed(SAMPLE_MAX));
+    }
+
+    /// Every radiance with a fraction left at 2^-24 (those below 1), strided, and every
+    /// one that lands exactly on or next to a half: the same bits as `f64::round`.
+    #[test]
+    fn rounds_as_f64_round() {
+        let reference = |v: f32| (f64::from(v.clamp(0.0, SAMPLE_MAX)) * SCALE).round() as u64;
+        let strided = (0..1.0f32.to_bits()).step_by(9973).map(f32::from_bits);
+        let halves = (0..1u32 << 16).flat_map(|k| {
+            let half = ((f64::from(k) + 0.5) / SCALE) as f32;
+            [half, half.next_down(), half.next_up()]
+        });
+        for v in strided.chain(halves).chain([0.0, 1.0, SAMPLE_MAX, f32::MIN_POSITIVE]) {
+            assert_eq!(to_fixed(v), Some(reference(v)), "{v:e}");
+        }
     }
 
     /// 65 536 samples at the clamp still fit a u64: accumulation never wraps.
