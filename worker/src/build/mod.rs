@@ -125,7 +125,9 @@ fn build_observed(
     mark(Phase::Slots);
     let materials: Vec<_> = desc.materials.iter().map(materials::material).collect();
     let surfaces = crate::render::surface::Surfaces::new(&materials, std::mem::take(&mut shapes.extras));
+    let emitters = crate::render::few_emitters(&shapes.prims);
     let world = World {
+        emitters,
         materials,
         textures,
         prims: shapes.prims,

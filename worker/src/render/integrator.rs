@@ -72,6 +72,10 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
     let mut prev_p = ray.origin;
     let mut last = false;
     for depth in depth..scene.max_depth {
+        // The last ray only looks for light: where it can find none, its hit is not needed.
+        if last && !scene.may_find_light(&ray, time) {
+            break;
+        }
         let Some(mut sh) = scene.intersect(&ray, f32::INFINITY, time) else {
             l += beta * escaped(scene, ray.dir, from_dirac, prev_pdf);
             break;
@@ -253,6 +257,54 @@ fn classic(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::batch::{render_batch, Sums};
+    use crate::render::sampler::hash_words;
+    use glam::UVec2;
+    use tessera_description::bundle::Bundle;
+
+    fn scene(name: &str) -> Scene {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+        crate::build::parse_bundle(&Bundle::read(&root.join(name)).unwrap()).unwrap()
+    }
+
+    /// A path's last ray skipped where it can find no light: never where its nearest hit
+    /// is an emitter (random rays), often where it is not, and the images' sums are the
+    /// bits of tracing every such ray.
+    #[test]
+    fn last_rays_skipped_only_where_they_find_no_light() {
+        for name in ["cornell.toml", "spheres.toml"] {
+            let mut scene = scene(name);
+            assert!(scene.world.emitters.is_some(), "{name}: its emitters are few");
+            let b = scene.world.bvh.bounds();
+            let (c, r) = (b.centroid(), (b.max - b.min).length());
+            let (mut lit, mut skipped) = (0, 0);
+            for k in 0..20_000u64 {
+                let h = |j: u64| (hash_words(&[k, j, 7]) >> 40) as f32 / (1u64 << 24) as f32 - 0.5;
+                let Some(dir) = Vec3::new(h(3), h(4), h(5)).try_normalize() else { continue };
+                let ray = Ray::new(c + Vec3::new(h(0), h(1), h(2)) * r * 0.5, dir);
+                let may = scene.may_find_light(&ray, 0.0);
+                if scene.intersect(&ray, f32::INFINITY, 0.0).is_some_and(|sh| sh.light.is_some()) {
+                    assert!(may, "{name}: ray {k} finds a light");
+                    lit += 1;
+                }
+                skipped += usize::from(!may);
+            }
+            assert!(lit > 10 && skipped > 10_000, "{name}: {lit} rays lit, {skipped} skipped");
+
+            let pixels: Vec<_> = (0..24).flat_map(|y| (0..32).map(move |x| UVec2::new(x * 5, y * 6))).collect();
+            scene.apply(Some(4), Some((160, 144)));
+            let skipping = render_batch(&scene, &pixels, 0..4, Sums::Radiance);
+            std::sync::Arc::get_mut(&mut scene.world).unwrap().emitters = None;
+            let tracing = render_batch(&scene, &pixels, 0..4, Sums::Radiance);
+            assert_eq!(skipping, tracing, "{name}");
+        }
+        // An emissive mesh has too many emitters to test one by one.
+        assert!(scene("emissive_mesh.toml").world.emitters.is_none());
+        // Escaping rays that see a background find light: nothing is skipped.
+        let mut lit = scene("cornell.toml");
+        lit.background = Vec3::splat(0.1);
+        assert!(lit.may_find_light(&Ray::new(Vec3::ZERO, Vec3::NEG_Y), 0.0));
+    }
 
     #[test]
     fn snell_and_total_internal_reflection() {

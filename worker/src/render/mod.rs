@@ -86,6 +86,27 @@ pub struct World {
     /// The environment's index in `lights`, when the scene has one: escaping rays see it
     /// instead of the background.
     pub environment: Option<u32>,
+    /// The emitting primitives, when there are at most [`FEW_EMITTERS`] of them: few enough
+    /// to test a ray against each ([`Scene::may_find_light`]).
+    pub emitters: Option<Vec<u32>>,
+}
+
+/// The most emitting primitives [`Scene::may_find_light`] tests one by one; a scene with
+/// more (an emissive mesh) traces every ray.
+pub const FEW_EMITTERS: usize = 8;
+
+/// The emitting primitives of `prims`, if there are at most [`FEW_EMITTERS`].
+pub fn few_emitters(prims: &[Primitive]) -> Option<Vec<u32>> {
+    let mut emitters = Vec::new();
+    for (i, p) in prims.iter().enumerate() {
+        if p.light.is_some() {
+            if emitters.len() == FEW_EMITTERS {
+                return None;
+            }
+            emitters.push(i as u32);
+        }
+    }
+    Some(emitters)
 }
 
 /// The nearest hit found so far, before it is completed: the primitive, the distance and
@@ -229,6 +250,22 @@ impl Scene {
             }
         }
         best
+    }
+
+    /// Whether `ray` can find any light: false only when escaping rays see black (no
+    /// environment, a black background) and the ray meets none of the scene's few emitting
+    /// primitives at any distance. Then the nearest hit of a ray that only looks for light
+    /// (a path's last, after a diffuse bounce) adds nothing, whatever it is, and need not be
+    /// found. Each emitter is tested as the nearest-hit search tests it (a nearer `t_max`
+    /// only rejects more), so `true` whenever that search could end on an emitter.
+    pub fn may_find_light(&self, ray: &Ray, time: f32) -> bool {
+        let w = &*self.world;
+        let Some(emitters) = &w.emitters else { return true };
+        w.environment.is_some()
+            || self.background != Vec3::ZERO
+            || emitters.iter().any(|&i| {
+                w.prims[i as usize].intersect(ray, f32::INFINITY, time, &w.meshes, &w.motions).is_some()
+            })
     }
 
     /// Fills in the texture coordinates of a hit where the shape computes them lazily
