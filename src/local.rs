@@ -36,7 +36,8 @@ pub struct RenderArgs {
     /// frame's first pass before any frame's second, so the whole sequence previews early.
     #[arg(long, value_name = "FIRST-LAST", allow_hyphen_values = true)]
     pub frames: Option<String>,
-    /// Local worker processes [default: one per core].
+    /// Local worker processes [default: 1, with a render thread per core: one process
+    /// reads and builds the scene once, where a process per core would each do it].
     #[arg(long)]
     pub workers: Option<usize>,
     /// Samples per pixel [default: the scene's].
@@ -459,7 +460,7 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
     let frames = crate::frames::parse(args.frames.as_deref())?;
     crate::frames::check_pattern(&args.output, frames)?;
     let cores = crate::cores();
-    let workers = args.workers.unwrap_or(cores);
+    let workers = args.workers.unwrap_or(1);
     if workers == 0 || workers > 256 {
         anyhow::bail!("--workers must be 1..=256, got {workers}");
     }

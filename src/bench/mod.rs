@@ -215,7 +215,7 @@ pub enum BenchCommand {
         /// Samples per pixel [default: the scene's].
         #[arg(long)]
         spp: Option<u32>,
-        /// Local worker processes [default: one per core].
+        /// Local worker processes [default: 1, as `tessera render`].
         #[arg(long)]
         workers: Option<usize>,
     },
@@ -310,7 +310,7 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
                 anyhow::bail!("--runs must be at least 1");
             }
             let cores = crate::cores();
-            let workers = workers.unwrap_or(cores).max(1);
+            let workers = workers.unwrap_or(1).max(1);
             let threads = (cores / workers).max(1);
             let bundle = Bundle::read(&scene)?;
             let mut parsed = parse_bundle(&bundle)?;
