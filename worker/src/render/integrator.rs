@@ -150,8 +150,9 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
                 l += beta * f * ls.weighted * tr * (w / pick);
             });
         }
-        let u_lobe = sampler.get_1d();
-        let u = sampler.get_2d();
+        let (reads_lobe, reads_u) = bsdf.draws();
+        let u_lobe = if reads_lobe { sampler.get_1d() } else { sampler.skip() };
+        let u = if reads_u { sampler.get_2d() } else { Vec2::splat(sampler.skip()) };
         let Some(s) = bsdf.sample(wo, u_lobe, u) else { break };
         beta *= s.weight;
         if beta == Vec3::ZERO || !beta.is_finite() {
@@ -291,7 +292,8 @@ mod tests {
             }
             assert!(lit > 10 && skipped > 10_000, "{name}: {lit} rays lit, {skipped} skipped");
 
-            let pixels: Vec<_> = (0..24).flat_map(|y| (0..32).map(move |x| UVec2::new(x * 5, y * 6))).collect();
+            let pixels: Vec<_> =
+                (0..24).flat_map(|y| (0..32).map(move |x| UVec2::new(x * 5, y * 6))).collect();
             scene.apply(Some(4), Some((160, 144)));
             let skipping = render_batch(&scene, &pixels, 0..4, Sums::Radiance);
             std::sync::Arc::get_mut(&mut scene.world).unwrap().emitters = None;

@@ -315,6 +315,14 @@ impl Sampler {
         }
     }
 
+    /// Passes over the next dimension, 1-D or 2-D, whose value nothing reads: the draws
+    /// after it keep their dimensions' numbers, and so their values. Returns 0.
+    pub fn skip(&mut self) -> f32 {
+        // Through `next_dimension`, so that the pixel's kept keys stay in order.
+        self.next_dimension();
+        0.0
+    }
+
     /// The next 1-D dimension, following the pixel's pattern.
     pub fn get_1d(&mut self) -> f32 {
         let k = self.next_dimension();
@@ -379,8 +387,9 @@ mod tests {
 
     /// The kept keys change no bit: pixels revisited in and out of turn, samples that draw
     /// more or fewer dimensions than the one before (paths end at different depths), 1-D
-    /// and 2-D draws of one dimension in different samples, more dimensions than are kept,
-    /// indices beyond the pattern, every pattern and sample counts of every shape.
+    /// and 2-D draws of one dimension in different samples, skipped dimensions, more
+    /// dimensions than are kept, indices beyond the pattern, every pattern and sample
+    /// counts of every shape.
     #[test]
     fn kept_keys_draw_what_fresh_hashes_draw() {
         let kinds = [SamplerKind::Stratified, SamplerKind::Sobol, SamplerKind::Independent];
@@ -400,6 +409,11 @@ mod tests {
                 let draws = (h >> 32) as u32 % (KEPT_DIMENSIONS as u32 + 12);
                 sampler.start_pixel_sample(pixel, index);
                 for d in 0..draws {
+                    if (h >> ((d + 7) % 48)) & 7 == 0 {
+                        // A skipped dimension: the draws after it keep their numbers.
+                        assert_eq!(sampler.skip(), 0.0);
+                        continue;
+                    }
                     if (h >> (d % 48)) & 1 == 0 {
                         let (got, want) = (sampler.get_2d(), fresh_2d(kind, seed, spp, pixel, index, d));
                         let bits = |v: Vec2| (v.x.to_bits(), v.y.to_bits());

@@ -148,6 +148,19 @@ impl Bsdf {
         }
     }
 
+    /// Which of [`Bsdf::sample`]'s random numbers it reads: the lobe choice `u_lobe`, the
+    /// 2-D sample `u`. The integrator skips a draw that is not read (a draw costs more than
+    /// a mirror's whole sample) and counts its dimension all the same, so that later draws
+    /// keep their numbers; `tests::sample_reads_only_what_draws_says` holds every lobe to it.
+    pub fn draws(&self) -> (bool, bool) {
+        match self {
+            Bsdf::Mirror { .. } | Bsdf::SmoothConductor { .. } => (false, false),
+            Bsdf::Lambert { .. } | Bsdf::RoughConductor { .. } => (false, true),
+            Bsdf::Dielectric { .. } => (true, false),
+            Bsdf::Plastic { .. } | Bsdf::RoughDielectric { .. } | Bsdf::MetallicRoughness(_) => (true, true),
+        }
+    }
+
     /// Samples an incident direction given `wo`, with a lobe choice `u_lobe` and a 2-D
     /// sample `u`.
     pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
@@ -176,6 +189,36 @@ mod tests {
             (h >> 40) as f32 / (1u64 << 24) as f32,
             ((h >> 16) & 0xff_ffff) as f32 / (1u64 << 24) as f32,
         )
+    }
+
+    /// `draws` tells what `sample` reads: with the numbers it says are not read changed,
+    /// every lobe samples the same bits, from both sides of the surface.
+    #[test]
+    fn sample_reads_only_what_draws_says() {
+        let metal = (Vec3::new(0.2, 0.9, 1.1), Vec3::new(3.9, 2.4, 2.2));
+        let bsdfs = [
+            Bsdf::Lambert { albedo: Vec3::splat(0.5) },
+            Bsdf::Mirror { reflectance: Vec3::splat(0.9) },
+            Bsdf::Dielectric { eta: 1.5 },
+            Bsdf::SmoothConductor { eta: metal.0, k: metal.1 },
+            Bsdf::RoughConductor { eta: metal.0, k: metal.1, alpha: 0.3 },
+            Bsdf::RoughDielectric { eta: 1.5, alpha: 0.2 },
+            Bsdf::Plastic { diffuse: Vec3::splat(0.5), eta: 1.5, fdr: fresnel_diffuse_reflectance(1.5) },
+        ];
+        let mut skipped = 0;
+        for bsdf in bsdfs {
+            let (lobe, dir) = bsdf.draws();
+            for i in 0..4000 {
+                let Some(wo) = (u2(i, 1).extend(u2(i, 2).x) * 2.0 - 1.0).try_normalize() else { continue };
+                let (ul, u) = (u2(i, 3).x, u2(i, 4));
+                let (other_ul, other_u) = (u2(i, 5).y, u2(i, 6));
+                let want = bsdf.sample(wo, ul, u);
+                let got = bsdf.sample(wo, if lobe { ul } else { other_ul }, if dir { u } else { other_u });
+                assert_eq!(format!("{got:?}"), format!("{want:?}"), "{bsdf:?} wo {wo}");
+                skipped += usize::from(!lobe) + usize::from(!dir);
+            }
+        }
+        assert!(skipped > 0);
     }
 
     /// Sampling agrees with evaluation: the mean of weight equals ∫ f cos, which for the
