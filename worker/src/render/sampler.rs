@@ -281,6 +281,15 @@ impl Sampler {
         if d < self.kept {
             return self.keys[d as usize];
         }
+        self.new_dimension(d)
+    }
+
+    /// The keys of dimension `d`, not kept yet: the first sample of a pixel to draw it
+    /// computes them. Out of line, so that the draws' common path (the keys kept) holds
+    /// fewer registers.
+    #[cold]
+    #[inline(never)]
+    fn new_dimension(&mut self, d: u32) -> DimensionKeys {
         let keys = DimensionKeys::new(hash_step(self.pixel_key, u64::from(d)));
         // Dimensions are drawn in order from 0, so the next one to keep is `kept`.
         if d == self.kept && (d as usize) < KEPT_DIMENSIONS {
