@@ -173,7 +173,7 @@ pub async fn fetch(
     let mut size = None;
     let (mut rgb, mut layers) = (Vec::new(), Resolved::default());
     let floats = |b: &[u8], into: &mut Vec<f32>| -> Result<()> {
-        if b.len() % 4 != 0 {
+        if !b.len().is_multiple_of(4) {
             bail!("the coordinator sent a layer chunk of {} bytes, not whole floats", b.len());
         }
         into.extend(b.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]])));

@@ -65,17 +65,19 @@ mod tests {
         assert_eq!(to_fixed(1e30), to_fixed(SAMPLE_MAX));
     }
 
-    /// Every radiance with a fraction left at 2^-24 (those below 1), strided, and every
-    /// one that lands exactly on or next to a half: the same bits as `f64::round`.
+    /// Every radiance that leaves a fraction at 2^-24 (those below 0.5), strided, every one
+    /// that lands exactly on or next to a half, and the ends: the same bits as `f64::round`.
     #[test]
     fn rounds_as_f64_round() {
         let reference = |v: f32| (f64::from(v.clamp(0.0, SAMPLE_MAX)) * SCALE).round() as u64;
-        let strided = (0..1.0f32.to_bits()).step_by(9973).map(f32::from_bits);
+        let strided = (0..0.5f32.to_bits()).step_by(9973).map(f32::from_bits);
         let halves = (0..1u32 << 16).flat_map(|k| {
             let half = ((f64::from(k) + 0.5) / SCALE) as f32;
             [half, half.next_down(), half.next_up()]
         });
-        for v in strided.chain(halves).chain([0.0, 1.0, SAMPLE_MAX, f32::MIN_POSITIVE]) {
+        let ends =
+            [0.0, -0.0, -1.0, 0.5, 1.0, 1e-45, f32::MIN_POSITIVE, SAMPLE_MAX.next_down(), SAMPLE_MAX, 1e30];
+        for v in strided.chain(halves).chain(ends) {
             assert_eq!(to_fixed(v), Some(reference(v)), "{v:e}");
         }
     }

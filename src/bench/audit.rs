@@ -115,7 +115,7 @@ fn survival(trial: u64, policy: AuditPolicy, lie: Lie) -> Result<Option<u64>> {
         }
         round(&mut f, &ws, || match lie {
             Lie::Doubles => Some(Lie::Doubles),
-            Lie::ZeroesOneInFifty => (mine.next() % 50 == 0).then_some(Lie::ZeroesOneInFifty),
+            Lie::ZeroesOneInFifty => mine.next().is_multiple_of(50).then_some(Lie::ZeroesOneInFifty),
         });
     }
 }
@@ -130,7 +130,7 @@ fn run_job(trial: u64, policy: AuditPolicy, lie: Option<Lie>) -> Result<(Farm, J
         }
         round(&mut f, &ws, || match lie? {
             Lie::Doubles => Some(Lie::Doubles),
-            Lie::ZeroesOneInFifty => (mine.next() % 50 == 0).then_some(Lie::ZeroesOneInFifty),
+            Lie::ZeroesOneInFifty => mine.next().is_multiple_of(50).then_some(Lie::ZeroesOneInFifty),
         });
     }
     bail!("trial {trial}: the job did not end")

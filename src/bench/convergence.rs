@@ -1,6 +1,8 @@
 //! `tessera bench convergence` and `tessera bench preview`: the trade of speed against
 //! accuracy, measured. Renders run in this process on every core (the farm adds only its
-//! small overhead, measured by `bench overhead`), and every error is against a
+//! small overhead, measured by `bench overhead`; the time-budget runs use a local worker
+//! per core, one thread each, as `tessera render` did by default when they were measured),
+//! and every error is against a
 //! high-sample render of the same scene by the same renderer, so that the renderer's own
 //! bias does not hide its convergence.
 

@@ -302,10 +302,17 @@ mod tests {
         }
         // An emissive mesh has too many emitters to test one by one.
         assert!(scene("emissive_mesh.toml").world.emitters.is_none());
-        // Escaping rays that see a background find light: nothing is skipped.
+        // Escaping rays that see a background or an environment find light: nothing is
+        // skipped (the ray points at the floor, away from the light).
+        let away = Ray::new(Vec3::ZERO, Vec3::NEG_Y);
         let mut lit = scene("cornell.toml");
+        assert!(!lit.may_find_light(&away, 0.0));
         lit.background = Vec3::splat(0.1);
-        assert!(lit.may_find_light(&Ray::new(Vec3::ZERO, Vec3::NEG_Y), 0.0));
+        assert!(lit.may_find_light(&away, 0.0));
+        let sky = scene("environment.toml");
+        assert!(sky.world.environment.is_some() && sky.background == Vec3::ZERO);
+        let b = sky.world.bvh.bounds();
+        assert!(sky.may_find_light(&Ray::new(b.max + Vec3::ONE, Vec3::ONE.normalize()), 0.0));
     }
 
     #[test]

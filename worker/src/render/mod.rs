@@ -256,8 +256,9 @@ impl Scene {
     /// environment, a black background) and the ray meets none of the scene's few emitting
     /// primitives at any distance. Then the nearest hit of a ray that only looks for light
     /// (a path's last, after a diffuse bounce) adds nothing, whatever it is, and need not be
-    /// found. Each emitter is tested as the nearest-hit search tests it (a nearer `t_max`
-    /// only rejects more), so `true` whenever that search could end on an emitter.
+    /// found. Each emitter is tested as the nearest-hit search tests it, without its alpha
+    /// cut-out (a cut-out and a nearer `t_max` only reject more), so `true` whenever that
+    /// search could end on an emitter.
     pub fn may_find_light(&self, ray: &Ray, time: f32) -> bool {
         let w = &*self.world;
         let Some(emitters) = &w.emitters else { return true };

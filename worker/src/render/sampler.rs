@@ -327,7 +327,8 @@ impl Sampler {
     /// Passes over the next dimension, 1-D or 2-D, whose value nothing reads: the draws
     /// after it keep their dimensions' numbers, and so their values. Returns 0.
     pub fn skip(&mut self) -> f32 {
-        // Through `next_dimension`, so that the pixel's kept keys stay in order.
+        // Through `next_dimension`, so that the skipped dimension's keys are kept too and
+        // the draws after it stay on the path that reads kept keys.
         self.next_dimension();
         0.0
     }
