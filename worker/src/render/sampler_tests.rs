@@ -1,0 +1,268 @@
+//! The sampler's draws against their definition, hashed from the start (a file of its
+//! own: the sampler's tests outgrew it).
+
+use super::*;
+
+/// The draws of dimension `d` of sample `index` of `pixel`, hashed from the start as
+/// the sampler's definition states them (no kept state): the oracle for the kept keys.
+fn fresh_2d(kind: SamplerKind, seed: u64, spp: u32, pixel: UVec2, index: u32, d: u32) -> Vec2 {
+    let key = hash_words(&[seed, u64::from(pixel.x) | (u64::from(pixel.y) << 32), u64::from(d)]);
+    if index >= spp || kind == SamplerKind::Independent {
+        let h = hash_words(&[key, u64::from(index)]);
+        return Vec2::new(unit_float(h), unit_float(mix64(h)));
+    }
+    let s = permute(index, spp, key);
+    let k = mix64(key);
+    if kind == SamplerKind::Sobol {
+        return Vec2::new(
+            fixed_to_unit(owen_scramble(s.reverse_bits(), k as u32)),
+            fixed_to_unit(owen_scramble(sobol_dim1(s), (k >> 32) as u32)),
+        );
+    }
+    let (m, rows) = grid(spp);
+    let (col, row) = (s % m, s / m);
+    let (sx, sy) = (permute(col, m, k ^ 0x51), permute(row, rows, k ^ 0xa3));
+    let (jx, jy) =
+        (unit_float(hash_words(&[k, u64::from(s), 1])), unit_float(hash_words(&[k, u64::from(s), 2])));
+    let x = (col as f32 + (sy as f32 + jx) / rows as f32) / m as f32;
+    let y = (row as f32 + (sx as f32 + jy) / m as f32) / rows as f32;
+    Vec2::new(x.min(ONE_MINUS_EPSILON), y.min(ONE_MINUS_EPSILON))
+}
+
+/// [`fresh_2d`] for a 1-D draw.
+fn fresh_1d(kind: SamplerKind, seed: u64, spp: u32, pixel: UVec2, index: u32, d: u32) -> f32 {
+    let key = hash_words(&[seed, u64::from(pixel.x) | (u64::from(pixel.y) << 32), u64::from(d)]);
+    if index >= spp || kind == SamplerKind::Independent {
+        return unit_float(hash_words(&[key, u64::from(index)]));
+    }
+    let s = permute(index, spp, key);
+    if kind == SamplerKind::Sobol {
+        return fixed_to_unit(owen_scramble(s.reverse_bits(), mix64(key) as u32));
+    }
+    let jitter = unit_float(hash_words(&[key, u64::from(s), 3]));
+    ((s as f32 + jitter) / spp as f32).min(ONE_MINUS_EPSILON)
+}
+
+/// The kept keys change no bit: pixels revisited in and out of turn, samples that draw
+/// more or fewer dimensions than the one before (paths end at different depths), 1-D
+/// and 2-D draws of one dimension in different samples, skipped dimensions, more
+/// dimensions than are kept, indices beyond the pattern, every pattern and sample
+/// counts of every shape.
+#[test]
+fn kept_keys_draw_what_fresh_hashes_draw() {
+    let kinds = [SamplerKind::Stratified, SamplerKind::Sobol, SamplerKind::Independent];
+    for (kind, spp, seed) in kinds.into_iter().flat_map(|k| [(k, 1, 3), (k, 7, 0), (k, 16, 9), (k, 60, 1)]) {
+        let mut sampler = Sampler::new(kind, seed, spp);
+        for step in 0..400u64 {
+            let h = hash_words(&[step, u64::from(spp)]);
+            // Mostly the same pixel again (as a batch walks its samples), sometimes another.
+            let pixel = if h.is_multiple_of(4) {
+                UVec2::new((h >> 8) as u32 % 3, (h >> 16) as u32 % 2)
+            } else {
+                sampler.pixel
+            };
+            let index = (h >> 24) as u32 % (spp + 3);
+            let draws = (h >> 32) as u32 % (KEPT_DIMENSIONS as u32 + 12);
+            sampler.start_pixel_sample(pixel, index);
+            for d in 0..draws {
+                if (h >> ((d + 7) % 48)) & 7 == 0 {
+                    // A skipped dimension: the draws after it keep their numbers.
+                    assert_eq!(sampler.skip(), 0.0);
+                    continue;
+                }
+                if (h >> (d % 48)) & 1 == 0 {
+                    let (got, want) = (sampler.get_2d(), fresh_2d(kind, seed, spp, pixel, index, d));
+                    let bits = |v: Vec2| (v.x.to_bits(), v.y.to_bits());
+                    assert_eq!(
+                        bits(got),
+                        bits(want),
+                        "{kind:?} spp {spp} {pixel} sample {index} dimension {d}"
+                    );
+                } else {
+                    let want = fresh_1d(kind, seed, spp, pixel, index, d);
+                    assert_eq!(
+                        sampler.get_1d().to_bits(),
+                        want.to_bits(),
+                        "{kind:?} spp {spp} {pixel} sample {index} dimension {d}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// `permute` as it was written before its constants were kept per length: the oracle
+/// for [`Permutation`].
+fn permute_reference(i: u32, len: u32, key: u64) -> u32 {
+    if len <= 1 {
+        return 0;
+    }
+    let mask = u32::MAX >> (len - 1).leading_zeros();
+    let bits = 32 - mask.leading_zeros();
+    let (k0, k1) = (key as u32, (key >> 32) as u32);
+    let mut x = i;
+    loop {
+        x ^= k0 & mask;
+        x = x.wrapping_mul(0x2c1b_3c6d | 1) & mask;
+        x ^= x >> (bits / 2).max(1);
+        x = x.wrapping_add(k1) & mask;
+        x = x.wrapping_mul(0x297a_2d39 | 1) & mask;
+        x ^= x >> (bits / 3).max(1);
+        x ^= (k1 >> 7) & mask;
+        x = x.wrapping_mul(0x1b87_3593 | 1) & mask;
+        x ^= x >> 1;
+        if x < len {
+            return x;
+        }
+    }
+}
+
+#[test]
+fn kept_permutation_constants_permute_as_before() {
+    for len in (1..=70).chain([100, 127, 128, 129, 1000, 1024, 4097, 65_536, 1 << 20]) {
+        let p = Permutation::new(len);
+        for k in 0..200u64 {
+            let key = hash_words(&[k, u64::from(len)]);
+            let i = (hash_words(&[key]) % u64::from(len)) as u32;
+            assert_eq!(p.apply(i, key), permute_reference(i, len, key), "len {len} i {i} key {key:x}");
+        }
+    }
+}
+
+#[test]
+fn permute_is_a_bijection() {
+    for len in [1u32, 2, 3, 5, 16, 17, 100, 1000] {
+        for key in [0u64, 1, 0xdead_beef, u64::MAX] {
+            let mut seen = vec![false; len as usize];
+            for i in 0..len {
+                let p = permute(i, len, key) as usize;
+                assert!(!seen[p], "len {len} key {key}: {p} twice");
+                seen[p] = true;
+            }
+        }
+    }
+}
+
+/// Every sample of a pixel falls in its own stratum of the m×n grid, for any spp.
+#[test]
+fn pixel_samples_are_stratified() {
+    for spp in [1u32, 4, 9, 16, 7, 10, 64] {
+        let mut sampler = Sampler::new(SamplerKind::Stratified, 7, spp);
+        let (m, rows) = grid(spp);
+        assert_eq!(m * rows, spp);
+        let mut cells = std::collections::HashSet::new();
+        for i in 0..spp {
+            sampler.start_pixel_sample(UVec2::new(3, 4), i);
+            let p = sampler.get_2d();
+            assert!((0.0..1.0).contains(&p.x) && (0.0..1.0).contains(&p.y));
+            let cell = ((p.x * m as f32) as u32, (p.y * rows as f32) as u32);
+            assert!(cells.insert(cell), "spp {spp}: two samples in cell {cell:?}");
+        }
+    }
+}
+
+/// Revisiting (pixel, i) after other pixels gives identical values: the property that
+/// makes reassignment and resume correct.
+#[test]
+fn samples_are_pure_functions_of_pixel_and_index() {
+    let mut a = Sampler::new(SamplerKind::Stratified, 1, 16);
+    a.start_pixel_sample(UVec2::new(10, 20), 5);
+    let first = (a.get_2d(), a.get_1d(), a.get_2d());
+    for i in 0..16 {
+        a.start_pixel_sample(UVec2::new(i, 2 * i), i);
+        a.get_2d();
+    }
+    a.start_pixel_sample(UVec2::new(10, 20), 5);
+    assert_eq!(first, (a.get_2d(), a.get_1d(), a.get_2d()));
+}
+
+/// Every region of the pixel gets its share of samples, for any spp: a sample count
+/// that is not a square must not leave a corner of the pixel unsampled (a bias found
+/// against Mitsuba's Cornell box at 128 spp).
+#[test]
+fn samples_cover_the_pixel_evenly_for_any_count() {
+    for spp in [2u32, 7, 10, 128, 200] {
+        let mut sampler = Sampler::new(SamplerKind::Stratified, 11, spp);
+        let (mut top, mut right, mut n) = (0u32, 0u32, 0u32);
+        for p in 0..256u32 {
+            for i in 0..spp {
+                sampler.start_pixel_sample(UVec2::new(p % 16, p / 16), i);
+                let u = sampler.get_2d();
+                top += u32::from(u.y >= 0.8);
+                right += u32::from(u.x >= 0.8);
+                n += 1;
+            }
+        }
+        for (what, count) in [("top", top), ("right", right)] {
+            let f = f64::from(count) / f64::from(n);
+            assert!((f - 0.2).abs() < 0.02, "spp {spp}: {what} fifth holds {f:.3} of the samples");
+        }
+    }
+    assert_eq!(grid(128), (8, 16));
+    assert_eq!(grid(16), (4, 4));
+    assert_eq!(grid(7), (1, 7));
+}
+
+#[test]
+fn dimensions_are_associated_at_random() {
+    // Pixel-area stratum and the next dimension's stratum must not be the same index.
+    let spp = 16;
+    let mut sampler = Sampler::new(SamplerKind::Stratified, 3, spp);
+    let mut same = 0;
+    for i in 0..spp {
+        sampler.start_pixel_sample(UVec2::new(1, 1), i);
+        let a = sampler.get_1d();
+        let b = sampler.get_1d();
+        if (a * spp as f32) as u32 == (b * spp as f32) as u32 {
+            same += 1;
+        }
+    }
+    assert!(same < spp / 2, "{same} of {spp} strata paired identically");
+}
+
+/// Sobol at a power-of-two count is a (0, m, 2)-net: every elementary interval of area
+/// 1/spp holds exactly one sample, whatever the scrambling key.
+#[test]
+fn sobol_is_a_net_at_powers_of_two() {
+    for k in [2u32, 4, 6] {
+        let spp = 1u32 << k;
+        for pixel in [UVec2::new(0, 0), UVec2::new(17, 5)] {
+            let mut sampler = Sampler::new(SamplerKind::Sobol, 9, spp);
+            let pts: Vec<Vec2> = (0..spp)
+                .map(|i| {
+                    sampler.start_pixel_sample(pixel, i);
+                    sampler.get_2d()
+                })
+                .collect();
+            for a in 0..=k {
+                let (nx, ny) = (1u32 << a, 1u32 << (k - a));
+                let mut cells = std::collections::HashSet::new();
+                for p in &pts {
+                    assert!((0.0..1.0).contains(&p.x) && (0.0..1.0).contains(&p.y));
+                    assert!(
+                        cells.insert(((p.x * nx as f32) as u32, (p.y * ny as f32) as u32)),
+                        "spp {spp}, {nx}x{ny}"
+                    );
+                }
+            }
+        }
+    }
+}
+
+/// Independent samples are uniform (a coarse histogram) and, like every pattern, a pure
+/// function of (seed, pixel, index).
+#[test]
+fn independent_samples_are_uniform_and_repeatable() {
+    let mut s = Sampler::new(SamplerKind::Independent, 5, 4096);
+    let mut bins = [0u32; 8];
+    for i in 0..4096 {
+        s.start_pixel_sample(UVec2::new(2, 3), i);
+        let v = s.get_2d();
+        bins[(v.x * 8.0) as usize] += 1;
+        s.start_pixel_sample(UVec2::new(2, 3), i);
+        assert_eq!(s.get_2d(), v);
+    }
+    assert!(bins.iter().all(|&b| (412..=612).contains(&b)), "{bins:?}");
+    assert_eq!(SamplerKind::from_name("sobol"), Some(SamplerKind::Sobol));
+    assert_eq!(SamplerKind::from_name("halton"), None);
+}
