@@ -274,12 +274,16 @@ async fn with_liar(
 ) -> (Harness, Vec<u8>) {
     let h = harness(policy).await;
     let (w, ht, spp) = MANY;
-    let job = h.submit_small(w, ht, spp).await.unwrap();
-    // The liar first, so that it gets its share from the start.
+    // Every worker serving before the job exists, so that each takes its share from the
+    // start and honest ones are there to audit the liar's batches. With the job submitted
+    // first, the liar alone could deliver the whole of it before the others connected, and
+    // audits that no other worker answers in time are skipped (a CI run under load: 20
+    // audits, all skipped, the liar not caught).
     let _liar = serving(&h, "liar", lie).await;
     let _a = serving(&h, "a", |_, _| {}).await;
     let _b = serving(&h, "b", |_, _| {}).await;
     let _c = serving(&h, "c", |_, _| {}).await;
+    let job = h.submit_small(w, ht, spp).await.unwrap();
     assert_eq!(h.wait_over(job).await.unwrap().state, JobState::Done);
     let image = h.fetch_image(job).await.unwrap().bytes;
     (h, image)
