@@ -266,6 +266,9 @@ async fn refused_scenes_go_to_other_workers_and_fail_only_when_all_refuse() {
 /// liar delivers dozens of them.
 const MANY: (u32, u32, u32) = (64, 64, 257);
 
+/// The liar's time for a batch of `REFERENCE_BATCH_SAMPLES` samples.
+const LIAR_BATCH_TIME: Duration = Duration::from_millis(20);
+
 /// Runs MANY with three honest workers and one liar editing its results; returns the
 /// final image and whether the liar was quarantined.
 async fn with_liar(
@@ -274,16 +277,20 @@ async fn with_liar(
 ) -> (Harness, Vec<u8>) {
     let h = harness(policy).await;
     let (w, ht, spp) = MANY;
-    // Every worker serving before the job exists, so that each takes its share from the
-    // start and honest ones are there to audit the liar's batches. With the job submitted
-    // first, the liar alone could deliver the whole of it before the others connected, and
-    // audits that no other worker answers in time are skipped (a CI run under load: 20
-    // audits, all skipped, the liar not caught).
-    let _liar = serving(&h, "liar", lie).await;
+    let job = h.submit_small(w, ht, spp).await.unwrap();
+    // The liar first, so that its batches are merged before anyone can audit them (caught
+    // first as another's auditor, it would have delivered nothing to repair). It renders
+    // at a realistic pace, so that the others join while it works: a liar answering at
+    // once could deliver the whole job before they connect on a loaded machine, and
+    // audits that no other worker answers in time are skipped (a CI run: 20 audits, all
+    // skipped, the liar not caught).
+    let liar = FakeWorker::connect(&h.channel(), "liar", 2).await.unwrap();
+    let _liar = tokio::spawn(async move {
+        let _ = liar.serve_with(LIAR_BATCH_TIME, Arc::new(ServeStats::new(false)), lie).await;
+    });
     let _a = serving(&h, "a", |_, _| {}).await;
     let _b = serving(&h, "b", |_, _| {}).await;
     let _c = serving(&h, "c", |_, _| {}).await;
-    let job = h.submit_small(w, ht, spp).await.unwrap();
     assert_eq!(h.wait_over(job).await.unwrap().state, JobState::Done);
     let image = h.fetch_image(job).await.unwrap().bytes;
     (h, image)
