@@ -264,16 +264,9 @@ impl Scene {
         let Some(emitters) = &w.emitters else { return true };
         w.environment.is_some()
             || self.background != Vec3::ZERO
-            || emitters.iter().any(|&i| {
-                let prim = &w.prims[i as usize];
-                // A still parallelogram's or sphere's hit is decided by its candidate test,
-                // as `nearest` decides it; no need to complete it.
-                match (&prim.shape, prim.motion) {
-                    (shape::Shape::Rect(r), None) => r.candidate(ray, f32::INFINITY).is_some(),
-                    (shape::Shape::Sphere(s), None) => s.candidate(ray, f32::INFINITY).is_some(),
-                    _ => prim.intersect(ray, f32::INFINITY, time, &w.meshes, &w.motions).is_some(),
-                }
-            })
+            || emitters
+                .iter()
+                .any(|&i| w.prims[i as usize].is_hit(ray, f32::INFINITY, time, &w.meshes, &w.motions))
     }
 
     /// Fills in the texture coordinates of a hit where the shape computes them lazily

@@ -278,6 +278,16 @@ impl Primitive {
         }
     }
 
+    /// Whether the ray hits the surface in (0, t_max): [`Primitive::intersect`]'s answer,
+    /// a still shape's decided by its candidate test without completing the hit.
+    pub fn is_hit(&self, ray: &Ray, t_max: f32, time: f32, meshes: &[Mesh], motions: &[Motion]) -> bool {
+        match (&self.shape, self.motion) {
+            (Shape::Sphere(s), None) => s.candidate(ray, t_max).is_some(),
+            (Shape::Rect(r), None) => r.candidate(ray, t_max).is_some(),
+            _ => self.intersect(ray, t_max, time, meshes, motions).is_some(),
+        }
+    }
+
     /// How many times the ray's segment (0, t_max) crosses the surface: for shadow rays,
     /// which multiply the transmission of every crossing.
     pub fn crossings(&self, ray: &Ray, t_max: f32, time: f32, meshes: &[Mesh], motions: &[Motion]) -> u32 {

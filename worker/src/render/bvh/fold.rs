@@ -116,8 +116,9 @@ impl Opened {
     }
 
     /// The lanes' binary nodes (or lane numbers, once numbered): in depth-first order
-    /// (first child first) without `signs`; with them, in the order a ray with those direction signs visits them (at each opened
-    /// node, its second child first when the direction is negative on its axis).
+    /// (first child first) without `signs`; with them, in the order a ray with those
+    /// direction signs visits them (at each opened node, its second child first when the
+    /// direction is negative on its axis).
     fn kids(&self, signs: Option<usize>) -> ([usize; WIDTH], usize) {
         let mut out = ([0; WIDTH], 0);
         self.walk(0, signs, &mut out);
