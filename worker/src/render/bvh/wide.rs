@@ -214,13 +214,37 @@ impl Wide {
             let n = &self.nodes[node];
             let (mask, enter) = n.hit::<EXACT>(r, t_max);
             if mask != 0 {
-                let order = n.order(r.signs);
-                // Last to visit goes deepest into the stack.
-                for k in (0..n.lanes.count_ones()).rev() {
-                    let lane = (order >> (LANE_BITS * k)) & LANE;
-                    if mask & (1 << lane) != 0 {
-                        stack[top] = Entry { t: enter[lane as usize], at: (node as u32) << LANE_BITS | lane };
-                        top += 1;
+                // The lanes entered go on the stack, the last to visit deepest, except the
+                // first: it would be taken straight back (its entry is at most `t_max`,
+                // which has not changed), so it is visited now.
+                let lane = if mask & (mask - 1) == 0 {
+                    mask.trailing_zeros()
+                } else {
+                    let order = n.order(r.signs);
+                    let mut first = 0;
+                    for k in (0..n.lanes.count_ones()).rev() {
+                        let lane = (order >> (LANE_BITS * k)) & LANE;
+                        if mask & (1 << lane) != 0 {
+                            stack[top] =
+                                Entry { t: enter[lane as usize], at: (node as u32) << LANE_BITS | lane };
+                            top += 1;
+                            first = lane;
+                        }
+                    }
+                    top -= 1;
+                    first
+                } as usize;
+                // The visit below is written out again for entries from the stack: one
+                // visit site fed by an `Option` of the lane cost 1 % more instructions on
+                // the small scenes and 5 % on the knot's rays (callgrind, 2026-12-03).
+                let (first, count) = (n.child[lane] as usize, n.count(lane));
+                if count == 0 {
+                    node = first;
+                    continue;
+                }
+                for k in first..first + count {
+                    if let Some(t) = hit(k, t_max) {
+                        t_max = t_max.min(t);
                     }
                 }
             }
@@ -276,11 +300,26 @@ impl Wide {
         loop {
             let n = &self.nodes[node];
             let (mask, _) = n.hit::<EXACT>(r, t_max);
-            // Lanes are in the binary tree's depth-first order: the last goes deepest.
-            for lane in (0..WIDTH as u32).rev() {
-                if mask & (1 << lane) != 0 {
-                    stack[top] = Entry { t: 0.0, at: (node as u32) << LANE_BITS | lane };
+            if mask != 0 {
+                // Lanes are in the binary tree's depth-first order: the last goes deepest,
+                // and the first, which would be taken straight back, is visited now.
+                let lane = mask.trailing_zeros();
+                let mut rest = mask & (mask - 1);
+                while rest != 0 {
+                    let last = 31 - rest.leading_zeros();
+                    stack[top] = Entry { t: 0.0, at: (node as u32) << LANE_BITS | last };
                     top += 1;
+                    rest &= !(1 << last);
+                }
+                let (first, count) = (n.child[lane as usize] as usize, n.count(lane as usize));
+                if count == 0 {
+                    node = first;
+                    continue;
+                }
+                for k in first..first + count {
+                    if !f(k) {
+                        return;
+                    }
                 }
             }
             // `t_max` does not change: every entry on the stack is visited.
