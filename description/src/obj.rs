@@ -227,9 +227,12 @@ fn chunks(text: &str, count: usize) -> Vec<&str> {
 fn count_lines(text: &str) -> (usize, ObjCounts) {
     let mut n = ObjCounts::default();
     let mut lines = 0;
+    let plain = is_plain(text);
     for raw in text.lines() {
         lines += 1;
-        let keyword = if raw.is_ascii() {
+        let keyword = if plain {
+            AsciiWords(raw).next()
+        } else if raw.is_ascii() {
             AsciiWords(content(raw)).next()
         } else {
             content(raw).split_whitespace().next()
@@ -242,6 +245,15 @@ fn count_lines(text: &str) -> (usize, ObjCounts) {
         }
     }
     (lines, n)
+}
+
+/// Whether `text` is ASCII without a comment: then every line is its own content and
+/// splits on ASCII whitespace, and the per-line checks are skipped. A generated mesh
+/// usually is, and those checks were a tenth of reading the 1M-triangle terrain, in the
+/// coordinator's validation and the worker's build both (docs/speed.md, "Ninth part");
+/// here they are two passes over the whole text at memory speed.
+fn is_plain(text: &str) -> bool {
+    text.is_ascii() && !text.as_bytes().contains(&b'#')
 }
 
 /// A line without its comment.
@@ -263,12 +275,15 @@ fn read_lines(
     mut n: ObjCounts,
     sink: &mut impl Sink,
 ) -> Result<ObjCounts, ObjError> {
+    let plain = is_plain(text);
     for (i, raw) in text.lines().enumerate() {
         let line = first_line + i + 1;
         // A million-line file is mostly short ASCII lines: split those on bytes. Lines with
         // other characters take `split_whitespace`, which knows Unicode's spaces; both
         // split ASCII text alike (U+0009..U+000D and U+0020 are its ASCII whitespace).
-        if raw.is_ascii() {
+        if plain {
+            statement(AsciiWords(raw), line, &mut n, sink)?;
+        } else if raw.is_ascii() {
             statement(AsciiWords(content(raw)), line, &mut n, sink)?;
         } else {
             statement(content(raw).split_whitespace(), line, &mut n, sink)?;
@@ -438,6 +453,19 @@ mod tests {
         let m = parse_obj("v 0\u{a0}0 0\nv 1 0 0\nv 0 1 0 # é\nf 1 2 3\n").unwrap();
         assert_eq!(m.p.len(), 3);
         assert_eq!(m.tris.len(), 1);
+    }
+
+    /// A text without comments takes the plain path, and reads as the per-line path reads it.
+    #[test]
+    fn text_without_comments_reads_as_line_by_line() {
+        let plain = "v 0 0 0\nv 1 0 0\t\nv 1 1 0\r\nv  0 1 0\nvt 0 0\nvn 0 0 1\n\n  f 1/1/1 2/1/1 3/1/1 4/1/1\nf -1 -2 -3\n";
+        // The same statements, each line taking the path that looks for comments.
+        let commented = format!("{plain}# the end\n");
+        assert!(is_plain(plain) && !is_plain(&commented));
+        assert_eq!(parse_obj_scanned(plain).unwrap(), parse_obj_scanned(&commented).unwrap());
+        assert_eq!(count_lines(plain).1, count_lines(&commented).1);
+        let bad = "v 0 0 0\nv 1 0 0\nf 1 2 x\n";
+        assert_eq!(parse_obj(bad).unwrap_err(), parse_obj(&format!("{bad}#\n")).unwrap_err());
     }
 
     /// A file read in parallel chunks gives what one sequential pass gives: the same mesh,
