@@ -156,17 +156,26 @@ fn remove_fresh_store(dir: &Path, dir_existed: bool) {
     }
 }
 
-/// The in-process coordinator with its job: a new one, or with `--resume` the one in the
-/// data directory, which must be of the same scene and settings.
-async fn start_job(
-    bundle: Bundle,
-    settings: JobSettings,
+/// How a local render's job comes to be.
+enum Opening {
+    /// `--resume`: the job in the data directory.
+    Resumed(JobId),
+    /// A new job, to submit. If it is refused, the store this run made is removed
+    /// (`fresh_store`: its directory, and whether the directory was there before).
+    Submit { fresh_store: Option<(PathBuf, bool)> },
+}
+
+/// The in-process coordinator, and how its job comes: a new one, or with `--resume` the
+/// one in the data directory, which must be of the same scene and settings. Nothing is
+/// submitted yet: the coordinator serves first, so that its workers are there while it
+/// validates the scene (`render_local`).
+fn open_job(
+    bundle: &Bundle,
+    settings: &JobSettings,
     checkpoints: Option<&Checkpoints>,
-) -> Result<(CoordinatorService, JobId)> {
+) -> Result<(CoordinatorService, Opening)> {
     let Some(c) = checkpoints else {
-        let service = CoordinatorService::new(Timing::default());
-        let job = service.submit(bundle, settings, 0).await.map_err(|e| anyhow!(e))?;
-        return Ok((service, job));
+        return Ok((CoordinatorService::new(Timing::default()), Opening::Submit { fresh_store: None }));
     };
     let had = c.dir.join(tessera_coordinator::store::DB_FILE).exists();
     let dir_existed = c.dir.exists();
@@ -185,27 +194,18 @@ async fn start_job(
                     c.dir.display()
                 );
             }
-            match service.submit(bundle, settings, 0).await {
-                Ok(job) => Ok((service, job)),
-                Err(e) => {
-                    // A refused job leaves nothing behind that a later --resume would find.
-                    if !had {
-                        drop(service);
-                        remove_fresh_store(&c.dir, dir_existed);
-                    }
-                    Err(anyhow!(e))
-                }
-            }
+            let fresh_store = (!had).then(|| (c.dir.clone(), dir_existed));
+            Ok((service, Opening::Submit { fresh_store }))
         }
         ([(id, hash, stored)], true) => {
-            if *hash != bundle.hash() || *stored != settings {
+            if *hash != bundle.hash() || stored != settings {
                 bail!(
                     "the checkpoint in {} is of a different scene or settings (the scene file, its assets, --spp, --size, --time or --noise changed); render without --resume after deleting it",
                     c.dir.display()
                 );
             }
             crate::report::report_recovery(&c.dir, &recovery);
-            Ok((service, *id))
+            Ok((service, Opening::Resumed(*id)))
         }
         (_, true) => bail!(
             "{} holds several jobs; it is a coordinator's data directory, not a render's",
@@ -219,6 +219,28 @@ async fn start_job(
                 p.fraction() * 100.0
             )
         }
+    }
+}
+
+/// The render's job: submitted (validated and queued) now, or the one resumed.
+async fn submit_job(
+    service: &CoordinatorService,
+    bundle: Bundle,
+    settings: JobSettings,
+    opening: Opening,
+) -> Result<JobId> {
+    match opening {
+        Opening::Resumed(id) => Ok(id),
+        Opening::Submit { fresh_store } => match service.submit(bundle, settings, 0).await {
+            Ok(job) => Ok(job),
+            Err(e) => {
+                // A refused job leaves nothing behind that a later --resume would find.
+                if let Some((dir, existed)) = fresh_store {
+                    remove_fresh_store(&dir, existed);
+                }
+                Err(anyhow!(e))
+            }
+        },
     }
 }
 
@@ -258,7 +280,7 @@ impl Secrets {
 struct Workers(Vec<Child>);
 
 impl Workers {
-    fn spawn(url: &str, n: usize, threads: usize, secret: &str) -> Result<Workers> {
+    fn spawn(url: &str, n: usize, threads: usize, secret: &str, preload: &Path) -> Result<Workers> {
         let exe = std::env::current_exe().context("locating the tessera executable")?;
         let mut children = Vec::with_capacity(n);
         for i in 0..n {
@@ -269,6 +291,10 @@ impl Workers {
                 .stdout(Stdio::null())
                 .env(tessera_proto::credentials::TOKEN_ENV, secret)
                 .kill_on_drop(true);
+            // One argument, so that a path starting with '-' is not taken for an option.
+            let mut preload_arg = std::ffi::OsString::from("--preload=");
+            preload_arg.push(preload);
+            cmd.arg(preload_arg);
             if std::env::var_os("RUST_LOG").is_none() {
                 cmd.env("RUST_LOG", "warn");
             }
@@ -304,10 +330,9 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         aovs: opts.layers.aovs(),
         frames: opts.frames,
     };
-    let (service, job) = start_job(bundle, settings, opts.checkpoints.as_ref()).await?;
+    let (service, opening) = open_job(&bundle, &settings, opts.checkpoints.as_ref())?;
     let secrets = Secrets::new()?;
     let service = service.with_auth(secrets.auth());
-    let checkpointer = service.spawn_checkpointer();
     let listener =
         TcpListener::bind("127.0.0.1:0").await.context("binding a loopback port for the coordinator")?;
     let addr = listener.local_addr()?;
@@ -319,7 +344,20 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
     let reaper = service.spawn_reaper();
     let url = format!("http://{addr}");
     tracing::info!("local coordinator on {addr}, for this render's secret holders only");
-    let mut workers = Workers::spawn(&url, opts.workers, opts.threads, &secrets.worker)?;
+    // The coordinator serves before it has a job, and its workers start with `--preload`:
+    // they connect and build the scene while the coordinator validates it — on the
+    // 1M-triangle terrain, half a second of the first sample's wait (docs/speed.md, "Ninth
+    // part").
+    let mut workers = Workers::spawn(&url, opts.workers, opts.threads, &secrets.worker, scene)?;
+    let job = match submit_job(&service, bundle, settings, opening).await {
+        Ok(job) => job,
+        Err(e) => {
+            server.abort();
+            reaper.abort();
+            return Err(e);
+        }
+    };
+    let checkpointer = service.spawn_checkpointer();
     let viewer = tessera_proto::credentials::Token::new(&secrets.viewer, "the render's secret")?;
     let endpoint = tessera_proto::connect::EndpointConfig::new(&url)?.token(Some(viewer));
     let window = opts.view.then(|| {

@@ -10,6 +10,7 @@ mod local;
 mod remote;
 mod report;
 mod rpc;
+mod worker;
 
 use std::io::IsTerminal;
 use std::net::SocketAddr;
@@ -91,7 +92,7 @@ enum Command {
         security: remote::SecurityArgs,
     },
     /// Run a worker that renders batches for a coordinator.
-    Worker(WorkerArgs),
+    Worker(worker::WorkerArgs),
     /// Submit a scene to a coordinator; with -o, wait and write the image.
     Submit(remote::SubmitArgs),
     /// Show the jobs and workers of a coordinator.
@@ -191,28 +192,6 @@ enum Command {
     Certs(certs::CertsCommand),
 }
 
-/// Arguments of `tessera worker`.
-#[derive(Debug, clap::Args)]
-#[deny(missing_docs)]
-pub struct WorkerArgs {
-    /// Where the coordinator is and how to reach it.
-    #[command(flatten)]
-    conn: remote::ClientArgs,
-    /// Render threads [default: one per core].
-    #[arg(long)]
-    threads: Option<usize>,
-    /// Name shown in status [default: host name and process id].
-    #[arg(long)]
-    name: Option<String>,
-    /// Exit when the coordinator goes away instead of reconnecting.
-    #[arg(long)]
-    exit_on_disconnect: bool,
-    /// Memory one scene may take here, e.g. 16G; a larger scene is refused and its job goes
-    /// to other workers [default: the memory available at start].
-    #[arg(long, env = "TESSERA_WORKER_MEMORY", value_parser = parse_bytes)]
-    memory: Option<u64>,
-}
-
 /// Arguments of `tessera view`.
 #[derive(Debug, clap::Args)]
 #[deny(missing_docs)]
@@ -259,15 +238,6 @@ fn init_tracing(default: &str, format: LogFormat) {
 /// The cores this process may use.
 pub fn cores() -> usize {
     std::thread::available_parallelism().map_or(1, |n| n.get())
-}
-
-fn host_name() -> String {
-    std::env::var("HOSTNAME")
-        .ok()
-        .or_else(|| std::fs::read_to_string("/etc/hostname").ok())
-        .map(|s| s.trim().to_string())
-        .filter(|s| !s.is_empty())
-        .unwrap_or_else(|| "worker".into())
 }
 
 fn main() -> ExitCode {
@@ -350,25 +320,7 @@ async fn run(command: Command) -> Result<ExitCode> {
                 .await?;
             Ok(ExitCode::SUCCESS)
         }
-        Command::Worker(args) => {
-            let threads = args.threads.unwrap_or_else(cores);
-            if threads == 0 {
-                anyhow::bail!("--threads must be at least 1");
-            }
-            let config = tessera_worker::client::WorkerConfig {
-                coordinator: args.conn.endpoint()?,
-                threads,
-                name: args.name.unwrap_or_else(|| format!("{}:{}", host_name(), std::process::id())),
-                exit_on_disconnect: args.exit_on_disconnect,
-                memory: args
-                    .memory
-                    .or_else(tessera_description::machine::available_memory)
-                    .unwrap_or(4 << 30),
-            };
-            // SIGTERM (scancel, systemd, kubelet) or Ctrl-C: leave at once, leases handed back.
-            tessera_worker::client::run(config, shutdown_signal()).await?;
-            Ok(ExitCode::SUCCESS)
-        }
+        Command::Worker(args) => worker::run(args).await,
         Command::Submit(args) => remote::submit(args).await,
         Command::Status { conn, frames } => remote::status(&conn, frames).await,
         Command::Cancel { job, conn } => remote::cancel(&conn, JobId(job)).await,

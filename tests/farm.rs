@@ -245,3 +245,49 @@ fn noise_target_is_deterministic_and_a_time_budget_stops() {
     assert!(start.elapsed() < Duration::from_secs(30), "took {:?}", start.elapsed());
     assert_eq!(image::open(&timed).unwrap().to_rgb8().dimensions(), (64, 48));
 }
+
+/// `tessera worker --preload SCENE` builds the scene at start: a job of that scene takes
+/// the build as it is (the worker builds nothing when the job comes), a job of another
+/// scene is built as usual, and both give the bytes of a local render.
+#[test]
+fn a_preloaded_worker_renders_its_scene_without_building_it_again() {
+    let dir = tempfile::tempdir().unwrap();
+    let other = root().join("scenes/cornell.toml");
+    let coord = Coordinator::start(&[]);
+    let scene = small_scene();
+    let worker = Proc::spawn_with_env(
+        &["worker", "--coordinator", &coord.url, "--threads", "2", "--preload", scene.to_str().unwrap()],
+        &[("RUST_LOG", "info,tessera_worker=debug")],
+    );
+    worker.wait_for("preloaded", Duration::from_secs(30));
+    worker.wait_for("connected to", Duration::from_secs(30));
+    let submit = |scene: &std::path::Path, out: &std::path::Path| {
+        let o = run(&[
+            "submit",
+            scene.to_str().unwrap(),
+            "--coordinator",
+            &coord.url,
+            "--size",
+            "48x36",
+            "--spp",
+            "3",
+            "-o",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "submit failed: {}", String::from_utf8_lossy(&o.stderr));
+    };
+    let built = |w: &Proc| w.stderr.lock().unwrap().matches("scene hashed and built").count();
+
+    let farm = dir.path().join("farm.exr");
+    submit(&scene, &farm);
+    assert_eq!(built(&worker), 0, "the preloaded scene was built again:\n{}", worker.stderr.lock().unwrap());
+    let farm_other = dir.path().join("farm_other.exr");
+    submit(&other, &farm_other);
+    assert_eq!(built(&worker), 1, "another scene is built when its job comes");
+
+    for (scene, farm) in [(&scene, &farm), (&other, &farm_other)] {
+        let local = dir.path().join("local.exr");
+        render_local(scene, &local, 1, &["--size", "48x36", "--spp", "3"]);
+        assert_eq!(read(farm), read(&local), "{} differs from its local render", scene.display());
+    }
+}

@@ -2,11 +2,14 @@
 //! batches, render them on a pool of threads, and stream back per-pixel sums. The only
 //! module of this crate that touches prost types.
 
+mod failure;
 mod pool;
+mod preload;
 mod scenes;
 
 use std::future::Future;
 use std::sync::atomic::Ordering;
+use std::sync::Arc;
 use std::time::Duration;
 
 use tessera_proto::connect::{Backoff, ConnectError, EndpointConfig};
@@ -17,8 +20,10 @@ use tokio::sync::{mpsc, watch};
 use tokio_stream::wrappers::ReceiverStream;
 use tracing::{debug, info, warn};
 
+use failure::Failure;
 use pool::{Pool, Task};
-use scenes::{Failure, SceneCache};
+use preload::Preload;
+use scenes::SceneCache;
 
 /// Batches a worker wants in hand per render thread: one rendering, one waiting, so that
 /// no thread idles for a round trip to the coordinator.
@@ -39,6 +44,9 @@ pub struct WorkerConfig {
     /// it is refused (`BatchFailed.scene_refused`) before anything is built, and the farm
     /// sends its job to other workers.
     pub memory: u64,
+    /// A scene to build at start, before any job asks for it (`preload.rs`); jobs of the
+    /// same content then start without building it.
+    pub preload: Option<Arc<tessera_description::Bundle>>,
 }
 
 enum SessionEnd {
@@ -63,9 +71,14 @@ const LEAVE_WAIT: Duration = Duration::from_secs(2);
 /// the batches to others right away. The process then exits 0, which is what schedulers
 /// (Slurm's scancel, systemd, Kubernetes) expect of a SIGTERM.
 pub async fn run(
-    config: WorkerConfig,
+    mut config: WorkerConfig,
     stop: impl Future<Output = ()> + Send + 'static,
 ) -> Result<(), ConnectError> {
+    // The pool that builds scenes (BVH subtrees, OBJ chunks) is made here, with names of
+    // its own: made lazily, its threads would take the name of the thread that first used
+    // it (`preload`, or a tokio worker's), which is what `top -H` and profilers would show.
+    // An error means a pool exists already (an embedding program made one): it is used.
+    let _ = rayon::ThreadPoolBuilder::new().thread_name(|i| format!("build-{i}")).build_global();
     let (stop_tx, mut stopping) = watch::channel(false);
     tokio::spawn(async move {
         stop.await;
@@ -76,9 +89,12 @@ pub async fn run(
     let pool = Pool::new(config.threads.max(1));
     let mut connected_once = false;
     let mut backoff = Backoff::new(Duration::from_millis(250), Duration::from_secs(15));
+    // Built while the worker connects; a session that reconnects finds it if no job took it.
+    // Taken out of the config: the bundle's bytes are not kept once the build has them.
+    let preload = config.preload.take().map(|b| Preload::start(b, config.memory));
     loop {
         let mut welcomed = false;
-        let result = session(&endpoint, &config, &pool, &mut welcomed, &mut stopping).await;
+        let result = session(&endpoint, &config, &pool, &preload, &mut welcomed, &mut stopping).await;
         pool.generation.fetch_add(1, Ordering::Relaxed);
         if welcomed {
             connected_once = true;
@@ -120,6 +136,7 @@ async fn session(
     endpoint: &EndpointConfig,
     config: &WorkerConfig,
     pool: &Pool,
+    preload: &Option<Preload>,
     welcomed: &mut bool,
     stopping: &mut watch::Receiver<bool>,
 ) -> Result<SessionEnd, ConnectError> {
@@ -162,7 +179,7 @@ async fn session(
     *welcomed = true;
     let generation = pool.generation.load(Ordering::Relaxed);
     let (reply, mut done) = mpsc::unbounded_channel::<pb::BatchResult>();
-    let mut scenes = SceneCache::new(config.memory);
+    let mut scenes = SceneCache::new(config.memory, preload.clone());
     let mut tick = tokio::time::interval(heartbeat);
     loop {
         tokio::select! {

@@ -7,9 +7,10 @@ use std::sync::Arc;
 use glam::UVec2;
 use tessera_proto::convert::bundle_from_wire;
 use tessera_proto::v1 as pb;
-use tracing::warn;
+use tracing::{debug, warn};
 
-use crate::build::LoadError;
+use super::failure::Failure;
+use super::preload::Preload;
 use crate::render::Scene;
 
 /// Built scenes a worker keeps at once, by content hash; the least recently used goes
@@ -17,27 +18,6 @@ use crate::render::Scene;
 const SCENE_CACHE: usize = 4;
 /// Jobs whose scene and settings a worker remembers; older ones are dropped.
 const JOB_CACHE: usize = 8;
-
-/// Why a batch cannot be rendered here: the message, and whether it is because the worker
-/// refuses the job's scene altogether (then every batch of that job is refused alike).
-#[derive(Debug, Clone, PartialEq)]
-pub(super) struct Failure {
-    pub(super) message: String,
-    pub(super) scene_refused: bool,
-}
-
-impl Failure {
-    fn new(message: impl Into<String>) -> Failure {
-        Failure { message: message.into(), scene_refused: false }
-    }
-}
-
-impl From<LoadError> for Failure {
-    fn from(e: LoadError) -> Failure {
-        let scene_refused = matches!(e, LoadError::TooLarge { .. });
-        Failure { message: e.to_string(), scene_refused }
-    }
-}
 
 /// The scenes of recent jobs. The heavy part of a scene (meshes, BVH, textures) is built
 /// once per content hash and shared by every job that renders it; a job only adds its
@@ -57,6 +37,8 @@ pub(super) struct SceneCache {
     order: VecDeque<u64>,
     /// The memory one scene may take (`WorkerConfig::memory`).
     memory: u64,
+    /// The scene built at start (`WorkerConfig::preload`).
+    preload: Option<Preload>,
 }
 
 /// A built frame's key: (job, scene hash, frame).
@@ -71,7 +53,7 @@ struct Sequence {
 }
 
 impl SceneCache {
-    pub(super) fn new(memory: u64) -> SceneCache {
+    pub(super) fn new(memory: u64, preload: Option<Preload>) -> SceneCache {
         SceneCache {
             built: VecDeque::new(),
             jobs: HashMap::new(),
@@ -79,6 +61,7 @@ impl SceneCache {
             frames: VecDeque::new(),
             order: VecDeque::new(),
             memory,
+            preload,
         }
     }
 
@@ -135,6 +118,7 @@ impl SceneCache {
                     self.sequences.insert(job, Sequence { bundle: bundle.clone(), frames, spp, size });
                 }
                 let name = claimed.clone();
+                let started = std::time::Instant::now();
                 // Hashing and building a large scene is CPU work: keep it off the async threads.
                 let checked = tokio::task::spawn_blocking(move || {
                     let actual = bundle.hash();
@@ -151,15 +135,35 @@ impl SceneCache {
                     Err(e) => Err(Failure::new(e)),
                     Ok(bundle) => {
                         let memory = self.memory;
-                        let built = match self.take_built(&claimed) {
+                        let hashed = started.elapsed();
+                        // Built for an earlier job, or preloaded: nothing to build.
+                        let ready = match (self.take_built(&claimed), &self.preload) {
+                            (Some(built), _) => Some(built),
+                            (None, Some(p)) => p.take(&claimed).await,
+                            (None, None) => None,
+                        };
+                        let built = match ready {
                             Some(built) => built,
-                            None => tokio::task::spawn_blocking(move || {
-                                crate::build::parse_bundle_within(&bundle, memory)
-                                    .map(Arc::new)
-                                    .map_err(Failure::from)
-                            })
-                            .await
-                            .unwrap_or_else(|e| Err(Failure::new(format!("scene building panicked: {e}")))),
+                            None => {
+                                let built = tokio::task::spawn_blocking(move || {
+                                    crate::build::parse_bundle_within(&bundle, memory)
+                                        .map(Arc::new)
+                                        .map_err(Failure::from)
+                                })
+                                .await
+                                .unwrap_or_else(|e| {
+                                    Err(Failure::new(format!("scene building panicked: {e}")))
+                                });
+                                // What a scene's start costs on this worker, for operators
+                                // (and docs/speed.md's account of the terrain's first sample).
+                                debug!(
+                                    job,
+                                    hash_ms = hashed.as_millis() as u64,
+                                    build_ms = (started.elapsed() - hashed).as_millis() as u64,
+                                    "scene hashed and built"
+                                );
+                                built
+                            }
                         };
                         self.put_built(claimed, built.clone());
                         built
@@ -259,7 +263,7 @@ mod tests {
 
     #[tokio::test]
     async fn jobs_of_one_scene_share_its_world_with_their_own_settings() {
-        let mut cache = SceneCache::new(u64::MAX);
+        let mut cache = SceneCache::new(u64::MAX, None);
         cache.load(job(1, SCENE, 0, (0, 0))).await;
         cache.load(job(2, SCENE, 5, (40, 30))).await;
         let (a, b) = (scene_of(&cache, 1), scene_of(&cache, 2));
@@ -271,7 +275,7 @@ mod tests {
 
     #[tokio::test]
     async fn the_cache_keeps_a_few_scenes_and_refuses_a_misnamed_one() {
-        let mut cache = SceneCache::new(u64::MAX);
+        let mut cache = SceneCache::new(u64::MAX, None);
         for i in 0..SCENE_CACHE as u64 + 2 {
             cache.load(job(i, &format!("{SCENE}# {i}\n"), 0, (0, 0))).await;
         }
@@ -288,7 +292,7 @@ mod tests {
 
     #[tokio::test]
     async fn a_scene_over_the_worker_s_memory_is_refused_for_every_batch_of_its_job() {
-        let mut cache = SceneCache::new(100);
+        let mut cache = SceneCache::new(100, None);
         let js = job(7, SCENE, 0, (0, 0));
         let hash = js.scene_hash.clone();
         cache.load(js).await;
@@ -311,7 +315,7 @@ mod tests {
             e.message
         );
         // A bad batch of a good scene is an ordinary failure.
-        let mut roomy = SceneCache::new(u64::MAX);
+        let mut roomy = SceneCache::new(u64::MAX, None);
         roomy.load(job(8, SCENE, 0, (0, 0))).await;
         let e = roomy.prepare(&pb::Batch { job_id: 8, scene_hash: "0".repeat(64), ..batch }).unwrap_err();
         assert!(!e.scene_refused && e.message.starts_with("batch names scene"), "{e:?}");
