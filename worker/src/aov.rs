@@ -30,7 +30,7 @@ pub fn background_albedo(scene: &Scene) -> [f32; 3] {
 /// `sampler` is the layers' own (it is restarted at the sample).
 pub fn first_hit(scene: &Scene, sampler: &mut Sampler, pixel: UVec2, index: u32) -> Option<FirstHit> {
     let (ray, time) = scene.camera_ray(sampler, pixel, index);
-    let mut sh = scene.intersect(&ray, f32::INFINITY, time)?;
+    let mut sh = scene.intersect_coherent(&ray, f32::INFINITY, time)?;
     // Facing the camera, as the integrator shades opaque surfaces from either side.
     let ns = if sh.hit.ns.dot(ray.dir) > 0.0 { -sh.hit.ns } else { sh.hit.ns };
     let albedo = match sh.light {

@@ -197,14 +197,21 @@ impl Bvh {
     /// first. `hit(primitive, t_max)` returns the distance of a hit closer than `t_max`,
     /// which then shortens the search. Returns the final `t_max`.
     pub fn traverse(&self, ray: &Ray, t_max: f32, mut hit: impl FnMut(u32, f32) -> Option<f32>) -> f32 {
-        self.traverse_slots(ray, t_max, |k, t_max| hit(self.indices[k], t_max))
+        self.traverse_slots::<false>(ray, t_max, |k, t_max| hit(self.indices[k], t_max))
     }
 
     /// [`Bvh::traverse`] by slot: `hit(slot, t_max)`, where slot k holds primitive
-    /// `indices()[k]` (for data stored in leaf order).
+    /// `indices()[k]` (for data stored in leaf order). `COHERENT`: the ray is traced among
+    /// others like it (a pixel's camera rays), which chooses the walk's loop and nothing it
+    /// visits (`Wide::nearest`).
     #[inline]
-    pub fn traverse_slots(&self, ray: &Ray, t_max: f32, hit: impl FnMut(usize, f32) -> Option<f32>) -> f32 {
-        self.wide.nearest(ray.origin, ray.dir, t_max, hit)
+    pub fn traverse_slots<const COHERENT: bool>(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        hit: impl FnMut(usize, f32) -> Option<f32>,
+    ) -> f32 {
+        self.wide.nearest::<COHERENT>(ray.origin, ray.dir, t_max, hit)
     }
 
     /// Visits the primitives whose boxes the ray enters before `t_max`, in no particular

@@ -76,7 +76,13 @@ pub fn radiance(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, tim
         if last && !scene.may_find_light(&ray, time) {
             break;
         }
-        let Some(mut sh) = scene.intersect(&ray, f32::INFINITY, time) else {
+        // A camera ray is traced right after its pixel's previous sample's: coherent.
+        let found = if depth == 0 {
+            scene.intersect_coherent(&ray, f32::INFINITY, time)
+        } else {
+            scene.intersect(&ray, f32::INFINITY, time)
+        };
+        let Some(mut sh) = found else {
             l += beta * escaped(scene, ray.dir, from_dirac, prev_pdf);
             break;
         };

@@ -153,23 +153,39 @@ impl Scene {
 
     /// The nearest surface the ray hits before `t_max`, at shutter fraction `time`.
     pub fn intersect(&self, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceHit> {
+        self.intersect_as::<false>(ray, t_max, time)
+    }
+
+    /// [`Scene::intersect`] for a ray traced among others like it, a pixel's camera rays:
+    /// the same hit, by a walk whose branches such rays predict (`Bvh::traverse_slots`).
+    pub fn intersect_coherent(&self, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceHit> {
+        self.intersect_as::<true>(ray, t_max, time)
+    }
+
+    #[inline]
+    fn intersect_as<const COHERENT: bool>(&self, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceHit> {
         // Only scenes with alpha cut-outs pay for the any-hit test.
         if self.world.surfaces.any_alpha {
-            self.nearest::<true>(ray, t_max, time)
+            self.nearest::<true, COHERENT>(ray, t_max, time)
         } else {
-            self.nearest::<false>(ray, t_max, time)
+            self.nearest::<false, COHERENT>(ray, t_max, time)
         }
     }
 
     /// [`Scene::intersect`], with hits on materials with alpha tested when `ALPHA`.
-    fn nearest<const ALPHA: bool>(&self, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceHit> {
+    fn nearest<const ALPHA: bool, const COHERENT: bool>(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        time: f32,
+    ) -> Option<SurfaceHit> {
         let w = &*self.world;
         // An inline triangle's, a still parallelogram's or a still sphere's hit is completed
         // (point, normals, uv) only once it is known to be the nearest; it is the same hit
         // `Primitive::intersect` would have made.
         let mut nearest: Option<Candidate> = None;
         let mut best: Option<SurfaceHit> = None;
-        let t_max = w.bvh.traverse_slots(ray, t_max, |k, t_max| match w.slots[k].kind() {
+        let t_max = w.bvh.traverse_slots::<COHERENT>(ray, t_max, |k, t_max| match w.slots[k].kind() {
             triangles::SlotKind::Triangle(i) => {
                 let (t, b1, b2) = w.slots[k].hit(ray, t_max)?;
                 if ALPHA && !w.covers_slot(i, b1, b2, ray) {

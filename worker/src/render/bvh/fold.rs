@@ -16,7 +16,8 @@ pub(super) fn fold(binary: &[Node]) -> Wide {
         None => 0,
         Some(root) if root.count > 0 => {
             // A root leaf: one lane.
-            nodes.push(node(&[(root, 0)], 1, [0; ORDERS]));
+            let one = order_bits(&[0]);
+            nodes.push(node(&[(root, 0)], 1, std::array::from_fn(|i| one[i % 3])));
             1
         }
         Some(_) => fold_node(binary, 0, &mut nodes),
@@ -49,6 +50,19 @@ fn node(kids: &[(&Node, u32)], lanes: usize, order: [u8; ORDERS]) -> Node8 {
         }
     }
     n
+}
+
+/// One visit order's three bytes: the lanes of `visit`, three bits each, the first in the
+/// low bits. Positions past them name the last lane, which a node of fewer than eight does
+/// not have: the incoherent walk reads all eight positions without a branch, and a lane
+/// that holds no child is never entered.
+fn order_bits(visit: &[usize]) -> [u8; 3] {
+    let bits = (0..WIDTH).fold(0u32, |acc, k| {
+        let lane = visit.get(k).copied().unwrap_or(WIDTH - 1);
+        acc | (lane as u32) << (3 * k)
+    });
+    let b = bits.to_le_bytes();
+    [b[0], b[1], b[2]]
 }
 
 /// A child of an opened binary node: a binary node that is a lane, or another opened one.
@@ -167,8 +181,7 @@ fn fold_node(binary: &[Node], b: usize, nodes: &mut Vec<Node8>) -> usize {
     let mut order = [0u8; ORDERS];
     for (signs, o) in order.chunks_exact_mut(3).enumerate() {
         let (visit, n) = part.kids(Some(signs));
-        let bits = visit[..n].iter().enumerate().fold(0u32, |acc, (k, &lane)| acc | (lane as u32) << (3 * k));
-        o.copy_from_slice(&bits.to_le_bytes()[..3]);
+        o.copy_from_slice(&order_bits(&visit[..n]));
     }
     let at = nodes.len();
     nodes.push(node(&[], 1, order));

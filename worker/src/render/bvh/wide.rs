@@ -170,8 +170,15 @@ impl Wide {
     /// Visits the slots of the leaves the ray enters before `t_max` in the binary tree's
     /// order, nearest-first by split axis; `hit(slot, t_max)` returns the distance of a hit
     /// closer than `t_max`, which then shortens the search. Returns the final `t_max`.
+    ///
+    /// `COHERENT` chooses how a node's entered lanes are gathered, never what is visited:
+    /// with a branch on each lane for rays traced beside others like them (a pixel's
+    /// camera rays, whose branches the CPU predicts, and then runs ahead into the next
+    /// node), without one for the rest (a lane's entry is a coin toss there, lost about a
+    /// third of the time). Each way costs the other kind of ray 5–30 % (docs/speed.md,
+    /// tenth part).
     #[inline]
-    pub(super) fn nearest(
+    pub(super) fn nearest<const COHERENT: bool>(
         &self,
         origin: Vec3,
         dir: Vec3,
@@ -183,8 +190,8 @@ impl Wide {
         }
         let r = RayLanes::new(origin, dir);
         self.with_stack(|stack| match r.exact {
-            false => self.nearest_in::<false>(&r, t_max, hit, stack),
-            true => self.nearest_in::<true>(&r, t_max, hit, stack),
+            false => self.nearest_in::<false, COHERENT>(&r, t_max, hit, stack),
+            true => self.nearest_in::<true, COHERENT>(&r, t_max, hit, stack),
         })
     }
 
@@ -201,7 +208,7 @@ impl Wide {
     }
 
     #[inline(always)]
-    fn nearest_in<const EXACT: bool>(
+    fn nearest_in<const EXACT: bool, const COHERENT: bool>(
         &self,
         r: &RayLanes,
         mut t_max: f32,
@@ -219,7 +226,7 @@ impl Wide {
                 // which has not changed), so it is visited now.
                 let lane = if mask & (mask - 1) == 0 {
                     mask.trailing_zeros()
-                } else {
+                } else if COHERENT {
                     let order = n.order(r.signs);
                     let mut first = 0;
                     for k in (0..n.lanes.count_ones()).rev() {
@@ -233,6 +240,22 @@ impl Wide {
                     }
                     top -= 1;
                     first
+                } else {
+                    // The entered lanes in visit order (bit k: the lane at position k),
+                    // gathered without a branch; positions past the node's lanes name a
+                    // lane it does not have. The same entries are pushed in the same order.
+                    let order = n.order(r.signs);
+                    let lane_at = |k: u32| (order >> (LANE_BITS * k)) & LANE;
+                    let visit = (0..WIDTH as u32).fold(0, |v, k| v | (mask >> lane_at(k) & 1) << k);
+                    let mut rest = visit & (visit - 1);
+                    while rest != 0 {
+                        let k = 31 - rest.leading_zeros();
+                        let lane = lane_at(k);
+                        stack[top] = Entry { t: enter[lane as usize], at: (node as u32) << LANE_BITS | lane };
+                        top += 1;
+                        rest &= !(1 << k);
+                    }
+                    lane_at(visit.trailing_zeros())
                 } as usize;
                 // The visit below is written out again for entries from the stack: one
                 // visit site fed by an `Option` of the lane cost 1 % more instructions on

@@ -67,19 +67,23 @@ fn ray(k: u64, scale: f32) -> Ray {
 /// Both traversals, every call with its `t_max`: the nearest-hit one with hits at
 /// made-up distances (so `t_max` shrinks), the any-order one stopping after a made-up
 /// number of slots.
-fn calls(binary: &Binary, wide: &Wide, ray: &Ray, k: u64, t_max: f32) -> [(Vec<(usize, u32)>, f32); 4] {
+fn calls(binary: &Binary, wide: &Wide, ray: &Ray, k: u64, t_max: f32) -> [(Vec<(usize, u32)>, f32); 5] {
     let made_up = |slot: usize, t_max: f32| {
         let h = hash_words(&[k, slot as u64, 9]);
         h.is_multiple_of(3).then(|| t_max.min(100.0) * unit(&[h]))
     };
-    let mut seen = [vec![], vec![]];
+    let mut seen = [vec![], vec![], vec![]];
     let ends = [
         reference::traverse_slots(binary, ray, t_max, |s, t| {
             seen[0].push((s, t.to_bits()));
             made_up(s, t)
         }),
-        wide.nearest(ray.origin, ray.dir, t_max, |s, t| {
+        wide.nearest::<false>(ray.origin, ray.dir, t_max, |s, t| {
             seen[1].push((s, t.to_bits()));
+            made_up(s, t)
+        }),
+        wide.nearest::<true>(ray.origin, ray.dir, t_max, |s, t| {
+            seen[2].push((s, t.to_bits()));
             made_up(s, t)
         }),
     ];
@@ -93,13 +97,14 @@ fn calls(binary: &Binary, wide: &Wide, ray: &Ray, k: u64, t_max: f32) -> [(Vec<(
         each[1].push((s, 0));
         each[1].len() < stop
     });
-    let [a, b] = seen;
+    let [a, b, e] = seen;
     let [c, d] = each;
-    [(a, ends[0]), (b, ends[1]), (c, 0.0), (d, 0.0)]
+    [(a, ends[0]), (b, ends[1]), (e, ends[2]), (c, 0.0), (d, 0.0)]
 }
 
 /// The folded tree visits the slots the binary tree visits, in the same order and with
-/// the same `t_max` at each, for rays that start on faces and run along them too.
+/// the same `t_max` at each, by both nearest-hit walks (coherent and not), for rays that
+/// start on faces and run along them too.
 #[test]
 fn wide_visits_what_the_binary_tree_visits() {
     let sets = [
@@ -129,8 +134,9 @@ fn wide_visits_what_the_binary_tree_visits() {
         for k in 0..3000u64 {
             let r = ray(k * 7 + set as u64, *scale);
             for t_max in [f32::INFINITY, 5.0] {
-                let [a, b, c, d] = calls(&binary, &wide, &r, k, t_max);
+                let [a, b, e, c, d] = calls(&binary, &wide, &r, k, t_max);
                 assert_eq!(a, b, "set {set}, ray {k}: nearest-hit visits differ");
+                assert_eq!(a, e, "set {set}, ray {k}: the coherent walk's nearest-hit visits differ");
                 assert_eq!(c, d, "set {set}, ray {k}: any-order visits differ");
                 visits += a.0.len();
             }
