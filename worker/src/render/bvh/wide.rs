@@ -175,7 +175,7 @@ impl Wide {
     /// with a branch on each lane for rays traced beside others like them (a pixel's
     /// camera rays, whose branches the CPU predicts, and then runs ahead into the next
     /// node), without one for the rest (a lane's entry is a coin toss there, lost about a
-    /// third of the time). Each way costs the other kind of ray 5–30 % (docs/speed.md,
+    /// third of the time). Each way costs the other kind of ray 3–30 % (docs/speed.md,
     /// tenth part).
     #[inline]
     pub(super) fn nearest<const COHERENT: bool>(
