@@ -174,11 +174,14 @@ const PARALLEL_BYTES: usize = 1 << 20;
 fn read<S: Sink + Default + Send>(text: &str, sink: &mut S) -> Result<ObjCounts, ObjError> {
     let threads = rayon::current_num_threads();
     if text.len() < PARALLEL_BYTES || threads < 2 {
-        return read_lines(text, 0, ObjCounts::default(), sink);
+        return read_lines(text, is_plain(text), 0, ObjCounts::default(), sink);
     }
     use rayon::prelude::*;
     let chunks = chunks(text, threads * 4);
-    let before: Vec<(usize, ObjCounts)> = chunks.par_iter().map(|c| count_lines(c)).collect();
+    // Whether each chunk is plain is found once, for both passes.
+    let plain: Vec<bool> = chunks.par_iter().map(|c| is_plain(c)).collect();
+    let before: Vec<(usize, ObjCounts)> =
+        chunks.par_iter().zip(&plain).map(|(c, &plain)| count_lines(c, plain)).collect();
     let mut starts = Vec::with_capacity(chunks.len());
     let (mut line, mut n) = (0, ObjCounts::default());
     for (lines, c) in &before {
@@ -190,10 +193,11 @@ fn read<S: Sink + Default + Send>(text: &str, sink: &mut S) -> Result<ObjCounts,
     }
     let parts: Vec<Result<(S, ObjCounts), ObjError>> = chunks
         .par_iter()
+        .zip(&plain)
         .zip(&starts)
-        .map(|(c, &(line, n))| {
+        .map(|((c, &plain), &(line, n))| {
             let mut part = S::default();
-            read_lines(c, line, n, &mut part).map(|counts| (part, counts))
+            read_lines(c, plain, line, n, &mut part).map(|counts| (part, counts))
         })
         .collect();
     let mut total = ObjCounts::default();
@@ -223,11 +227,11 @@ fn chunks(text: &str, count: usize) -> Vec<&str> {
     out
 }
 
-/// The lines of `text` and its vertex statements (what the chunks after it need to know).
-fn count_lines(text: &str) -> (usize, ObjCounts) {
+/// The lines of `text` and its vertex statements (what the chunks after it need to know);
+/// `plain` is [`is_plain`]`(text)`.
+fn count_lines(text: &str, plain: bool) -> (usize, ObjCounts) {
     let mut n = ObjCounts::default();
     let mut lines = 0;
-    let plain = is_plain(text);
     for raw in text.lines() {
         lines += 1;
         let keyword = if plain {
@@ -267,15 +271,16 @@ fn content(raw: &str) -> &str {
     }
 }
 
-/// Reads the statements of `text`, whose first line is number `first_line + 1` and before
-/// which the file had the vertices counted in `n`; returns the counts after it.
+/// Reads the statements of `text` (`plain`: [`is_plain`]`(text)`), whose first line is
+/// number `first_line + 1` and before which the file had the vertices counted in `n`;
+/// returns the counts after it.
 fn read_lines(
     text: &str,
+    plain: bool,
     first_line: usize,
     mut n: ObjCounts,
     sink: &mut impl Sink,
 ) -> Result<ObjCounts, ObjError> {
-    let plain = is_plain(text);
     for (i, raw) in text.lines().enumerate() {
         let line = first_line + i + 1;
         // A million-line file is mostly short ASCII lines: split those on bytes. Lines with
@@ -463,7 +468,7 @@ mod tests {
         let commented = format!("{plain}# the end\n");
         assert!(is_plain(plain) && !is_plain(&commented));
         assert_eq!(parse_obj_scanned(plain).unwrap(), parse_obj_scanned(&commented).unwrap());
-        assert_eq!(count_lines(plain).1, count_lines(&commented).1);
+        assert_eq!(count_lines(plain, true).1, count_lines(&commented, false).1);
         let bad = "v 0 0 0\nv 1 0 0\nf 1 2 x\n";
         assert_eq!(parse_obj(bad).unwrap_err(), parse_obj(&format!("{bad}#\n")).unwrap_err());
     }
@@ -484,7 +489,7 @@ mod tests {
         assert!(text.len() > 2 * PARALLEL_BYTES);
         let sequential = |t: &str| {
             let mut m = ObjMesh::default();
-            read_lines(t, 0, ObjCounts::default(), &mut m).map(|c| (m, c))
+            read_lines(t, is_plain(t), 0, ObjCounts::default(), &mut m).map(|c| (m, c))
         };
         let pool = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
         let mut m = ObjMesh::default();
@@ -492,7 +497,7 @@ mod tests {
         assert_eq!((m, c), sequential(&text).unwrap());
         let scan = pool.install(|| scan_obj_extent(&text)).unwrap();
         let mut s = Scan::default();
-        let sc = read_lines(&text, 0, ObjCounts::default(), &mut s).unwrap();
+        let sc = read_lines(&text, is_plain(&text), 0, ObjCounts::default(), &mut s).unwrap();
         assert_eq!(scan, (ObjCounts { triangles: s.triangles, ..sc }, s.extent));
         // Errors late in the file, one of them behind a chunk boundary: the first is named.
         let bad = format!("{text}f 1 2 {}\nv x 0 0\n", n + 1);
