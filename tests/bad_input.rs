@@ -64,6 +64,9 @@ fn bad_scene_files_name_file_line_and_column() {
         write_scene(dir.path(), &format!("{good}\n[[mesh]]\nfile = \"broken.obj\"\nmaterial = \"red\"\n"));
     let e = stderr_of(&["render", &scene, "-o", out]);
     assert!(e.contains("bad.toml:") && e.contains("broken.obj") && e.contains("line 4"), "{e}");
+    // The checkpoint store is made before the coordinator validates the scene (its workers
+    // start meanwhile): a refused scene's store is removed again.
+    assert!(!dir.path().join("o.png.tessera").exists(), "a refused scene left its checkpoint folder");
     let e = stderr_of(&["render", &small_scene().to_string_lossy(), "-o", out, "--size", "0x5"]);
     assert!(e.contains("WIDTHxHEIGHT"), "{e}");
     assert!(!std::path::Path::new(out).exists(), "no image for a bad scene");
