@@ -120,30 +120,62 @@ struct Cmj {
     rows: u32,
     columns: Permutation,
     row_order: Permutation,
+    /// Both sides powers of two (every power-of-two sample count): `log2 m`, `1 / m` and
+    /// `1 / rows`. A cell is then a mask and a shift of the stratum, and dividing by a side
+    /// is multiplying by its reciprocal, which is exact for a power of two: the same bits
+    /// without the divisions' latency.
+    pow2: Option<(u32, f32, f32)>,
 }
 
 impl Cmj {
     fn new(n: u32) -> Cmj {
         let (m, rows) = grid(n);
-        Cmj { m, rows, columns: Permutation::new(m), row_order: Permutation::new(rows) }
+        let pow2 = (m.is_power_of_two() && rows.is_power_of_two())
+            .then(|| (m.trailing_zeros(), 1.0 / m as f32, 1.0 / rows as f32));
+        Cmj { m, rows, columns: Permutation::new(m), row_order: Permutation::new(rows), pow2 }
     }
 
-    /// Sample `s` of the `n`-sample pattern keyed by `key`; `from_key` is
-    /// `hash_step(HASH_START, key)`, the state its jitter hashes start from.
+    /// The coarse cell (column, row) of stratum `s`.
     #[inline]
-    fn sample(&self, s: u32, key: u64, from_key: u64) -> Vec2 {
-        let (m, rows) = (self.m, self.rows);
-        let (col, row) = (s % m, s / m);
-        // The fine-grid offsets are shuffled per pattern, so that columns and rows of the
-        // coarse grid do not line up.
-        let sx = self.columns.apply(col, key ^ 0x51);
-        let sy = self.row_order.apply(row, key ^ 0xa3);
+    fn cell(&self, s: u32) -> (u32, u32) {
+        match self.pow2 {
+            Some((shift, _, _)) => (s & (self.m - 1), s >> shift),
+            None => (s % self.m, s / self.m),
+        }
+    }
+
+    /// The fine-grid offset of column `col` in the pattern keyed by `key`. Offsets are
+    /// shuffled per pattern, so that columns and rows of the coarse grid do not line up.
+    #[inline]
+    fn column_offset(&self, col: u32, key: u64) -> u32 {
+        self.columns.apply(col, key ^ 0x51)
+    }
+
+    /// The fine-grid offset of row `row`.
+    #[inline]
+    fn row_offset(&self, row: u32, key: u64) -> u32 {
+        self.row_order.apply(row, key ^ 0xa3)
+    }
+
+    /// Sample `s` of the `n`-sample pattern, in cell (`col`, `row`) with fine-grid offsets
+    /// `sx` and `sy`; `from_key` is `hash_step(HASH_START, key)`, the state its jitter
+    /// hashes start from.
+    #[inline]
+    fn place(&self, s: u32, (col, row): (u32, u32), (sx, sy): (u32, u32), from_key: u64) -> Vec2 {
         // hash_words(&[key, s, 1]) and (&[key, s, 2]), sharing their first two steps.
         let prefix = hash_step(from_key, u64::from(s));
         let jx = unit_float(hash_step(prefix, 1));
         let jy = unit_float(hash_step(prefix, 2));
-        let x = (col as f32 + (sy as f32 + jx) / rows as f32) / m as f32;
-        let y = (row as f32 + (sx as f32 + jy) / m as f32) / rows as f32;
+        let (x, y) = match self.pow2 {
+            Some((_, inv_m, inv_rows)) => (
+                (col as f32 + (sy as f32 + jx) * inv_rows) * inv_m,
+                (row as f32 + (sx as f32 + jy) * inv_m) * inv_rows,
+            ),
+            None => {
+                let (m, rows) = (self.m as f32, self.rows as f32);
+                ((col as f32 + (sy as f32 + jx) / rows) / m, (row as f32 + (sx as f32 + jy) / m) / rows)
+            }
+        };
         Vec2::new(x.min(ONE_MINUS_EPSILON), y.min(ONE_MINUS_EPSILON))
     }
 }
@@ -214,12 +246,23 @@ impl DimensionKeys {
 /// with a few lights draws about 30; deeper ones compute the rest at every draw.
 const KEPT_DIMENSIONS: usize = 64;
 
+/// The most fine-grid offsets a sampler keeps for one dimension (columns and rows of its
+/// pattern's grid: 8 at 16 samples, 32 at 256): beyond that (over about 4000 samples a
+/// pixel) a table of every kept dimension would outgrow the L1 cache it is meant to stay
+/// in, and the offsets are computed at every draw.
+const KEPT_OFFSETS: u32 = 128;
+
+/// An offset not computed yet for the pixel at hand.
+const UNKNOWN: u16 = u16::MAX;
+
 /// The sample generator of one pixel sample; dimensions are drawn in a fixed order.
 ///
 /// A worker renders a pixel's samples one after another, and everything a draw hashes
 /// before the sample index enters depends only on (seed, pixel, dimension): the sampler
 /// keeps that for the dimensions drawn so far in the current pixel, and draws the same
 /// bits as hashing every word from the start (`tests::kept_keys_draw_what_fresh_hashes_draw`).
+/// So are the shuffled fine-grid offsets of a dimension's columns and rows: `spp` draws
+/// share `m + rows` of them, each two keyed permutations' worth of work to compute.
 #[derive(Debug, Clone)]
 pub struct Sampler {
     kind: SamplerKind,
@@ -235,24 +278,37 @@ pub struct Sampler {
     /// The keys of dimensions `0..kept` of `pixel`.
     keys: Box<[DimensionKeys; KEPT_DIMENSIONS]>,
     kept: u32,
+    /// Entries of `offsets` per kept dimension: the pattern's `m` column offsets, then its
+    /// row offsets; 0 when they are not kept (not the stratified pattern, or too many).
+    stride: usize,
+    /// The fine-grid offsets of dimensions `0..kept` of `pixel`, [`UNKNOWN`] until drawn.
+    offsets: Box<[u16]>,
 }
 
 impl Sampler {
     /// A sampler for patterns of `spp` samples per pixel.
     pub fn new(kind: SamplerKind, seed: u64, spp: u32) -> Self {
         let spp = spp.max(1);
+        let cmj = Cmj::new(spp);
+        let stride = if kind == SamplerKind::Stratified && cmj.m + cmj.rows <= KEPT_OFFSETS {
+            (cmj.m + cmj.rows) as usize
+        } else {
+            0
+        };
         Sampler {
             kind,
             seed,
             spp,
             order: Permutation::new(spp),
-            cmj: Cmj::new(spp),
+            cmj,
             pixel: UVec2::ZERO,
             pixel_key: Self::key_of(seed, UVec2::ZERO),
             index: 0,
             dimension: 0,
             keys: Box::new([DimensionKeys::default(); KEPT_DIMENSIONS]),
             kept: 0,
+            stride,
+            offsets: vec![UNKNOWN; stride * KEPT_DIMENSIONS].into_boxed_slice(),
         }
     }
 
@@ -295,6 +351,8 @@ impl Sampler {
         if d == self.kept && (d as usize) < KEPT_DIMENSIONS {
             self.keys[d as usize] = keys;
             self.kept += 1;
+            let at = d as usize * self.stride;
+            self.offsets[at..at + self.stride].fill(UNKNOWN);
         }
         keys
     }
@@ -307,6 +365,7 @@ impl Sampler {
 
     /// The next 2-D dimension, following the pixel's pattern.
     pub fn get_2d(&mut self) -> Vec2 {
+        let d = self.dimension;
         let k = self.next_dimension();
         if self.index >= self.spp || self.kind == SamplerKind::Independent {
             // Beyond the pattern, or no pattern: plain random (hash_words(&[key, index])).
@@ -320,8 +379,31 @@ impl Sampler {
                 fixed_to_unit(owen_scramble(s.reverse_bits(), k.pattern as u32)),
                 fixed_to_unit(owen_scramble(sobol_dim1(s), (k.pattern >> 32) as u32)),
             ),
-            _ => self.cmj.sample(s, k.pattern, k.from_pattern),
+            _ => {
+                let cell = self.cmj.cell(s);
+                let offsets = self.fine_offsets(d, cell, k.pattern);
+                self.cmj.place(s, cell, offsets, k.from_pattern)
+            }
         }
+    }
+
+    /// The fine-grid offsets (of the column, of the row) of `cell` in dimension `d`'s
+    /// pattern, keyed by `key`: kept for the pixel's later samples where they can be.
+    #[inline]
+    fn fine_offsets(&mut self, d: u32, (col, row): (u32, u32), key: u64) -> (u32, u32) {
+        if d >= self.kept || self.stride == 0 {
+            return (self.cmj.column_offset(col, key), self.cmj.row_offset(row, key));
+        }
+        let at = d as usize * self.stride;
+        let (x, y) = (at + col as usize, at + (self.cmj.m + row) as usize);
+        if self.offsets[x] == UNKNOWN {
+            // Below KEPT_OFFSETS, so it fits and is never UNKNOWN itself.
+            self.offsets[x] = self.cmj.column_offset(col, key) as u16;
+        }
+        if self.offsets[y] == UNKNOWN {
+            self.offsets[y] = self.cmj.row_offset(row, key) as u16;
+        }
+        (u32::from(self.offsets[x]), u32::from(self.offsets[y]))
     }
 
     /// Passes over the next dimension, 1-D or 2-D, whose value nothing reads: the draws

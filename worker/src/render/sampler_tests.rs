@@ -47,11 +47,15 @@ fn fresh_1d(kind: SamplerKind, seed: u64, spp: u32, pixel: UVec2, index: u32, d:
 /// more or fewer dimensions than the one before (paths end at different depths), 1-D
 /// and 2-D draws of one dimension in different samples, skipped dimensions, more
 /// dimensions than are kept, indices beyond the pattern, every pattern and sample
-/// counts of every shape.
+/// counts of every shape (grids of powers of two, others, and one with more fine-grid
+/// offsets than are kept).
 #[test]
 fn kept_keys_draw_what_fresh_hashes_draw() {
     let kinds = [SamplerKind::Stratified, SamplerKind::Sobol, SamplerKind::Independent];
-    for (kind, spp, seed) in kinds.into_iter().flat_map(|k| [(k, 1, 3), (k, 7, 0), (k, 16, 9), (k, 60, 1)]) {
+    for (kind, spp, seed) in kinds
+        .into_iter()
+        .flat_map(|k| [(k, 1, 3), (k, 7, 0), (k, 16, 9), (k, 60, 1), (k, 64, 4), (k, 5000, 2)])
+    {
         let mut sampler = Sampler::new(kind, seed, spp);
         for step in 0..400u64 {
             let h = hash_words(&[step, u64::from(spp)]);
