@@ -258,6 +258,8 @@ pub(super) fn build_binary_with(bounds: &[Aabb], policy: LeafPolicy) -> Binary {
     Binary { nodes, indices }
 }
 
+#[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+mod avx;
 mod build;
 mod fold;
 #[cfg(test)]

@@ -1,6 +1,6 @@
 //! The BVH as rays traverse it: eight children to a node, their eight boxes tested at once
 //! in two groups of SIMD lanes (glam's `Vec4`: SSE2 on x86-64, plain floats with
-//! `scalar-math`).
+//! `scalar-math`), or in one group of eight where the CPU has AVX (`avx.rs`, the same bits).
 //!
 //! The tree is the binary one the builder makes, folded: each wide node takes a binary
 //! node's children and opens the largest of them until it has eight. A ray visits the same
@@ -27,7 +27,15 @@
 
 use glam::{Vec3, Vec4};
 
+#[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+use super::avx::{available as avx_available, Avx};
 use super::{slab_widening, Aabb, MAX_LEAF};
+
+/// No AVX path where glam runs scalar code or off x86-64.
+#[cfg(not(all(target_arch = "x86_64", not(feature = "scalar"))))]
+fn avx_available() -> bool {
+    false
+}
 
 /// Children to a node.
 pub(super) const WIDTH: usize = 8;
@@ -95,12 +103,12 @@ const STACK: usize = 64;
 
 /// A ray prepared for box tests: origin and reciprocal direction splatted over the lanes.
 pub(super) struct RayLanes {
-    origin: [Vec4; 3],
-    inv: [Vec4; 3],
+    pub(super) origin: [Vec4; 3],
+    pub(super) inv: [Vec4; 3],
     /// The direction's sign pattern.
     pub(super) signs: usize,
     /// Some component of the direction is zero: a slab test may meet 0 × ∞.
-    exact: bool,
+    pub(super) exact: bool,
 }
 
 impl RayLanes {
@@ -151,12 +159,30 @@ impl Node8 {
     }
 }
 
+/// A node's eight box tests: [`Node8::hit`]'s decisions and entry distances, bit for bit.
+pub(super) trait BoxTest {
+    fn hit<const EXACT: bool>(n: &Node8, r: &RayLanes, t_max: f32) -> (u32, [f32; WIDTH]);
+}
+
+/// Two groups of four lanes (SSE2 on x86-64; glam's scalar code elsewhere).
+pub(super) struct Sse;
+
+impl BoxTest for Sse {
+    #[inline(always)]
+    fn hit<const EXACT: bool>(n: &Node8, r: &RayLanes, t_max: f32) -> (u32, [f32; WIDTH]) {
+        n.hit::<EXACT>(r, t_max)
+    }
+}
+
 /// The wide tree.
 #[derive(Debug, Clone, Default)]
 pub(super) struct Wide {
     nodes: Vec<Node8>,
     /// The most entries a traversal's stack can hold.
     depth: usize,
+    /// Traversals test boxes with AVX (`avx.rs`): this CPU has it.
+    #[cfg_attr(not(all(target_arch = "x86_64", not(feature = "scalar"))), allow(dead_code))]
+    avx: bool,
 }
 
 impl Wide {
@@ -164,7 +190,15 @@ impl Wide {
     /// stack entries.
     pub(super) fn new(nodes: Vec<Node8>, depth: usize) -> Wide {
         assert!(nodes.len() <= 1 << (32 - LANE_BITS), "more BVH nodes than a stack entry can name");
-        Wide { nodes, depth }
+        Wide { nodes, depth, avx: avx_available() }
+    }
+
+    /// The same tree traversed with two groups of four lanes even where AVX is there: the
+    /// tests' second path.
+    #[cfg(test)]
+    pub(super) fn without_avx(mut self) -> Wide {
+        self.avx = false;
+        self
     }
 
     /// Visits the slots of the leaves the ray enters before `t_max` in the binary tree's
@@ -189,9 +223,32 @@ impl Wide {
             return t_max;
         }
         let r = RayLanes::new(origin, dir);
+        #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+        if self.avx {
+            // SAFETY: `avx` is set only where the CPU runs AVX.
+            #[allow(unsafe_code)]
+            return unsafe { self.nearest_avx::<COHERENT>(&r, t_max, hit) };
+        }
         self.with_stack(|stack| match r.exact {
-            false => self.nearest_in::<false, COHERENT>(&r, t_max, hit, stack),
-            true => self.nearest_in::<true, COHERENT>(&r, t_max, hit, stack),
+            false => self.nearest_in::<false, COHERENT, Sse>(&r, t_max, hit, stack),
+            true => self.nearest_in::<true, COHERENT, Sse>(&r, t_max, hit, stack),
+        })
+    }
+
+    /// [`Wide::nearest`] compiled with AVX enabled, so that its box tests and everything
+    /// inlined into it (the primitives' tests too) may use it.
+    #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+    #[target_feature(enable = "avx")]
+    #[allow(unsafe_code)]
+    unsafe fn nearest_avx<const COHERENT: bool>(
+        &self,
+        r: &RayLanes,
+        t_max: f32,
+        hit: impl FnMut(usize, f32) -> Option<f32>,
+    ) -> f32 {
+        self.with_stack(|stack| match r.exact {
+            false => self.nearest_in::<false, COHERENT, Avx>(r, t_max, hit, stack),
+            true => self.nearest_in::<true, COHERENT, Avx>(r, t_max, hit, stack),
         })
     }
 
@@ -208,7 +265,7 @@ impl Wide {
     }
 
     #[inline(always)]
-    fn nearest_in<const EXACT: bool, const COHERENT: bool>(
+    fn nearest_in<const EXACT: bool, const COHERENT: bool, B: BoxTest>(
         &self,
         r: &RayLanes,
         mut t_max: f32,
@@ -219,7 +276,7 @@ impl Wide {
         let mut node = 0usize;
         loop {
             let n = &self.nodes[node];
-            let (mask, enter) = n.hit::<EXACT>(r, t_max);
+            let (mask, enter) = B::hit::<EXACT>(n, r, t_max);
             if mask != 0 {
                 // The lanes entered go on the stack, the last to visit deepest, except the
                 // first: it would be taken straight back (its entry is at most `t_max`,
@@ -304,14 +361,31 @@ impl Wide {
             return;
         }
         let r = RayLanes::new(origin, dir);
+        #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+        if self.avx {
+            // SAFETY: `avx` is set only where the CPU runs AVX.
+            #[allow(unsafe_code)]
+            return unsafe { self.each_avx(&r, t_max, f) };
+        }
         self.with_stack(|stack| match r.exact {
-            false => self.each_in::<false>(&r, t_max, f, stack),
-            true => self.each_in::<true>(&r, t_max, f, stack),
+            false => self.each_in::<false, Sse>(&r, t_max, f, stack),
+            true => self.each_in::<true, Sse>(&r, t_max, f, stack),
+        })
+    }
+
+    /// [`Wide::each`] compiled with AVX enabled.
+    #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+    #[target_feature(enable = "avx")]
+    #[allow(unsafe_code)]
+    unsafe fn each_avx(&self, r: &RayLanes, t_max: f32, f: impl FnMut(usize) -> bool) {
+        self.with_stack(|stack| match r.exact {
+            false => self.each_in::<false, Avx>(r, t_max, f, stack),
+            true => self.each_in::<true, Avx>(r, t_max, f, stack),
         })
     }
 
     #[inline(always)]
-    fn each_in<const EXACT: bool>(
+    fn each_in<const EXACT: bool, B: BoxTest>(
         &self,
         r: &RayLanes,
         t_max: f32,
@@ -322,7 +396,7 @@ impl Wide {
         let mut node = 0usize;
         loop {
             let n = &self.nodes[node];
-            let (mask, _) = n.hit::<EXACT>(r, t_max);
+            let (mask, _) = B::hit::<EXACT>(n, r, t_max);
             if mask != 0 {
                 // Lanes are in the binary tree's depth-first order: the last goes deepest,
                 // and the first, which would be taken straight back, is visited now.

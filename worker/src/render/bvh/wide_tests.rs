@@ -104,7 +104,8 @@ fn calls(binary: &Binary, wide: &Wide, ray: &Ray, k: u64, t_max: f32) -> [(Vec<(
 
 /// The folded tree visits the slots the binary tree visits, in the same order and with
 /// the same `t_max` at each, by both nearest-hit walks (coherent and not), for rays that
-/// start on faces and run along them too.
+/// start on faces and run along them too; with the box test on AVX where the CPU has it,
+/// and without.
 #[test]
 fn wide_visits_what_the_binary_tree_visits() {
     let sets = [
@@ -131,19 +132,63 @@ fn wide_visits_what_the_binary_tree_visits() {
             "heap"
         });
         wide.validate(&binary.indices, boxes).unwrap();
-        for k in 0..3000u64 {
-            let r = ray(k * 7 + set as u64, *scale);
-            for t_max in [f32::INFINITY, 5.0] {
-                let [a, b, e, c, d] = calls(&binary, &wide, &r, k, t_max);
-                assert_eq!(a, b, "set {set}, ray {k}: nearest-hit visits differ");
-                assert_eq!(a, e, "set {set}, ray {k}: the coherent walk's nearest-hit visits differ");
-                assert_eq!(c, d, "set {set}, ray {k}: any-order visits differ");
-                visits += a.0.len();
+        for wide in [wide.clone(), wide.without_avx()] {
+            for k in 0..3000u64 {
+                let r = ray(k * 7 + set as u64, *scale);
+                for t_max in [f32::INFINITY, 5.0] {
+                    let [a, b, e, c, d] = calls(&binary, &wide, &r, k, t_max);
+                    assert_eq!(a, b, "set {set}, ray {k}: nearest-hit visits differ");
+                    assert_eq!(a, e, "set {set}, ray {k}: the coherent walk's nearest-hit visits differ");
+                    assert_eq!(c, d, "set {set}, ray {k}: any-order visits differ");
+                    visits += a.0.len();
+                }
             }
         }
     }
-    assert!(visits > 100_000, "only {visits} visits: the rays miss the boxes");
+    assert!(visits > 200_000, "only {visits} visits: the rays miss the boxes");
     assert_eq!(stacks.len(), 3, "every stack size is exercised: {stacks:?}");
+}
+
+/// The eight box tests on AVX decide as the two groups of four do and give the same entry
+/// distances, bit for bit, on every node of the trees above, for rays that start on faces,
+/// run inside slabs and have zero components (the slab test's NaN path), near and far.
+#[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+#[test]
+fn avx_box_test_gives_the_sse_bits() {
+    use super::super::avx::{available, Avx};
+    use super::{BoxTest, RayLanes, Sse};
+    if !available() {
+        eprintln!("skipped: this CPU has no AVX, so the traversal never takes its box test");
+        return;
+    }
+    let sets = [(lattice_boxes(3000, 1), 10.0), (random_boxes(2000, 3), 100.0), (random_boxes(5, 4), 100.0)];
+    let (mut entered, mut exact) = (0, 0);
+    for (boxes, scale) in &sets {
+        let wide = super::super::fold::fold(&build_binary_with(boxes, LeafPolicy::TRIANGLES).nodes);
+        for k in 0..400u64 {
+            let ray = ray(k, *scale);
+            let r = RayLanes::new(ray.origin, ray.dir);
+            exact += usize::from(r.exact);
+            for node in &wide.nodes {
+                for t_max in [f32::INFINITY, 5.0, 0.0] {
+                    let (sse, avx) = match r.exact {
+                        false => (Sse::hit::<false>(node, &r, t_max), Avx::hit::<false>(node, &r, t_max)),
+                        true => (Sse::hit::<true>(node, &r, t_max), Avx::hit::<true>(node, &r, t_max)),
+                    };
+                    assert_eq!(sse.0, avx.0, "ray {k} ({ray:?}), t_max {t_max}: lanes entered");
+                    for lane in (0..super::WIDTH).filter(|l| sse.0 & (1 << l) != 0) {
+                        assert_eq!(
+                            sse.1[lane].to_bits(),
+                            avx.1[lane].to_bits(),
+                            "ray {k}, lane {lane}: entry"
+                        );
+                        entered += 1;
+                    }
+                }
+            }
+        }
+    }
+    assert!(entered > 10_000 && exact > 50, "{entered} lanes entered, {exact} rays with zero components");
 }
 
 /// A box inside another is entered only if the outer one is, also where the slab test
