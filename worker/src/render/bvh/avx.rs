@@ -1,4 +1,4 @@
-//! A node's eight box tests as one group of 256-bit lanes, where the CPU has AVX: the
+//! A node's eight box tests as one group of 256-bit lanes, where the CPU has AVX2: the
 //! instructions of [`Node8::hit`]'s two 128-bit groups, lane for lane, so the decisions and
 //! entry distances are the same bits (`wide_tests::avx_box_test_gives_the_sse_bits`).
 //! AVX is chosen at run time ([`available`]) and the traversal is compiled twice, once
@@ -13,17 +13,18 @@
 #![allow(unsafe_code)]
 
 use std::arch::x86_64::{
-    __m128, _mm256_blendv_ps, _mm256_broadcast_ps, _mm256_cmp_ps, _mm256_load_ps, _mm256_max_ps,
-    _mm256_min_ps, _mm256_movemask_ps, _mm256_mul_ps, _mm256_set1_ps, _mm256_setzero_ps, _mm256_storeu_ps,
-    _mm256_sub_ps, _CMP_LE_OQ, _CMP_UNORD_Q,
+    __m128, _mm256_and_si256, _mm256_blendv_ps, _mm256_broadcast_ps, _mm256_castsi256_ps, _mm256_cmp_ps,
+    _mm256_load_ps, _mm256_max_ps, _mm256_min_ps, _mm256_movemask_ps, _mm256_mul_ps, _mm256_set1_epi32,
+    _mm256_set1_ps, _mm256_setr_epi32, _mm256_setzero_ps, _mm256_sllv_epi32, _mm256_srlv_epi32,
+    _mm256_storeu_ps, _mm256_sub_epi32, _mm256_sub_ps, _CMP_LE_OQ, _CMP_UNORD_Q,
 };
 
 use super::slab_widening;
 use super::wide::{BoxTest, Node8, RayLanes, WIDTH};
 
-/// Whether this CPU runs AVX (the standard library caches the answer).
+/// Whether this CPU runs AVX and AVX2 (the standard library caches the answer).
 pub(super) fn available() -> bool {
-    std::arch::is_x86_feature_detected!("avx")
+    std::arch::is_x86_feature_detected!("avx") && std::arch::is_x86_feature_detected!("avx2")
 }
 
 /// The box test on 256-bit lanes. Only used once [`available`] said yes.
@@ -35,12 +36,31 @@ impl BoxTest for Avx {
         // SAFETY: the traversals instantiated with `Avx` run only where `available()`.
         unsafe { hit::<EXACT>(n, r, t_max) }
     }
+
+    #[inline(always)]
+    fn visit(mask: u32, order: u32) -> u32 {
+        // SAFETY: as above.
+        unsafe { visit(mask, order) }
+    }
+}
+
+/// [`BoxTest::visit`] in eight 32-bit lanes: lane k shifts the mask so that the bit of
+/// the lane at position k lands in its sign bit, and the signs are the answer.
+#[target_feature(enable = "avx,avx2")]
+#[inline]
+unsafe fn visit(mask: u32, order: u32) -> u32 {
+    let at = _mm256_and_si256(
+        _mm256_srlv_epi32(_mm256_set1_epi32(order as i32), _mm256_setr_epi32(0, 3, 6, 9, 12, 15, 18, 21)),
+        _mm256_set1_epi32(7),
+    );
+    let bits = _mm256_sllv_epi32(_mm256_set1_epi32(mask as i32), _mm256_sub_epi32(_mm256_set1_epi32(31), at));
+    _mm256_movemask_ps(_mm256_castsi256_ps(bits)) as u32
 }
 
 /// [`Node8::hit`] with each pair of 128-bit operations as one 256-bit one, operands in the
 /// same order (glam's `min`, `max`, `cmple`, `is_nan_mask` and `select` on SSE2 are
 /// `minps`, `maxps`, `cmpleps`, `cmpunordps` and an and/andnot/or blend of a full mask).
-#[target_feature(enable = "avx")]
+#[target_feature(enable = "avx,avx2")]
 #[inline]
 unsafe fn hit<const EXACT: bool>(n: &Node8, r: &RayLanes, t_max: f32) -> (u32, [f32; WIDTH]) {
     let mut enter = _mm256_setzero_ps();

@@ -162,6 +162,13 @@ impl Node8 {
 /// A node's eight box tests: [`Node8::hit`]'s decisions and entry distances, bit for bit.
 pub(super) trait BoxTest {
     fn hit<const EXACT: bool>(n: &Node8, r: &RayLanes, t_max: f32) -> (u32, [f32; WIDTH]);
+
+    /// The lanes of `mask` in the visit order `order` (three bits a lane, as
+    /// [`Node8::order`] gives it): bit k set if the lane at position k is in `mask`.
+    #[inline(always)]
+    fn visit(mask: u32, order: u32) -> u32 {
+        (0..WIDTH as u32).fold(0, |v, k| v | (mask >> ((order >> (LANE_BITS * k)) & LANE) & 1) << k)
+    }
 }
 
 /// Two groups of four lanes (SSE2 on x86-64; glam's scalar code elsewhere).
@@ -238,7 +245,7 @@ impl Wide {
     /// [`Wide::nearest`] compiled with AVX enabled, so that its box tests and everything
     /// inlined into it (the primitives' tests too) may use it.
     #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
-    #[target_feature(enable = "avx")]
+    #[target_feature(enable = "avx,avx2")]
     #[allow(unsafe_code)]
     unsafe fn nearest_avx<const COHERENT: bool>(
         &self,
@@ -303,7 +310,7 @@ impl Wide {
                     // lane it does not have. The same entries are pushed in the same order.
                     let order = n.order(r.signs);
                     let lane_at = |k: u32| (order >> (LANE_BITS * k)) & LANE;
-                    let visit = (0..WIDTH as u32).fold(0, |v, k| v | (mask >> lane_at(k) & 1) << k);
+                    let visit = B::visit(mask, order);
                     let mut rest = visit & (visit - 1);
                     while rest != 0 {
                         let k = 31 - rest.leading_zeros();
@@ -375,7 +382,7 @@ impl Wide {
 
     /// [`Wide::each`] compiled with AVX enabled.
     #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
-    #[target_feature(enable = "avx")]
+    #[target_feature(enable = "avx,avx2")]
     #[allow(unsafe_code)]
     unsafe fn each_avx(&self, r: &RayLanes, t_max: f32, f: impl FnMut(usize) -> bool) {
         self.with_stack(|stack| match r.exact {

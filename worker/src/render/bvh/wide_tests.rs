@@ -191,6 +191,32 @@ fn avx_box_test_gives_the_sse_bits() {
     assert!(entered > 10_000 && exact > 50, "{entered} lanes entered, {exact} rays with zero components");
 }
 
+/// The entered lanes put in visit order on AVX2 as the scalar fold puts them: every mask
+/// against orders of every length (positions past a node's lanes name lane 7).
+#[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+#[test]
+fn avx_visit_order_gives_the_scalar_bits() {
+    use super::super::avx::{available, Avx};
+    use super::{BoxTest, Sse};
+    if !available() {
+        eprintln!("skipped: this CPU has no AVX2, so the traversal never takes its gather");
+        return;
+    }
+    for k in 0..2000u64 {
+        let lanes = 2 + (k % 7) as u32;
+        let mut order: Vec<u32> = (0..lanes).collect();
+        for i in (1..order.len()).rev() {
+            order.swap(i, (hash_words(&[k, i as u64]) % (i as u64 + 1)) as usize);
+        }
+        order.resize(super::WIDTH, 7);
+        let packed = order.iter().enumerate().fold(0, |p, (k, &l)| p | l << (3 * k));
+        for mask in 0..256u32 {
+            let mask = mask & ((1 << lanes) - 1);
+            assert_eq!(Avx::visit(mask, packed), Sse::visit(mask, packed), "mask {mask:08b}, order {order:?}");
+        }
+    }
+}
+
 /// A box inside another is entered only if the outer one is, also where the slab test
 /// meets 0 × ∞: what lets the folded tree skip the binary nodes it swallowed.
 #[test]
