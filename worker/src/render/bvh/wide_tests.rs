@@ -212,7 +212,11 @@ fn avx_visit_order_gives_the_scalar_bits() {
         let packed = order.iter().enumerate().fold(0, |p, (k, &l)| p | l << (3 * k));
         for mask in 0..256u32 {
             let mask = mask & ((1 << lanes) - 1);
-            assert_eq!(Avx::visit(mask, packed), Sse::visit(mask, packed), "mask {mask:08b}, order {order:?}");
+            assert_eq!(
+                Avx::visit(mask, packed),
+                Sse::visit(mask, packed),
+                "mask {mask:08b}, order {order:?}"
+            );
         }
     }
 }
