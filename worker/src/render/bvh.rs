@@ -262,6 +262,7 @@ pub(super) fn build_binary_with(bounds: &[Aabb], policy: LeafPolicy) -> Binary {
 mod avx;
 mod build;
 mod fold;
+mod node;
 #[cfg(test)]
 mod reference;
 mod wide;

@@ -1,12 +1,12 @@
 //! A node's eight box tests as one group of 256-bit lanes, where the CPU has AVX2: the
 //! instructions of [`Node8::hit`]'s two 128-bit groups, lane for lane, so the decisions and
 //! entry distances are the same bits (`wide_tests::avx_box_test_gives_the_sse_bits`).
-//! AVX is chosen at run time ([`available`]) and the traversal is compiled twice, once
+//! AVX2 is chosen at run time ([`available`]) and the traversals are compiled twice, once
 //! with it enabled (`Wide::nearest`, `Wide::each`): a build for baseline x86-64 then runs
 //! the wider test on the machines that have it. No fused multiply-add: `avx` does not
 //! enable FMA, and Rust never contracts a multiply and an add on its own.
 //!
-//! The worker's only `unsafe` code is here and at the two calls of the AVX traversals in
+//! The worker's only `unsafe` code is here and at the two calls of the AVX2 traversals in
 //! `wide.rs`: intrinsics and functions compiled for a CPU feature are unsafe to call.
 //! Measured: with the gather below, 21 % fewer instructions on the torus knot's rays and
 //! 0–10 % more rays per second (docs/speed.md, eleventh part).
@@ -19,8 +19,8 @@ use std::arch::x86_64::{
     _mm256_storeu_ps, _mm256_sub_epi32, _mm256_sub_ps, _CMP_LE_OQ, _CMP_UNORD_Q,
 };
 
+use super::node::{BoxTest, Node8, RayLanes, WIDTH};
 use super::slab_widening;
-use super::wide::{BoxTest, Node8, RayLanes, WIDTH};
 
 /// Whether this CPU runs AVX and AVX2 (the standard library caches the answer).
 pub(super) fn available() -> bool {

@@ -6,7 +6,8 @@
 
 use glam::Vec4;
 
-use super::wide::{Node8, Wide, GROUPS, ORDERS, WIDTH};
+use super::node::{Node8, GROUPS, ORDERS, WIDTH};
+use super::wide::Wide;
 use super::Node;
 
 /// Folds the binary tree (in the builder's depth-first layout) into wide nodes.

@@ -156,7 +156,7 @@ fn wide_visits_what_the_binary_tree_visits() {
 #[test]
 fn avx_box_test_gives_the_sse_bits() {
     use super::super::avx::{available, Avx};
-    use super::{BoxTest, RayLanes, Sse};
+    use super::super::node::{BoxTest, RayLanes, Sse};
     if !available() {
         eprintln!("skipped: this CPU has no AVX, so the traversal never takes its box test");
         return;
@@ -176,7 +176,7 @@ fn avx_box_test_gives_the_sse_bits() {
                         true => (Sse::hit::<true>(node, &r, t_max), Avx::hit::<true>(node, &r, t_max)),
                     };
                     assert_eq!(sse.0, avx.0, "ray {k} ({ray:?}), t_max {t_max}: lanes entered");
-                    for lane in (0..super::WIDTH).filter(|l| sse.0 & (1 << l) != 0) {
+                    for lane in (0..super::super::node::WIDTH).filter(|l| sse.0 & (1 << l) != 0) {
                         assert_eq!(
                             sse.1[lane].to_bits(),
                             avx.1[lane].to_bits(),
@@ -197,7 +197,7 @@ fn avx_box_test_gives_the_sse_bits() {
 #[test]
 fn avx_visit_order_gives_the_scalar_bits() {
     use super::super::avx::{available, Avx};
-    use super::{BoxTest, Sse};
+    use super::super::node::{BoxTest, Sse};
     if !available() {
         eprintln!("skipped: this CPU has no AVX2, so the traversal never takes its gather");
         return;
@@ -208,7 +208,7 @@ fn avx_visit_order_gives_the_scalar_bits() {
         for i in (1..order.len()).rev() {
             order.swap(i, (hash_words(&[k, i as u64]) % (i as u64 + 1)) as usize);
         }
-        order.resize(super::WIDTH, 7);
+        order.resize(super::super::node::WIDTH, 7);
         let packed = order.iter().enumerate().fold(0, |p, (k, &l)| p | l << (3 * k));
         for mask in 0..256u32 {
             let mask = mask & ((1 << lanes) - 1);

@@ -1,0 +1,150 @@
+//! A node of the wide BVH as it sits in memory, a ray prepared for its box test, and that
+//! test: the eight child boxes of a node in two groups of four SIMD lanes (glam's `Vec4`:
+//! SSE2 on x86-64, plain floats with `scalar-math`), which `avx.rs` does in one group of
+//! eight where the CPU has AVX2. Both `wide.rs`'s traversals and `avx.rs` build on this
+//! file, so neither imports the other's.
+
+use glam::{Vec3, Vec4};
+
+use super::{slab_widening, Aabb, MAX_LEAF};
+
+/// Children to a node.
+pub(super) const WIDTH: usize = 8;
+/// Groups of four SIMD lanes to a node.
+pub(super) const GROUPS: usize = WIDTH / 4;
+/// Bits of a lane's index in a visit order and a stack entry.
+pub(super) const LANE_BITS: u32 = 3;
+/// A lane's index among those bits.
+pub(super) const LANE: u32 = (1 << LANE_BITS) - 1;
+/// Bytes of a node's visit orders: three for each of the eight sign patterns.
+pub(super) const ORDERS: usize = 3 * 8;
+// A leaf's slot count is kept in four bits.
+const _: () = assert!(MAX_LEAF < 16);
+
+/// One node: the boxes of up to eight children, lane by lane, in four cache lines.
+#[derive(Debug, Clone, Copy)]
+#[repr(C, align(64))]
+pub(super) struct Node8 {
+    /// Lower corners: x, y and z of the eight children, four lanes to a group.
+    pub(super) min: [[Vec4; GROUPS]; 3],
+    /// Upper corners.
+    pub(super) max: [[Vec4; GROUPS]; 3],
+    /// An interior child's node; a leaf's first slot.
+    pub(super) child: [u32; WIDTH],
+    /// A leaf's slot count, four bits a lane (lane k in bits 4k..4k+4); 0 for an interior
+    /// child.
+    pub(super) counts: u32,
+    /// For each sign pattern of the ray's direction (bit k set: negative on axis k), the
+    /// order to visit the lanes in: three bytes, three bits a lane, the first in the low
+    /// bits.
+    pub(super) order: [u8; ORDERS],
+    /// Bit k set: lane k holds a child.
+    pub(super) lanes: u8,
+}
+
+const _: () = assert!(std::mem::size_of::<Node8>() == 256);
+
+impl Node8 {
+    /// Lane `lane`'s slot count (0: an interior child).
+    #[inline(always)]
+    pub(super) fn count(&self, lane: usize) -> usize {
+        (self.counts >> (4 * lane) & 0xF) as usize
+    }
+
+    /// The visit order of the lanes for direction signs `signs`, three bits a lane.
+    #[inline(always)]
+    pub(super) fn order(&self, signs: usize) -> u32 {
+        let o = &self.order[3 * signs..3 * signs + 3];
+        u32::from_le_bytes([o[0], o[1], o[2], 0])
+    }
+}
+
+/// A ray prepared for box tests: origin and reciprocal direction splatted over the lanes.
+pub(super) struct RayLanes {
+    pub(super) origin: [Vec4; 3],
+    pub(super) inv: [Vec4; 3],
+    /// The direction's sign pattern.
+    pub(super) signs: usize,
+    /// Some component of the direction is zero: a slab test may meet 0 × ∞.
+    pub(super) exact: bool,
+}
+
+impl RayLanes {
+    pub(super) fn new(origin: Vec3, dir: Vec3) -> RayLanes {
+        let inv = dir.recip();
+        let signs = usize::from(inv.x < 0.0) | usize::from(inv.y < 0.0) << 1 | usize::from(inv.z < 0.0) << 2;
+        RayLanes {
+            origin: [Vec4::splat(origin.x), Vec4::splat(origin.y), Vec4::splat(origin.z)],
+            inv: [Vec4::splat(inv.x), Vec4::splat(inv.y), Vec4::splat(inv.z)],
+            signs,
+            exact: !inv.is_finite(),
+        }
+    }
+}
+
+impl Node8 {
+    /// The lanes whose boxes the ray enters before `t_max` (bit k for lane k) and the
+    /// entry distances: [`Aabb::hit`] four at a time, with the same decisions. Without
+    /// `EXACT` the slab test cannot meet NaN (no direction component is zero and the boxes
+    /// and origin are finite), and then lane-wise min and max differ from `f32::min`/`max`
+    /// only in the sign of a zero, which comparisons cannot see.
+    #[inline(always)]
+    fn hit<const EXACT: bool>(&self, r: &RayLanes, t_max: f32) -> (u32, [f32; WIDTH]) {
+        let mut mask = 0;
+        let mut entries = [0.0; WIDTH];
+        // A node with four children or fewer (near the leaves) tests one group.
+        let groups = if self.lanes >> 4 == 0 { 1 } else { GROUPS };
+        for g in 0..groups {
+            let mut enter = Vec4::ZERO;
+            let mut exit = Vec4::INFINITY;
+            for a in 0..3 {
+                let t0 = (self.min[a][g] - r.origin[a]) * r.inv[a];
+                let t1 = (self.max[a][g] - r.origin[a]) * r.inv[a];
+                let (mut near, mut far) = (t0.min(t1), t0.max(t1));
+                if EXACT {
+                    let inside = t0.is_nan_mask() | t1.is_nan_mask();
+                    near = Vec4::select(inside, Vec4::NEG_INFINITY, near);
+                    far = Vec4::select(inside, Vec4::INFINITY, far);
+                }
+                enter = enter.max(near);
+                exit = exit.min(far);
+            }
+            let exit = (exit * slab_widening()).min(Vec4::splat(t_max));
+            mask |= enter.cmple(exit).bitmask() << (4 * g);
+            entries[4 * g..4 * g + 4].copy_from_slice(&enter.to_array());
+        }
+        (mask & u32::from(self.lanes), entries)
+    }
+}
+
+/// A node's eight box tests: [`Node8::hit`]'s decisions and entry distances, bit for bit.
+pub(super) trait BoxTest {
+    fn hit<const EXACT: bool>(n: &Node8, r: &RayLanes, t_max: f32) -> (u32, [f32; WIDTH]);
+
+    /// The lanes of `mask` in the visit order `order` (three bits a lane, as
+    /// [`Node8::order`] gives it): bit k set if the lane at position k is in `mask`.
+    #[inline(always)]
+    fn visit(mask: u32, order: u32) -> u32 {
+        (0..WIDTH as u32).fold(0, |v, k| v | (mask >> ((order >> (LANE_BITS * k)) & LANE) & 1) << k)
+    }
+}
+
+/// Two groups of four lanes (SSE2 on x86-64; glam's scalar code elsewhere).
+pub(super) struct Sse;
+
+impl BoxTest for Sse {
+    #[inline(always)]
+    fn hit<const EXACT: bool>(n: &Node8, r: &RayLanes, t_max: f32) -> (u32, [f32; WIDTH]) {
+        n.hit::<EXACT>(r, t_max)
+    }
+}
+
+impl Node8 {
+    /// Lane `lane`'s box.
+    pub(super) fn lane_box(&self, lane: usize) -> Aabb {
+        let (g, l) = (lane / 4, lane % 4);
+        let min = Vec3::new(self.min[0][g][l], self.min[1][g][l], self.min[2][g][l]);
+        let max = Vec3::new(self.max[0][g][l], self.max[1][g][l], self.max[2][g][l]);
+        Aabb { min, max }
+    }
+}
