@@ -1,6 +1,6 @@
 //! Tessera's worker: the distributed ray tracer and the loop that takes batches from a
 //! coordinator and returns per-pixel sample sums.
-// Denied, not forbidden: the one exception is the BVH's AVX box test (`render/bvh/avx.rs`),
+// Denied, not forbidden: the one exception is the BVH's AVX2 box test (`render/bvh/avx.rs`),
 // whose target-feature functions can only be called in `unsafe`, after the CPU check.
 #![deny(unsafe_code)]
 #![deny(missing_docs)]

@@ -33,7 +33,8 @@ pub(super) struct Avx;
 impl BoxTest for Avx {
     #[inline(always)]
     fn hit<const EXACT: bool>(n: &Node8, r: &RayLanes, t_max: f32) -> (u32, [f32; WIDTH]) {
-        // SAFETY: the traversals instantiated with `Avx` run only where `available()`.
+        // SAFETY: the traversals instantiated with `Avx` run only where `available()` (a
+        // `Wide` made by `Wide::new` on this machine: it is never sent elsewhere).
         unsafe { hit::<EXACT>(n, r, t_max) }
     }
 
@@ -66,16 +67,12 @@ unsafe fn hit<const EXACT: bool>(n: &Node8, r: &RayLanes, t_max: f32) -> (u32, [
     let mut enter = _mm256_setzero_ps();
     let mut exit = _mm256_set1_ps(f32::INFINITY);
     for a in 0..3 {
-        // SAFETY: a Vec4 is an __m128 on x86-64 without `scalar-math` (this module's cfg);
-        // a node's lanes of one axis are eight floats, 64-byte aligned by `Node8`'s repr.
-        let (origin, inv, min, max) = unsafe {
-            (
-                _mm256_broadcast_ps(&*(&r.origin[a] as *const _ as *const __m128)),
-                _mm256_broadcast_ps(&*(&r.inv[a] as *const _ as *const __m128)),
-                _mm256_load_ps(n.min[a].as_ptr().cast()),
-                _mm256_load_ps(n.max[a].as_ptr().cast()),
-            )
-        };
+        let (origin, inv): (__m128, __m128) = (r.origin[a].into(), r.inv[a].into());
+        let (origin, inv) = (_mm256_broadcast_ps(&origin), _mm256_broadcast_ps(&inv));
+        // SAFETY: a node's lanes of one axis are eight floats at a multiple of 32 bytes
+        // from its start, which `Node8`'s repr aligns to 64.
+        let (min, max) =
+            unsafe { (_mm256_load_ps(n.min[a].as_ptr().cast()), _mm256_load_ps(n.max[a].as_ptr().cast())) };
         let t0 = _mm256_mul_ps(_mm256_sub_ps(min, origin), inv);
         let t1 = _mm256_mul_ps(_mm256_sub_ps(max, origin), inv);
         let (mut near, mut far) = (_mm256_min_ps(t0, t1), _mm256_max_ps(t0, t1));

@@ -32,7 +32,7 @@ use super::avx::{available as avx_available, Avx};
 use super::node::{BoxTest, Node8, RayLanes, Sse, LANE, LANE_BITS, WIDTH};
 use super::Aabb;
 
-/// No AVX path where glam runs scalar code or off x86-64.
+/// No AVX2 path where glam runs scalar code or off x86-64.
 #[cfg(not(all(target_arch = "x86_64", not(feature = "scalar"))))]
 fn avx_available() -> bool {
     false
@@ -57,7 +57,7 @@ pub(super) struct Wide {
     nodes: Vec<Node8>,
     /// The most entries a traversal's stack can hold.
     depth: usize,
-    /// Traversals test boxes with AVX (`avx.rs`): this CPU has it.
+    /// Traversals test boxes with AVX2 (`avx.rs`): this CPU has it.
     #[cfg_attr(not(all(target_arch = "x86_64", not(feature = "scalar"))), allow(dead_code))]
     avx: bool,
 }
@@ -70,7 +70,7 @@ impl Wide {
         Wide { nodes, depth, avx: avx_available() }
     }
 
-    /// The same tree traversed with two groups of four lanes even where AVX is there: the
+    /// The same tree traversed with two groups of four lanes even where AVX2 is there: the
     /// tests' second path.
     #[cfg(test)]
     pub(super) fn without_avx(mut self) -> Wide {
@@ -102,7 +102,7 @@ impl Wide {
         let r = RayLanes::new(origin, dir);
         #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
         if self.avx {
-            // SAFETY: `avx` is set only where the CPU runs AVX.
+            // SAFETY: `avx` is set only where the CPU runs AVX and AVX2.
             #[allow(unsafe_code)]
             return unsafe { self.nearest_avx::<COHERENT>(&r, t_max, hit) };
         }
@@ -112,7 +112,7 @@ impl Wide {
         })
     }
 
-    /// [`Wide::nearest`] compiled with AVX enabled, so that its box tests and everything
+    /// [`Wide::nearest`] compiled with AVX2 enabled, so that its box tests and everything
     /// inlined into it (the primitives' tests too) may use it.
     #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
     #[target_feature(enable = "avx,avx2")]
@@ -240,7 +240,7 @@ impl Wide {
         let r = RayLanes::new(origin, dir);
         #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
         if self.avx {
-            // SAFETY: `avx` is set only where the CPU runs AVX.
+            // SAFETY: `avx` is set only where the CPU runs AVX and AVX2.
             #[allow(unsafe_code)]
             return unsafe { self.each_avx(&r, t_max, f) };
         }
@@ -250,7 +250,7 @@ impl Wide {
         })
     }
 
-    /// [`Wide::each`] compiled with AVX enabled.
+    /// [`Wide::each`] compiled with AVX2 enabled.
     #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
     #[target_feature(enable = "avx,avx2")]
     #[allow(unsafe_code)]

@@ -149,16 +149,25 @@ fn wide_visits_what_the_binary_tree_visits() {
     assert_eq!(stacks.len(), 3, "every stack size is exercised: {stacks:?}");
 }
 
-/// The eight box tests on AVX decide as the two groups of four do and give the same entry
+/// Whether the AVX2 path can be tested here; says why not where it cannot.
+#[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+fn avx2_or_skip() -> bool {
+    let here = super::super::avx::available();
+    if !here {
+        eprintln!("skipped: this CPU has no AVX2, so the traversals never take that path");
+    }
+    here
+}
+
+/// The eight box tests on AVX2 decide as the two groups of four do and give the same entry
 /// distances, bit for bit, on every node of the trees above, for rays that start on faces,
 /// run inside slabs and have zero components (the slab test's NaN path), near and far.
 #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
 #[test]
 fn avx_box_test_gives_the_sse_bits() {
-    use super::super::avx::{available, Avx};
+    use super::super::avx::Avx;
     use super::super::node::{BoxTest, RayLanes, Sse};
-    if !available() {
-        eprintln!("skipped: this CPU has no AVX, so the traversal never takes its box test");
+    if !avx2_or_skip() {
         return;
     }
     let sets = [(lattice_boxes(3000, 1), 10.0), (random_boxes(2000, 3), 100.0), (random_boxes(5, 4), 100.0)];
@@ -196,10 +205,9 @@ fn avx_box_test_gives_the_sse_bits() {
 #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
 #[test]
 fn avx_visit_order_gives_the_scalar_bits() {
-    use super::super::avx::{available, Avx};
+    use super::super::avx::Avx;
     use super::super::node::{BoxTest, Sse};
-    if !available() {
-        eprintln!("skipped: this CPU has no AVX2, so the traversal never takes its gather");
+    if !avx2_or_skip() {
         return;
     }
     for k in 0..2000u64 {
