@@ -11,7 +11,6 @@ use std::time::Instant;
 
 use anyhow::{bail, Context, Result};
 use glam::UVec2;
-use rayon::prelude::*;
 use tessera_description::bundle::Bundle;
 use tessera_film::fixed;
 use tessera_film::quadtree::{fifo_walk_in, ChildOrder};
@@ -20,20 +19,18 @@ use tessera_worker::build::parse_bundle;
 use tessera_worker::render::{SamplerKind, Scene};
 
 use super::plot::{write_png, Plot, Series};
+use super::rows::rows_in_parallel;
 use crate::compare::errors;
 
 /// Renders samples `samples` of every pixel; linear RGB, top row first.
 pub fn render_image(scene: &Scene, samples: std::ops::Range<u32>) -> Vec<f32> {
     let (w, h) = (scene.width, scene.height);
     let n = samples.end - samples.start;
-    let rows: Vec<Vec<f32>> = (0..h)
-        .into_par_iter()
-        .map(|row| {
-            let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, h - 1 - row)).collect();
-            let r = render_batch(scene, &pixels, samples.clone(), Sums::Radiance);
-            r.sums.iter().map(|&s| fixed::mean(s, n)).collect()
-        })
-        .collect();
+    let rows: Vec<Vec<f32>> = rows_in_parallel(h, |row| {
+        let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, h - 1 - row)).collect();
+        let r = render_batch(scene, &pixels, samples.clone(), Sums::Radiance);
+        r.sums.iter().map(|&s| fixed::mean(s, n)).collect()
+    });
     rows.concat()
 }
 

@@ -6,12 +6,12 @@ use std::time::{Duration, Instant};
 
 use anyhow::{anyhow, Result};
 use glam::UVec2;
-use rayon::prelude::*;
 use tessera_description::bundle::Bundle;
 use tessera_worker::batch::{render_batch, Sums};
 use tessera_worker::build::parse_bundle;
 
 use crate::local::{render_local, LocalOptions};
+use rows::rows_in_parallel;
 
 mod audit;
 mod checkpoint;
@@ -22,6 +22,7 @@ mod load;
 mod plot;
 mod rays;
 mod reference;
+mod rows;
 mod samples;
 mod submit;
 mod viewers;
@@ -328,13 +329,10 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
                 // Alternate, so that drifting machine load hits both alike.
                 let t = Instant::now();
                 let rows: Vec<u64> = pool.install(|| {
-                    (0..h)
-                        .into_par_iter()
-                        .map(|y| {
-                            let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, y)).collect();
-                            render_batch(&parsed, &pixels, 0..n, Sums::Radiance).sums.iter().sum::<u64>()
-                        })
-                        .collect()
+                    rows_in_parallel(h, |y| {
+                        let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, y)).collect();
+                        render_batch(&parsed, &pixels, 0..n, Sums::Radiance).sums.iter().sum::<u64>()
+                    })
                 });
                 std::hint::black_box(rows);
                 single.push(t.elapsed());

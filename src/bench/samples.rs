@@ -12,11 +12,12 @@ use std::time::Instant;
 
 use anyhow::{anyhow, Context, Result};
 use glam::UVec2;
-use rayon::prelude::*;
 use tessera_description::bundle::Bundle;
 use tessera_worker::batch::{render_batch, Sums};
 use tessera_worker::build::parse_bundle;
 use tessera_worker::render::sampler::hash_words;
+
+use super::rows::rows_in_parallel;
 
 /// What to render and how often.
 #[derive(Debug, Clone)]
@@ -42,14 +43,11 @@ pub fn run(scene_path: &Path, opts: &SamplesOptions) -> Result<()> {
     for run in 0..opts.runs {
         let start = Instant::now();
         let rows: Vec<(u64, u64)> = pool.install(|| {
-            (0..h)
-                .into_par_iter()
-                .map(|y| {
-                    let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, y)).collect();
-                    let b = render_batch(&scene, &pixels, 0..spp, Sums::Radiance);
-                    (hash_words(&b.sums), b.nonfinite)
-                })
-                .collect()
+            rows_in_parallel(h, |y| {
+                let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, y)).collect();
+                let b = render_batch(&scene, &pixels, 0..spp, Sums::Radiance);
+                (hash_words(&b.sums), b.nonfinite)
+            })
         });
         let elapsed = start.elapsed();
         // Rows in order: the same checksum on any number of threads.
