@@ -113,7 +113,10 @@ impl Wide {
     }
 
     /// [`Wide::nearest`] compiled with AVX2 enabled, so that its box tests and everything
-    /// inlined into it (the primitives' tests too) may use it.
+    /// inlined into it (the primitives' tests too) may use it. The stack's closure is
+    /// written here, not in a helper shared with the SSE2 path: a closure made in a function
+    /// without the feature does not get it, and with such a helper the knot's rays took
+    /// 10 % more instructions (2 515 → 2 760 M, callgrind; `each_avx` likewise).
     #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
     #[target_feature(enable = "avx,avx2")]
     #[allow(unsafe_code)]
