@@ -58,6 +58,9 @@ trait Sink {
     fn triangle(&mut self, t: [[u32; 3]; 3]);
     /// Takes what another sink read from the text after this one's.
     fn append(&mut self, later: Self);
+    /// Makes room for the statements `counts` counts (a face is at least one triangle), so
+    /// that a large file's vectors never regrow and copy themselves.
+    fn reserve(&mut self, _counts: &ObjCounts) {}
 }
 
 impl Sink for ObjMesh {
@@ -78,6 +81,12 @@ impl Sink for ObjMesh {
         self.n.append(&mut later.n);
         self.uv.append(&mut later.uv);
         self.tris.append(&mut later.tris);
+    }
+    fn reserve(&mut self, counts: &ObjCounts) {
+        self.p.reserve(counts.positions);
+        self.n.reserve(counts.normals);
+        self.uv.reserve(counts.uvs);
+        self.tris.reserve(counts.faces);
     }
 }
 
@@ -194,12 +203,15 @@ fn read<S: Sink + Default + Send>(text: &str, sink: &mut S) -> Result<ObjCounts,
     let parts: Vec<Result<(S, ObjCounts), ObjError>> = chunks
         .par_iter()
         .zip(&plain)
-        .zip(&starts)
-        .map(|((c, &plain), &(line, n))| {
+        .zip(starts.par_iter().zip(&before))
+        .map(|((c, &plain), (&(line, n), (_, own)))| {
             let mut part = S::default();
+            part.reserve(own);
             read_lines(c, plain, line, n, &mut part).map(|counts| (part, counts))
         })
         .collect();
+    let faces = before.iter().map(|(_, c)| c.faces).sum();
+    sink.reserve(&ObjCounts { faces, ..n });
     let mut total = ObjCounts::default();
     for part in parts {
         let (part, counts) = part?;
@@ -245,6 +257,7 @@ fn count_lines(text: &str, plain: bool) -> (usize, ObjCounts) {
             Some("v") => n.positions += 1,
             Some("vn") => n.normals += 1,
             Some("vt") => n.uvs += 1,
+            Some("f") => n.faces += 1,
             _ => {}
         }
     }
@@ -494,6 +507,10 @@ mod tests {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap();
         let mut m = ObjMesh::default();
         let c = pool.install(|| read(&text, &mut m)).unwrap();
+        // Room made from the first pass's counts (every face here is one triangle): the
+        // vectors were never regrown.
+        let room = |m: &ObjMesh| [m.p.capacity(), m.n.capacity(), m.uv.capacity(), m.tris.capacity()];
+        assert_eq!(room(&m), [m.p.len(), m.n.len(), m.uv.len(), m.tris.len()]);
         assert_eq!((m, c), sequential(&text).unwrap());
         let scan = pool.install(|| scan_obj_extent(&text)).unwrap();
         let mut s = Scan::default();

@@ -115,7 +115,8 @@ pub(super) fn build_subtree(
     let (first_bins, second_bins) = bins.split_at_mut(mid);
     let (a, b) = (children.map(|c| c[0]), children.map(|c| c[1]));
     if parallel {
-        let mut far = Vec::new();
+        // A subtree over n items has at most 2n - 1 nodes: reserved, it never regrows.
+        let mut far = Vec::with_capacity(2 * second.len() - 1);
         rayon::join(
             || build_subtree(p, first, first_bins, start, nodes, a),
             || build_subtree(p, second, second_bins, start + mid, &mut far, b),

@@ -12,7 +12,11 @@ use super::Node;
 
 /// Folds the binary tree (in the builder's depth-first layout) into wide nodes.
 pub(super) fn fold(binary: &[Node]) -> Wide {
-    let mut nodes = Vec::with_capacity(binary.len() / (WIDTH - 1) + 1);
+    // Wide nodes number 0.27-0.34 of the binary interior nodes on the scenes measured
+    // (179 568 of 524 030 on the terrain), which are half the binary tree: a quarter of it
+    // leaves room. A regrowth would copy the vector, and a 64-byte-aligned vector's
+    // regrowth is a fresh allocation, a copy and a free.
+    let mut nodes = Vec::with_capacity(binary.len() / 4 + 1);
     let depth = match binary.first() {
         None => 0,
         Some(root) if root.count > 0 => {
