@@ -232,6 +232,7 @@ async fn work_stream(url: &str, then: Vec<u8>) -> Option<pb::CoordinatorMessage>
             threads: 1,
             credit: 0,
             frames: true,
+            held_scenes: vec![],
         })),
     };
     let out = tokio_stream::iter(vec![hello.encode_to_vec(), then]);

@@ -14,6 +14,11 @@ use tokio::sync::mpsc;
 use tokio_stream::wrappers::ReceiverStream;
 
 fn hello(protocol: i32, renderer: &str) -> pb::WorkerMessage {
+    holding(protocol, renderer, vec![])
+}
+
+/// A Hello that says the worker holds the scenes of these content hashes.
+fn holding(protocol: i32, renderer: &str, held_scenes: Vec<String>) -> pb::WorkerMessage {
     pb::WorkerMessage {
         msg: Some(Out::Hello(pb::Hello {
             protocol_version: protocol,
@@ -22,6 +27,7 @@ fn hello(protocol: i32, renderer: &str) -> pb::WorkerMessage {
             threads: 1,
             credit: 1,
             frames: true,
+            held_scenes,
         })),
     }
 }
@@ -69,6 +75,41 @@ async fn handshake_mismatches_are_refused_with_reasons() {
     let (_tx, mut inbound) =
         open(&coord.url, pb::WorkerMessage { msg: Some(Out::Heartbeat(pb::Heartbeat {})) }).await;
     assert!(refused(next(&mut inbound).await).contains("must be Hello"));
+}
+
+/// A worker that says it holds a scene gets that scene's jobs by hash alone (no bundle);
+/// one that does not gets the bundle; a Hello whose held scenes are too many or not content
+/// hashes is refused, with the reason.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn a_held_scene_is_sent_by_its_hash_alone() {
+    let coord = Coordinator::start(&[]);
+    let (current, version) = (pb::ProtocolVersion::Current as i32, tessera_worker::RENDERER_VERSION);
+    let (_tx, mut inbound) = open(&coord.url, holding(current, version, vec!["f".repeat(64); 17])).await;
+    let reason = refused(next(&mut inbound).await);
+    assert!(reason.contains("holds 17 scenes, more than the limit of 16"), "{reason}");
+    for bad in ["F".repeat(64), "f".repeat(63), format!("{}g", "f".repeat(63))] {
+        let held = vec!["0".repeat(64), bad.clone()];
+        let (_tx, mut inbound) = open(&coord.url, holding(current, version, held)).await;
+        let reason = refused(next(&mut inbound).await);
+        assert!(reason.contains("held scene 1 is not a content hash"), "{bad}: {reason}");
+    }
+
+    let scene = small_scene();
+    let hash = tessera_description::Bundle::read(&scene).unwrap().hash();
+    let (_held_tx, mut held) = open(&coord.url, holding(current, version, vec![hash.clone()])).await;
+    assert!(matches!(next(&mut held).await, Some(In::Welcome(_))));
+    let (_other_tx, mut other) = open(&coord.url, holding(current, version, vec!["0".repeat(64)])).await;
+    assert!(matches!(next(&mut other).await, Some(In::Welcome(_))));
+    let url = coord.url.clone();
+    let _submit =
+        tokio::task::spawn_blocking(move || run(&["submit", scene.to_str().unwrap(), "--coordinator", &url]));
+    for (inbound, holds) in [(&mut held, true), (&mut other, false)] {
+        let Some(In::Scene(js)) = next(inbound).await else { panic!("expected the job's scene") };
+        assert_eq!(js.scene_hash, hash);
+        assert_eq!(js.bundle.is_none(), holds, "bundle sent: {}", js.bundle.is_some());
+        assert!(js.settings.is_some());
+        assert!(matches!(next(inbound).await, Some(In::Batch(_))));
+    }
 }
 
 /// A worker that returns malformed sums is disconnected; its batch is re-leased, and the

@@ -90,6 +90,7 @@ impl FakeWorker {
             threads: 1,
             credit,
             frames: true,
+            held_scenes: vec![],
         };
         tx.send(pb::WorkerMessage { msg: Some(Out::Hello(hello)) })
             .await

@@ -62,6 +62,7 @@ fn a_local_render_takes_only_its_own_secret() {
                     threads: 1,
                     credit: 2,
                     frames: true,
+                    held_scenes: vec![],
                 })),
             };
             let mut w = tessera_proto::connect::worker_client(

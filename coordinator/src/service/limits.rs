@@ -17,6 +17,17 @@ pub const MAX_LEASE_TOKEN_BYTES: usize = 64;
 /// The longest error a worker may report for a batch (`BatchFailed.error`).
 pub const MAX_WORKER_ERROR_BYTES: usize = 4096;
 
+/// The most scenes a worker may say it holds (`Hello.held_scenes`): a worker preloads one;
+/// the bound keeps what the coordinator stores per worker small.
+pub const MAX_HELD_SCENES: usize = 16;
+
+/// Whether `hash` is a scene's content hash as `Bundle::hash` writes it: blake3 in 64
+/// lower-case hex digits. Held scenes are matched against job hashes as strings, so
+/// anything else could never match and is refused as a malformed Hello.
+pub fn is_scene_hash(hash: &str) -> bool {
+    hash.len() == 64 && hash.bytes().all(|b| b.is_ascii_digit() || (b'a'..=b'f').contains(&b))
+}
+
 /// The most pixels any batch has: pass one's largest, pass two's largest, or a round's
 /// tile.
 const MAX_BATCH_PIXELS: usize = max(max(PASS_ONE_MAX, PASS_TWO_MAX_PIXELS), (TILE * TILE) as usize);
@@ -49,7 +60,9 @@ pub const MAX_WORKER_MESSAGE_BYTES: usize = TAG + LEN // WorkerMessage.results
     + TAG + VARINT; // credit
 
 // A `Hello` or `BatchFailed` at its limits fits; a bundle does not, by far.
-const _: () = assert!(MAX_WORKER_MESSAGE_BYTES > MAX_NAME_BYTES * 2 + MAX_WORKER_ERROR_BYTES);
+const _: () = assert!(
+    MAX_WORKER_MESSAGE_BYTES > MAX_NAME_BYTES * 2 + MAX_HELD_SCENES * (64 + 2) + MAX_WORKER_ERROR_BYTES
+);
 const _: () = assert!(MAX_WORKER_MESSAGE_BYTES < super::MAX_MESSAGE_BYTES / 2);
 
 const fn max(a: usize, b: usize) -> usize {
@@ -133,6 +146,7 @@ mod tests {
                 threads: u32::MAX,
                 credit: u32::MAX,
                 frames: true,
+                held_scenes: vec!["f".repeat(64); MAX_HELD_SCENES],
             })),
         };
         let failed = pb::WorkerMessage {

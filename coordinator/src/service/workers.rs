@@ -21,6 +21,23 @@ use crate::farm::{AuditPolicy, BatchFailure, BatchResult, Farm, FenceCounters, R
 /// The most batches a worker may ask to hold at once; bounds the coordinator's lease table.
 pub const MAX_CREDIT: u32 = 256;
 
+/// Why a Hello's `held_scenes` is refused, if it is: too many, or one that is not a content
+/// hash (so could never name a job's scene).
+fn held_scenes_problem(held: &[String]) -> Option<String> {
+    use super::limits::{is_scene_hash, MAX_HELD_SCENES};
+    if held.len() > MAX_HELD_SCENES {
+        return Some(format!(
+            "the worker says it holds {} scenes, more than the limit of {MAX_HELD_SCENES}",
+            held.len()
+        ));
+    }
+    let (k, bad) = held.iter().enumerate().find(|(_, h)| !is_scene_hash(h))?;
+    Some(format!(
+        "held scene {k} is not a content hash (64 lower-case hex digits): {}",
+        tessera_description::bounds::quoted(bad)
+    ))
+}
+
 impl CoordinatorService {
     /// Feeds one worker stream until it ends.
     pub(super) async fn serve_worker(
@@ -37,7 +54,7 @@ impl CoordinatorService {
             debug!("worker stream sent no Hello within {:?}; closed", self.timing.silence_timeout);
             return;
         };
-        let hello = match first {
+        let mut hello = match first {
             Ok(Some(pb::WorkerMessage { msg: Some(In::Hello(h)) })) => h,
             Ok(_) => {
                 let _ =
@@ -80,6 +97,14 @@ impl CoordinatorService {
             let _ = tx.send(Ok(refuse(reason))).await;
             return;
         }
+        if let Some(reason) = held_scenes_problem(&hello.held_scenes) {
+            warn!(name = %hello.name, "{reason}");
+            let _ = tx.send(Ok(refuse(reason))).await;
+            return;
+        }
+        // Scenes this worker read itself: their jobs' scenes go to it by hash alone.
+        let held: std::collections::HashSet<String> =
+            std::mem::take(&mut hello.held_scenes).into_iter().collect();
         let threads = hello.threads.clamp(1, 4096);
         let identity = identity(&hello.name);
         let joined = self.farm().add_worker_as(identity.clone(), hello.name.clone(), threads, Instant::now());
@@ -120,10 +145,16 @@ impl CoordinatorService {
                     info!(worker = %id, job = %a.job, batch = %a.batch.id, attempt = a.attempt, "speculative duplicate of a straggler's batch");
                 }
                 if let Some((bundle, hash, settings)) = a.scene {
+                    let bundle = if held.contains(&hash) {
+                        debug!(worker = %id, job = %a.job, "the worker holds the job's scene: sent by its hash");
+                        None
+                    } else {
+                        Some(convert::bundle_to_wire(&bundle))
+                    };
                     let scene = pb::JobScene {
                         job_id: a.job.0,
                         scene_hash: hash,
-                        bundle: Some(convert::bundle_to_wire(&bundle)),
+                        bundle,
                         settings: Some(convert::settings_to_wire(&settings)),
                     };
                     if tx.send(Ok(pb::CoordinatorMessage { msg: Some(Out::Scene(scene)) })).await.is_err() {

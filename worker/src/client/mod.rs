@@ -154,6 +154,7 @@ async fn session(
         threads,
         credit: threads * CREDIT_PER_THREAD,
         frames: true,
+        held_scenes: preload.iter().map(|p| p.hash().to_owned()).collect(),
     };
     out.send(pb::WorkerMessage { msg: Some(Out::Hello(hello)) }).await.expect("receiver is alive");
     let opened = tokio::select! {

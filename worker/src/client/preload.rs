@@ -6,9 +6,15 @@
 //! at start, while it connects and while the coordinator validates; when a job of that
 //! content hash arrives the build is taken as it is (awaited if still running), once: from
 //! then on the scene cache keeps it as any built scene. `tessera render` starts its local
-//! worker so. Nothing is trusted for it: the job's bundle is
-//! still hashed and must have the preloaded scene's hash, and the build is the worker's
-//! own (the same validation as any scene it receives).
+//! worker so. Nothing is trusted for it: the build is the worker's own (the same
+//! validation as any scene it receives), and a job gets it only under its own content hash.
+//!
+//! The worker also names the preloaded scene's hash in its Hello (`held_scenes`), and the
+//! coordinator then sends that job's scene by hash alone: the terrain's 36 MB are not
+//! encoded, sent, decoded and hashed again just to find the build already here (0.16
+//! CPU-s of its start, docs/speed.md, thirteenth part). So the preload keeps the bundle
+//! for the worker's life: a later job of that scene, or a rebuild after the cache dropped
+//! it, needs the content the coordinator no longer sends.
 
 use std::sync::{Arc, Mutex};
 use std::time::Instant;
@@ -27,6 +33,7 @@ type Built = Arc<Mutex<Option<Result<Arc<Scene>, Failure>>>>;
 #[derive(Clone)]
 pub(super) struct Preload {
     hash: String,
+    bundle: Arc<Bundle>,
     /// Becomes true when the build has ended (`built` then holds its result).
     done: watch::Receiver<bool>,
     built: Built,
@@ -42,6 +49,7 @@ impl Preload {
         let (tx, done) = watch::channel(false);
         let built: Built = Arc::default();
         let slot = built.clone();
+        let kept = bundle.clone();
         let short = hash.chars().take(12).collect::<String>();
         let spawned = std::thread::Builder::new().name("preload".into()).spawn(move || {
             let started = Instant::now();
@@ -60,7 +68,18 @@ impl Preload {
             // job builds its scene as any other.
             info!("no thread to preload the scene on: {e}");
         }
-        Preload { hash, done, built }
+        Preload { hash, bundle: kept, done, built }
+    }
+
+    /// The preloaded scene's content hash, which the worker's Hello names.
+    pub(super) fn hash(&self) -> &str {
+        &self.hash
+    }
+
+    /// The preloaded bundle if it is the one hashing to `hash`: what a job sent by hash
+    /// alone renders.
+    pub(super) fn bundle(&self, hash: &str) -> Option<Arc<Bundle>> {
+        (self.hash == hash).then(|| self.bundle.clone())
     }
 
     /// The preloaded scene if it is the one hashing to `hash`, once built, and only the

@@ -110,65 +110,44 @@ impl SceneCache {
         let spp = (settings.spp != 0).then_some(settings.spp);
         let size = (settings.width != 0 && settings.height != 0).then_some((settings.width, settings.height));
         let frames = settings.frames.map(|f| (f.first, f.last));
-        let base = match js.bundle {
-            None => Err(Failure::new("the coordinator sent a job without its scene")),
-            Some(b) => {
-                let bundle = Arc::new(bundle_from_wire(b));
+        let started = std::time::Instant::now();
+        let base = match self.bundle_of(job, &claimed, js.bundle).await {
+            Err(e) => Err(e),
+            Ok(bundle) => {
                 if let Some(frames) = frames {
                     self.sequences.insert(job, Sequence { bundle: bundle.clone(), frames, spp, size });
                 }
-                let name = claimed.clone();
-                let started = std::time::Instant::now();
-                // Hashing and building a large scene is CPU work: keep it off the async threads.
-                let checked = tokio::task::spawn_blocking(move || {
-                    let actual = bundle.hash();
-                    if actual != name {
-                        return Err(format!(
-                            "scene content hashes to {actual}, but the coordinator named it {name}: refusing a scene that differs from the submitted one"
-                        ));
-                    }
-                    Ok(bundle)
-                })
-                .await
-                .unwrap_or_else(|e| Err(format!("scene loading panicked: {e}")));
-                match checked {
-                    Err(e) => Err(Failure::new(e)),
-                    Ok(bundle) => {
-                        let memory = self.memory;
-                        let hashed = started.elapsed();
-                        // Built for an earlier job, or preloaded: nothing to build.
-                        let ready = match (self.take_built(&claimed), &self.preload) {
-                            (Some(built), _) => Some(built),
-                            (None, Some(p)) => p.take(&claimed).await,
-                            (None, None) => None,
-                        };
-                        let built = match ready {
-                            Some(built) => built,
-                            None => {
-                                let built = tokio::task::spawn_blocking(move || {
-                                    crate::build::parse_bundle_within(&bundle, memory)
-                                        .map(Arc::new)
-                                        .map_err(Failure::from)
-                                })
-                                .await
-                                .unwrap_or_else(|e| {
-                                    Err(Failure::new(format!("scene building panicked: {e}")))
-                                });
-                                // What a scene's start costs on this worker, for operators
-                                // (and docs/speed.md's account of the terrain's first sample).
-                                debug!(
-                                    job,
-                                    hash_ms = hashed.as_millis() as u64,
-                                    build_ms = (started.elapsed() - hashed).as_millis() as u64,
-                                    "scene hashed and built"
-                                );
-                                built
-                            }
-                        };
-                        self.put_built(claimed, built.clone());
+                let memory = self.memory;
+                let hashed = started.elapsed();
+                // Built for an earlier job, or preloaded: nothing to build.
+                let ready = match (self.take_built(&claimed), &self.preload) {
+                    (Some(built), _) => Some(built),
+                    (None, Some(p)) => p.take(&claimed).await,
+                    (None, None) => None,
+                };
+                let built = match ready {
+                    Some(built) => built,
+                    None => {
+                        let built = tokio::task::spawn_blocking(move || {
+                            crate::build::parse_bundle_within(&bundle, memory)
+                                .map(Arc::new)
+                                .map_err(Failure::from)
+                        })
+                        .await
+                        .unwrap_or_else(|e| Err(Failure::new(format!("scene building panicked: {e}"))));
+                        // What a scene's start costs on this worker, for operators (and
+                        // docs/speed.md's account of the terrain's first sample).
+                        debug!(
+                            job,
+                            hash_ms = hashed.as_millis() as u64,
+                            build_ms = (started.elapsed() - hashed).as_millis() as u64,
+                            "scene hashed and built"
+                        );
                         built
                     }
-                }
+                };
+                self.put_built(claimed, built.clone());
+                built
             }
         };
         let parsed = base.map(|base| {
@@ -187,6 +166,40 @@ impl SceneCache {
                 self.sequences.remove(&old);
             }
         }
+    }
+
+    /// The bundle of job `job`'s scene, named `claimed`: the one sent, once it hashes to
+    /// that name; or, sent by hash alone (this worker's Hello said it holds the scene), the
+    /// preloaded one. A scene sent by a hash this worker does not hold is refused as a
+    /// scene (`scene_refused`): the farm gives the job to workers that can take it.
+    async fn bundle_of(
+        &self,
+        job: u64,
+        claimed: &str,
+        sent: Option<pb::SceneBundle>,
+    ) -> Result<Arc<tessera_description::Bundle>, Failure> {
+        let Some(sent) = sent else {
+            return self.preload.as_ref().and_then(|p| p.bundle(claimed)).ok_or_else(|| Failure {
+                message: format!(
+                    "the coordinator sent job {job}'s scene by its hash {claimed} alone, and this worker holds no scene of that hash"
+                ),
+                scene_refused: true,
+            });
+        };
+        let bundle = Arc::new(bundle_from_wire(sent));
+        let name = claimed.to_owned();
+        // Hashing a large scene is CPU work: keep it off the async threads.
+        tokio::task::spawn_blocking(move || {
+            let actual = bundle.hash();
+            if actual != name {
+                return Err(Failure::new(format!(
+                    "scene content hashes to {actual}, but the coordinator named it {name}: refusing a scene that differs from the submitted one"
+                )));
+            }
+            Ok(bundle)
+        })
+        .await
+        .unwrap_or_else(|e| Err(Failure::new(format!("scene loading panicked: {e}"))))
     }
 
     /// Takes the built scene of `hash` out of the cache, if there.
@@ -288,6 +301,37 @@ mod tests {
         wrong.scene_hash = "0".repeat(64);
         cache.load(wrong).await;
         assert!(cache.jobs[&101].1.as_ref().unwrap_err().message.contains("refusing a scene that differs"));
+    }
+
+    #[tokio::test]
+    async fn a_scene_sent_by_hash_alone_is_the_held_one_and_no_other() {
+        let held = Bundle { name: "t.toml".into(), text: SCENE.into(), assets: vec![], refused: vec![] };
+        let hash = held.hash();
+        let mut cache = SceneCache::new(u64::MAX, Some(Preload::start(Arc::new(held), u64::MAX)));
+        let by_hash = |job_id: u64, hash: &str| pb::JobScene {
+            job_id,
+            scene_hash: hash.to_owned(),
+            bundle: None,
+            settings: Some(pb::RenderSettings { spp: 3, ..Default::default() }),
+        };
+        cache.load(by_hash(1, &hash)).await;
+        assert_eq!(scene_of(&cache, 1).spp, 3);
+        // The cache drops the build; a later job sent by hash is built again from the
+        // bundle the preload kept.
+        for i in 0..SCENE_CACHE as u64 {
+            cache.load(job(10 + i, &format!("{SCENE}# {i}\n"), 0, (0, 0))).await;
+        }
+        assert!(cache.built.iter().all(|(h, _)| *h != hash));
+        cache.load(by_hash(2, &hash)).await;
+        assert_eq!((scene_of(&cache, 2).width, scene_of(&cache, 2).spp), (8, 3));
+        // A hash this worker does not hold: the job's scene is refused, never guessed.
+        cache.load(by_hash(3, &"0".repeat(64))).await;
+        let e = cache.jobs[&3].1.as_ref().unwrap_err();
+        assert!(e.scene_refused && e.message.contains("holds no scene of that hash"), "{e:?}");
+        // Nor is a scene without its bundle taken by a worker that preloaded nothing.
+        let mut plain = SceneCache::new(u64::MAX, None);
+        plain.load(by_hash(4, &hash)).await;
+        assert!(plain.jobs[&4].1.as_ref().unwrap_err().scene_refused);
     }
 
     #[tokio::test]
