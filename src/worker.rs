@@ -28,8 +28,9 @@ pub struct WorkerArgs {
     #[arg(long, env = "TESSERA_WORKER_MEMORY", value_parser = parse_bytes)]
     memory: Option<u64>,
     /// A scene to build at start, while the worker connects: a job of the same scene (the
-    /// same content) then starts without building it.
-    #[arg(long, value_name = "SCENE")]
+    /// same content) then starts without building it, and the coordinator sends it by its
+    /// hash alone instead of the scene and its assets.
+    #[arg(long, value_name = "SCENE", env = "TESSERA_PRELOAD")]
     preload: Option<PathBuf>,
 }
 

@@ -246,9 +246,11 @@ fn noise_target_is_deterministic_and_a_time_budget_stops() {
     assert_eq!(image::open(&timed).unwrap().to_rgb8().dimensions(), (64, 48));
 }
 
-/// `tessera worker --preload SCENE` builds the scene at start: a job of that scene takes
-/// the build as it is (the worker builds nothing when the job comes), a job of another
-/// scene is built as usual, and both give the bytes of a local render.
+/// `tessera worker --preload SCENE` (here through `TESSERA_PRELOAD`, as a Slurm or
+/// Kubernetes worker is given it; `tessera render`'s workers get the flag) builds the scene
+/// at start: a job of that scene takes the build as it is (the worker builds nothing when
+/// the job comes) and arrives by its hash alone (the worker names it in its Hello), a job of
+/// another scene is sent and built as usual, and both give the bytes of a local render.
 #[test]
 fn a_preloaded_worker_renders_its_scene_without_building_it_again() {
     let dir = tempfile::tempdir().unwrap();
@@ -256,8 +258,8 @@ fn a_preloaded_worker_renders_its_scene_without_building_it_again() {
     let coord = Coordinator::start(&[]);
     let scene = small_scene();
     let worker = Proc::spawn_with_env(
-        &["worker", "--coordinator", &coord.url, "--threads", "2", "--preload", scene.to_str().unwrap()],
-        &[("RUST_LOG", "info,tessera_worker=debug")],
+        &["worker", "--coordinator", &coord.url, "--threads", "2"],
+        &[("RUST_LOG", "info,tessera_worker=debug"), ("TESSERA_PRELOAD", scene.to_str().unwrap())],
     );
     worker.wait_for("preloaded", Duration::from_secs(30));
     worker.wait_for("connected to", Duration::from_secs(30));
@@ -277,13 +279,17 @@ fn a_preloaded_worker_renders_its_scene_without_building_it_again() {
         assert!(o.status.success(), "submit failed: {}", String::from_utf8_lossy(&o.stderr));
     };
     let built = |w: &Proc| w.stderr.lock().unwrap().matches("scene hashed and built").count();
+    let by_hash =
+        |w: &Proc| w.stderr.lock().unwrap().matches("the job's scene came by its hash alone").count();
 
     let farm = dir.path().join("farm.exr");
     submit(&scene, &farm);
     assert_eq!(built(&worker), 0, "the preloaded scene was built again:\n{}", worker.stderr.lock().unwrap());
+    assert_eq!(by_hash(&worker), 1, "the preloaded scene was sent whole:\n{}", worker.stderr.lock().unwrap());
     let farm_other = dir.path().join("farm_other.exr");
     submit(&other, &farm_other);
     assert_eq!(built(&worker), 1, "another scene is built when its job comes");
+    assert_eq!(by_hash(&worker), 1, "another scene is sent whole");
 
     for (scene, farm) in [(&scene, &farm), (&other, &farm_other)] {
         let local = dir.path().join("local.exr");

@@ -138,6 +138,8 @@ fn slurm_workers_render_the_same_image_when_one_is_cancelled() {
             .env("TESSERA_CA", &ca)
             .env("TESSERA_TOKEN_FILE", format!("{}/tokens/{{node}}.token", dir.display()))
             .env("TESSERA_BIN", env!("CARGO_BIN_EXE_tessera"))
+            // Every worker builds the job's scene at start, as a shot's array job would.
+            .env("TESSERA_PRELOAD", &scene)
             .env("RUST_LOG", "info")
             .env("NO_COLOR", "1"),
         Duration::from_secs(20),
@@ -204,6 +206,7 @@ fn slurm_workers_render_the_same_image_when_one_is_cancelled() {
     });
     let text = fs::read_to_string(&worker_log).unwrap_or_default();
     assert!(text.contains("stopping: ending the work stream"), "the worker did not stop on SIGTERM:\n{text}");
+    assert!(text.contains("preloaded"), "the worker did not preload TESSERA_PRELOAD's scene:\n{text}");
     let remaining = cluster.squeue(&array);
     assert!(remaining.contains(" R node1"), "node1's worker should still run: {remaining:?}");
 

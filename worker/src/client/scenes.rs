@@ -179,6 +179,7 @@ impl SceneCache {
         sent: Option<pb::SceneBundle>,
     ) -> Result<Arc<tessera_description::Bundle>, Failure> {
         let Some(sent) = sent else {
+            debug!(job, "the job's scene came by its hash alone");
             return self.preload.as_ref().and_then(|p| p.bundle(claimed)).ok_or_else(|| Failure {
                 message: format!(
                     "the coordinator sent job {job}'s scene by its hash {claimed} alone, and this worker holds no scene of that hash"
