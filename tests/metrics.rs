@@ -116,6 +116,10 @@ fn prometheus_scrapes_the_coordinator_with_a_token() {
     assert!(sample(&text, "tessera_merge_seconds_count").is_some_and(|n| n >= 1.0), "{text}");
     assert!(sample(&text, "tessera_checkpoint_write_seconds_count").is_some_and(|n| n >= 1.0), "{text}");
     assert_eq!(sample(&text, "tessera_checkpoint_failures_total"), Some(0.0), "{text}");
+    // The one worker got the job's scene once, whole (it preloaded nothing).
+    assert_eq!(sample(&text, "tessera_scenes_sent_total{how=\"whole\"}"), Some(1.0), "{text}");
+    assert_eq!(sample(&text, "tessera_scenes_sent_total{how=\"by_hash\"}"), Some(0.0), "{text}");
+    assert!(sample(&text, "tessera_scene_bytes_sent_total").is_some_and(|b| b > 100.0), "{text}");
     for bad in [None, Some("not-a-token-of-this-farm-at-all")] {
         let (code, body) = get(&http, "/metrics", bad);
         assert_eq!(code, 401, "{bad:?}: {body}");

@@ -4,8 +4,9 @@
 //!   farm's event counts (strikes, audits, leases taken back, duplicates) come from a
 //!   `Census` taken under the farm's lock at each scrape, so they can never drift from
 //!   what the farm holds;
-//! - timings (a merge under the lock, a checkpoint write) and checkpoint failures are
-//!   recorded where they happen, into the instruments of `Metrics`.
+//! - timings (a merge under the lock, a checkpoint write), checkpoint failures and the
+//!   scenes sent to workers are recorded where they happen, into the instruments of
+//!   `Metrics`.
 //!
 //! The text is the Prometheus exposition format 0.0.4 (`CONTENT_TYPE`), which every
 //! Prometheus and `promtool check metrics` read.
@@ -31,6 +32,11 @@ pub struct Metrics {
     merge: Histogram,
     checkpoint_write: Histogram,
     checkpoint_failures: Counter,
+    /// Jobs' scenes sent to workers with their bundle, and the bundles' bytes.
+    scenes_whole: Counter,
+    scene_bytes: Counter,
+    /// Jobs' scenes sent by their hash alone (the worker held the scene).
+    scenes_by_hash: Counter,
 }
 
 impl Default for Metrics {
@@ -42,6 +48,9 @@ impl Default for Metrics {
             // 1 ms to 16 s by fours: a checkpoint is the size of its framebuffer.
             checkpoint_write: Histogram::new(exponential_buckets(1e-3, 4.0, 8)),
             checkpoint_failures: Counter::default(),
+            scenes_whole: Counter::default(),
+            scene_bytes: Counter::default(),
+            scenes_by_hash: Counter::default(),
         }
     }
 }
@@ -61,11 +70,30 @@ impl Metrics {
         }
     }
 
+    /// A job's scene sent to a worker: with its bundle of `bytes` (encoded), or by its hash
+    /// alone (`None`: the worker held it).
+    pub fn observe_scene_sent(&self, bytes: Option<u64>) {
+        match bytes {
+            Some(b) => {
+                self.scenes_whole.inc();
+                self.scene_bytes.inc_by(b);
+            }
+            None => {
+                self.scenes_by_hash.inc();
+            }
+        }
+    }
+
     /// The exposition text of the farm as `census` saw it, with `viewers` watch streams
     /// open, and of these instruments.
     pub fn exposition(&self, census: Census, viewers: usize) -> String {
         let mut state = Registry::default();
         state.register_collector(Box::new(Scrape { census, viewers: viewers as u64 }));
+        state.register_collector(Box::new(SceneSends {
+            whole: self.scenes_whole.get(),
+            by_hash: self.scenes_by_hash.get(),
+            bytes: self.scene_bytes.get(),
+        }));
         let mut registry = Registry::default();
         registry.register(
             "tessera_merge_seconds",
@@ -248,6 +276,37 @@ impl Collector for Scrape {
             "tessera_viewers",
             "Watch streams open (desktop viewers, live web pages).",
             self.viewers,
+        )
+    }
+}
+
+/// The scenes sent to workers, read from their counters at a scrape: one family with the
+/// way each was sent as a label, which the registry's plain counters cannot have.
+#[derive(Debug)]
+struct SceneSends {
+    whole: u64,
+    by_hash: u64,
+    bytes: u64,
+}
+
+impl Collector for SceneSends {
+    fn encode(&self, mut e: DescriptorEncoder) -> Result<(), std::fmt::Error> {
+        let sent: &[(&[(&str, &str)], _)] = &[
+            (&[("how", "whole")], ConstCounter::new(self.whole)),
+            (&[("how", "by_hash")], ConstCounter::new(self.by_hash)),
+        ];
+        family(
+            &mut e,
+            "tessera_scenes_sent",
+            "Jobs' scenes sent to workers: whole (the scene file and its assets), or by their hash alone to a worker that holds the scene (--preload).",
+            MetricType::Counter,
+            sent,
+        )?;
+        counter(
+            &mut e,
+            "tessera_scene_bytes_sent",
+            "Bytes of the scenes sent whole to workers (each worker gets a job's scene once).",
+            self.bytes,
         )
     }
 }

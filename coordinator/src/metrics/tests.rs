@@ -53,6 +53,8 @@ fn every_family_is_typed_and_every_state_listed() {
         ("tessera_samples_merged_total", "counter"),
         ("tessera_samples_per_second", "gauge"),
         ("tessera_samples_queued", "gauge"),
+        ("tessera_scene_bytes_sent_total", "counter"),
+        ("tessera_scenes_sent_total", "counter"),
         ("tessera_strikes_total", "counter"),
         ("tessera_viewers", "gauge"),
         ("tessera_workers", "gauge"),
@@ -70,6 +72,20 @@ fn every_family_is_typed_and_every_state_listed() {
 
 /// Queued samples are what queued and running jobs still need, not what paused or ended
 /// ones do; jobs are counted by state.
+/// Scenes sent whole count their bytes; scenes sent by their hash count apart.
+#[test]
+fn scenes_sent_whole_and_by_hash_are_counted_apart() {
+    let m = Metrics::default();
+    m.observe_scene_sent(Some(36_000_000));
+    m.observe_scene_sent(None);
+    m.observe_scene_sent(None);
+    m.observe_scene_sent(Some(1_000));
+    let t = m.exposition(Farm::new().census(Instant::now()), 0);
+    assert_eq!(sample(&t, "tessera_scenes_sent_total{how=\"whole\"}"), Some(2.0), "{t}");
+    assert_eq!(sample(&t, "tessera_scenes_sent_total{how=\"by_hash\"}"), Some(2.0), "{t}");
+    assert_eq!(sample(&t, "tessera_scene_bytes_sent_total"), Some(36_001_000.0), "{t}");
+}
+
 #[test]
 fn queued_samples_count_queued_and_running_jobs_only() {
     let mut farm = Farm::new();

@@ -151,6 +151,8 @@ impl CoordinatorService {
                     } else {
                         Some(convert::bundle_to_wire(&bundle))
                     };
+                    self.metrics
+                        .observe_scene_sent(bundle.as_ref().map(|b| prost::Message::encoded_len(b) as u64));
                     let scene = pb::JobScene {
                         job_id: a.job.0,
                         scene_hash: hash,
