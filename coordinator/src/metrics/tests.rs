@@ -70,8 +70,6 @@ fn every_family_is_typed_and_every_state_listed() {
     assert_eq!(sample(&t, "tessera_merge_seconds_bucket{le=\"+Inf\"}"), Some(0.0), "{t}");
 }
 
-/// Queued samples are what queued and running jobs still need, not what paused or ended
-/// ones do; jobs are counted by state.
 /// Scenes sent whole count their bytes; scenes sent by their hash count apart.
 #[test]
 fn scenes_sent_whole_and_by_hash_are_counted_apart() {
@@ -86,6 +84,8 @@ fn scenes_sent_whole_and_by_hash_are_counted_apart() {
     assert_eq!(sample(&t, "tessera_scene_bytes_sent_total"), Some(36_001_000.0), "{t}");
 }
 
+/// Queued samples are what queued and running jobs still need, not what paused or ended
+/// ones do; jobs are counted by state.
 #[test]
 fn queued_samples_count_queued_and_running_jobs_only() {
     let mut farm = Farm::new();
