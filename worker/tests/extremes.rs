@@ -267,10 +267,13 @@ fn extreme_cameras_stay_finite_and_sensible() {
     // Even the pixels looking nearly sideways see the wall, lit like the centre.
     let off = img.iter().filter(|p| (p[0] - centre[0]).abs() > 0.01 * centre[0]).count();
     assert_eq!(off, 0, "{off} pixels of the wall differ from its centre {centre:?}");
-    // A huge aperture blurs everything into a near-uniform image; no sample is lost.
-    let (_, _, img) = render(&sphere_ahead(40.0, 100.0, 10.0));
+    // A huge aperture blurs everything into a near-uniform image; no sample is lost. (At
+    // 32 samples a pixel: at 8 a pixel's few samples that meet the sphere's edge from the
+    // lens's rim decide it, and the bound held or not by the pattern's luck.)
+    let (_, _, img) = render(&sphere_ahead(40.0, 100.0, 10.0).replace("spp = 8", "spp = 32"));
     let mean = img.iter().map(|p| lum(*p)).sum::<f32>() / img.len() as f32;
-    assert!(img.iter().all(|p| (lum(*p) - mean).abs() < 0.5 * mean.max(0.05)), "mean {mean}");
+    let worst = img.iter().map(|p| (lum(*p) - mean).abs()).fold(0.0, f32::max);
+    assert!(worst < 0.5 * mean.max(0.05), "mean {mean}, a pixel {worst} from it");
     for focus in [0.001, 1e6] {
         render(&sphere_ahead(40.0, 0.5, focus));
     }

@@ -382,8 +382,9 @@ impl Scene {
     /// a sampler of their own).
     pub fn camera_ray(&self, sampler: &mut Sampler, pixel: UVec2, index: u32) -> (Ray, f32) {
         sampler.start_pixel_sample(pixel, index);
-        let p_film = pixel.as_vec2() + sampler.get_2d();
-        let p_lens = if self.camera.has_lens() { sampler.get_2d() } else { Vec2::ZERO };
+        let (film, p_lens) =
+            if self.camera.has_lens() { sampler.get_4d() } else { (sampler.get_2d(), Vec2::ZERO) };
+        let p_film = pixel.as_vec2() + film;
         let time = if self.has_motion_blur() {
             let (open, close) = self.camera.shutter;
             open + sampler.get_1d() * (close - open)

@@ -7,8 +7,10 @@
 //! over the pixel's `spp` samples: one sample per cell of an `m × n` grid and per row and
 //! column of the finer grid (Kensler 2013). The strata of different dimensions are
 //! associated at random, as Cook's paper asks, by passing the sample index through a
-//! different keyed permutation for each dimension. Nothing is stored and nothing is seeded
-//! from entropy, so any worker, in any order, computes the same sample.
+//! different keyed permutation for each dimension; the camera's film and lens, which
+//! decide together what an out-of-focus ray sees, are the exception: one 4-D pattern
+//! ([`Sampler::get_4d`]). Nothing is stored and nothing is seeded from entropy, so any
+//! worker, in any order, computes the same sample.
 
 use glam::{UVec2, Vec2};
 
@@ -199,11 +201,70 @@ fn sobol_dim1(mut i: u32) -> u32 {
     r
 }
 
+/// The direction numbers of one dimension of Sobol's sequence from its primitive
+/// polynomial of degree `s` (inner coefficients `a`, top one first) and initial odd `m`s
+/// (Bratley and Fox's recurrence, as Joe and Kuo tabulate them), each held bit-reversed:
+/// the scrambling below works on reversed coordinates.
+const fn sobol_directions(s: usize, a: u32, m: [u32; 3]) -> [u32; 32] {
+    let mut mk = [0u32; 32];
+    let mut k = 0;
+    while k < 32 {
+        mk[k] = if k < s {
+            m[k]
+        } else {
+            let mut v = mk[k - s] ^ (mk[k - s] << s);
+            let mut j = 1;
+            while j < s {
+                if (a >> (s - 1 - j)) & 1 == 1 {
+                    v ^= mk[k - j] << j;
+                }
+                j += 1;
+            }
+            v
+        };
+        k += 1;
+    }
+    let mut reversed = [0u32; 32];
+    let mut k = 0;
+    while k < 32 {
+        // vₖ = mₖ · 2^(31 − k), bit-reversed: mₖ's bits from bit k down.
+        reversed[k] = (mk[k] << (31 - k)).reverse_bits();
+        k += 1;
+    }
+    reversed
+}
+
+/// Sobol's second dimension (what [`sobol_dim1`] computes bit by bit).
+const SOBOL_DIM1: [u32; 32] = sobol_directions(1, 0, [1, 0, 0]);
+/// Sobol's dimensions 3 and 4 (polynomials x² + x + 1 and x³ + x + 1), the lens's
+/// coordinates in the camera's 4-D pattern.
+const SOBOL_DIM2: [u32; 32] = sobol_directions(2, 1, [1, 3, 0]);
+const SOBOL_DIM3: [u32; 32] = sobol_directions(3, 1, [1, 3, 1]);
+
+/// Point `i` of a Sobol dimension given by its reversed direction numbers, bit-reversed.
+#[inline]
+fn sobol_reversed(mut i: u32, directions: &[u32; 32]) -> u32 {
+    let (mut r, mut k) = (0u32, 0usize);
+    while i != 0 {
+        if i & 1 != 0 {
+            r ^= directions[k];
+        }
+        i >>= 1;
+        k += 1;
+    }
+    r
+}
+
 /// Owen scrambling of a 32-bit fixed-point coordinate by hashing: a keyed function in which
 /// each bit is flipped depending only on the bits above it (Burley 2020, after Laine and
 /// Karras), applied to the bit-reversed value so that it runs from the top bit down.
 fn owen_scramble(x: u32, key: u32) -> u32 {
-    let mut v = x.reverse_bits();
+    owen_scramble_reversed(x.reverse_bits(), key)
+}
+
+/// [`owen_scramble`] of the coordinate whose bit-reversal is `v`.
+#[inline]
+fn owen_scramble_reversed(mut v: u32, key: u32) -> u32 {
     v = v.wrapping_add(key);
     v ^= v.wrapping_mul(0x6c50_b47c);
     v ^= v.wrapping_mul(0xb82f_1e52);
@@ -413,6 +474,44 @@ impl Sampler {
         // the draws after it stay on the path that reads kept keys.
         self.next_dimension();
         0.0
+    }
+
+    /// The next two 2-D dimensions as one 4-D pattern: the camera's film and lens draws.
+    ///
+    /// Out of focus, which subpixel and which lens point a ray passes through decide
+    /// together what it sees (a small bright thing seen in a mirror is a sliver of the
+    /// 4-D domain); Cook's random association stratifies each plane alone and leaves
+    /// their interaction to chance, the error that dominated `spheres` (docs/speed.md,
+    /// fourteenth part). So both come from one Owen-scrambled Sobol net in four
+    /// dimensions (Burley 2020): the film from Sobol's first two dimensions, a (0, 2)
+    /// net, as stratified as Cook's pattern; the lens from the next two. The pair is still
+    /// associated at random with every later dimension. The stratified pattern takes the
+    /// 4-D net at power-of-two sample counts, where it is a net, and keeps two 2-D draws
+    /// otherwise; independent samples and indices beyond the pattern are two 2-D draws.
+    pub fn get_4d(&mut self) -> (Vec2, Vec2) {
+        let joint = match self.kind {
+            SamplerKind::Sobol => true,
+            SamplerKind::Stratified => self.spp.is_power_of_two(),
+            SamplerKind::Independent => false,
+        };
+        if !joint || self.index >= self.spp {
+            return (self.get_2d(), self.get_2d());
+        }
+        let (film, lens) = (self.next_dimension(), self.next_dimension());
+        // One index for all four coordinates, so that they stay one net's point.
+        let s = self.order.apply(self.index, film.key);
+        let coordinate =
+            |reversed: u32, key: u64| fixed_to_unit(owen_scramble_reversed(reversed, key as u32));
+        (
+            Vec2::new(
+                coordinate(s, film.pattern),
+                coordinate(sobol_reversed(s, &SOBOL_DIM1), film.pattern >> 32),
+            ),
+            Vec2::new(
+                coordinate(sobol_reversed(s, &SOBOL_DIM2), lens.pattern),
+                coordinate(sobol_reversed(s, &SOBOL_DIM3), lens.pattern >> 32),
+            ),
+        )
     }
 
     /// The next 1-D dimension, following the pixel's pattern.

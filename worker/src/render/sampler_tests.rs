@@ -270,3 +270,84 @@ fn independent_samples_are_uniform_and_repeatable() {
     assert_eq!(SamplerKind::from_name("sobol"), Some(SamplerKind::Sobol));
     assert_eq!(SamplerKind::from_name("halton"), None);
 }
+
+/// The direction numbers from the recurrence give the second dimension that
+/// `sobol_dim1` computes bit by bit, and the third and fourth dimensions start as Joe and
+/// Kuo's table does (their first points by the index's bits, worked by hand).
+#[test]
+fn sobol_directions_follow_the_recurrence() {
+    for i in 0..1u32 << 16 {
+        assert_eq!(sobol_reversed(i, &SOBOL_DIM1), sobol_dim1(i).reverse_bits(), "point {i}");
+    }
+    let unit = |i: u32, d: &[u32; 32]| f64::from(sobol_reversed(i, d).reverse_bits()) / 4_294_967_296.0;
+    let third: Vec<f64> = (0..8).map(|i| unit(i, &SOBOL_DIM2)).collect();
+    let fourth: Vec<f64> = (0..8).map(|i| unit(i, &SOBOL_DIM3)).collect();
+    assert_eq!(third, [0.0, 0.5, 0.75, 0.25, 0.375, 0.875, 0.625, 0.125]);
+    assert_eq!(fourth, [0.0, 0.5, 0.75, 0.25, 0.125, 0.625, 0.875, 0.375]);
+}
+
+/// The camera's film and lens draws at a power-of-two count: the film a (0, m, 2)-net,
+/// every coordinate one sample per 1/spp interval, and the four together a net in 4-D
+/// (every elementary box of volume 8/spp holds eight samples, as the quality t = 3 of
+/// Sobol's first four dimensions promises), whatever the seed and pixel, for both patterns that
+/// take it; independent samples and other counts draw what two 2-D draws draw.
+#[test]
+fn film_and_lens_are_one_net_in_four_dimensions() {
+    for kind in [SamplerKind::Stratified, SamplerKind::Sobol] {
+        for k in [4u32, 6, 8] {
+            let spp = 1u32 << k;
+            for (seed, pixel) in [(9, UVec2::new(0, 0)), (2, UVec2::new(17, 5))] {
+                let mut sampler = Sampler::new(kind, seed, spp);
+                let pts: Vec<[f32; 4]> = (0..spp)
+                    .map(|i| {
+                        sampler.start_pixel_sample(pixel, i);
+                        let (f, l) = sampler.get_4d();
+                        assert_eq!(sampler.dimensions_used(), 2);
+                        [f.x, f.y, l.x, l.y]
+                    })
+                    .collect();
+                let boxes = |levels: [u32; 4]| {
+                    let mut count = std::collections::HashMap::new();
+                    for p in &pts {
+                        let cell: Vec<u32> =
+                            (0..4).map(|c| (f64::from(p[c]) * f64::from(1u32 << levels[c])) as u32).collect();
+                        *count.entry(cell).or_insert(0u32) += 1;
+                    }
+                    count
+                };
+                for a in 0..=k {
+                    let film = boxes([a, k - a, 0, 0]);
+                    assert!(film.len() == spp as usize, "{kind:?} spp {spp}: film {a}");
+                }
+                for c in 0..4 {
+                    let mut levels = [0; 4];
+                    levels[c] = k;
+                    assert_eq!(boxes(levels).len(), spp as usize, "{kind:?} spp {spp}: coordinate {c}");
+                }
+                // Every split of 2^(k-3) into four coordinates' levels.
+                let t = k - 3;
+                for l0 in 0..=t {
+                    for l1 in 0..=t - l0 {
+                        for l2 in 0..=t - l0 - l1 {
+                            let levels = [l0, l1, l2, t - l0 - l1 - l2];
+                            let count = boxes(levels);
+                            assert!(
+                                count.len() == (spp / 8) as usize && count.values().all(|&n| n == 8),
+                                "{kind:?} spp {spp}: box {levels:?}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+    for (kind, spp) in [(SamplerKind::Independent, 64), (SamplerKind::Stratified, 48)] {
+        let (mut joint, mut apart) = (Sampler::new(kind, 3, spp), Sampler::new(kind, 3, spp));
+        for i in [0, 5, spp - 1, spp + 2] {
+            joint.start_pixel_sample(UVec2::new(4, 1), i);
+            apart.start_pixel_sample(UVec2::new(4, 1), i);
+            assert_eq!(joint.get_4d(), (apart.get_2d(), apart.get_2d()), "{kind:?} spp {spp} index {i}");
+            assert_eq!(joint.get_1d(), apart.get_1d());
+        }
+    }
+}
