@@ -161,6 +161,16 @@ impl Bsdf {
         }
     }
 
+    /// Both lobes of a smooth dielectric, to be followed both (Whitted's two rays) where
+    /// [`Bsdf::sample`] would pick one; `None` for every other BSDF, and on total
+    /// internal reflection.
+    pub fn split(&self, wo: Vec3) -> Option<[BsdfSample; 2]> {
+        match *self {
+            Bsdf::Dielectric { eta } => dielectric::split(wo, eta),
+            _ => None,
+        }
+    }
+
     /// Samples an incident direction given `wo`, with a lobe choice `u_lobe` and a 2-D
     /// sample `u`.
     pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
@@ -230,6 +240,56 @@ mod tests {
         }
         assert!(skipped > 0);
     }
+
+    /// A split dielectric follows the two directions its pick chooses between, each weighted
+    /// by the pick's weight times its probability, so a path's expectation is the same
+    /// either way; from both sides, grazing included. Total internal reflection and every
+    /// other BSDF do not split.
+    #[test]
+    fn a_split_is_the_pick_weighted_by_its_probabilities() {
+        let bits = |v: Vec3| v.to_array().map(f32::to_bits);
+        let (mut split, mut whole) = (0, 0);
+        for eta in [1.5, 1.0 / 1.33, 2.4] {
+            let bsdf = Bsdf::Dielectric { eta };
+            for i in 0..4000 {
+                let Some(mut wo) = (u2(i, 1).extend(u2(i, 2).x) * 2.0 - 1.0).try_normalize() else {
+                    continue;
+                };
+                if i % 97 == 0 {
+                    wo = Vec3::new(1.0, 0.0, 1e-7 * wo.z.signum()).normalize();
+                }
+                let f = fresnel::fresnel_dielectric(wo.z, eta);
+                let (Some(r), t) = (bsdf.sample(wo, 0.0, Vec2::ZERO), bsdf.sample(wo, ONE_BELOW, Vec2::ZERO))
+                else {
+                    panic!("reflection always exists")
+                };
+                match bsdf.split(wo) {
+                    Some([rs, ts]) => {
+                        let t = t.expect("refraction exists where the split has it");
+                        assert!(f < 1.0);
+                        assert_eq!((bits(rs.wi), bits(ts.wi)), (bits(r.wi), bits(t.wi)), "eta {eta} wo {wo}");
+                        assert_eq!(bits(rs.weight), bits(r.weight * f));
+                        let want = t.weight * (1.0 - f);
+                        assert!((ts.weight - want).abs().max_element() <= 1e-6 * want.max_element());
+                        assert!(rs.lobe == Lobe::Specular && ts.lobe == Lobe::Specular);
+                        split += 1;
+                    }
+                    // Total internal reflection: the pick reflects whatever its number.
+                    None => {
+                        assert_eq!(f, 1.0, "eta {eta} wo {wo}");
+                        whole += 1;
+                    }
+                }
+            }
+        }
+        assert!(split > 5000 && whole > 100, "{split} split, {whole} whole");
+        let wo = Vec3::new(0.3, 0.2, 0.9).normalize();
+        assert!(Bsdf::Mirror { reflectance: Vec3::ONE }.split(wo).is_none());
+        assert!(Bsdf::RoughDielectric { eta: 1.5, alpha: 0.2 }.split(wo).is_none());
+    }
+
+    /// The largest f32 below 1: a lobe number that picks refraction wherever F < 1.
+    const ONE_BELOW: f32 = 1.0 - f32::EPSILON / 2.0;
 
     /// Sampling agrees with evaluation: the mean of weight equals ∫ f cos, which for the
     /// estimator with eval/pdf must match, and pdf integrates to at most 1.
