@@ -255,6 +255,12 @@ fn sobol_reversed(mut i: u32, directions: &[u32; 32]) -> u32 {
     r
 }
 
+/// Point `i`'s coordinates in Sobol's dimensions 2, 3 and 4, bit-reversed (the first is
+/// `i` itself, reversed).
+fn sobol_point(i: u32) -> [u32; 3] {
+    [sobol_reversed(i, &SOBOL_DIM1), sobol_reversed(i, &SOBOL_DIM2), sobol_reversed(i, &SOBOL_DIM3)]
+}
+
 /// Owen scrambling of a 32-bit fixed-point coordinate by hashing: a keyed function in which
 /// each bit is flipped depending only on the bits above it (Burley 2020, after Laine and
 /// Karras), applied to the bit-reversed value so that it runs from the top bit down.
@@ -344,7 +350,17 @@ pub struct Sampler {
     stride: usize,
     /// The fine-grid offsets of dimensions `0..kept` of `pixel`, [`UNKNOWN`] until drawn.
     offsets: Box<[u16]>,
+    /// Whether [`Sampler::get_4d`] draws one 4-D net (else two 2-D draws).
+    joint: bool,
+    /// Sobol's dimensions 2–4 (bit-reversed) of every point `0..spp`, for
+    /// [`Sampler::get_4d`]: filled at its first draw when `spp` is at most
+    /// [`SOBOL_TABLE`]. Computing them bit by bit at every draw took more than the two 2-D
+    /// draws they replace (the loops' branches follow the index's bits and mispredict).
+    sobol_points: Vec<[u32; 3]>,
 }
+
+/// The most points whose Sobol coordinates a sampler keeps (48 KB).
+const SOBOL_TABLE: u32 = 4096;
 
 impl Sampler {
     /// A sampler for patterns of `spp` samples per pixel.
@@ -370,6 +386,12 @@ impl Sampler {
             kept: 0,
             stride,
             offsets: vec![UNKNOWN; stride * KEPT_DIMENSIONS].into_boxed_slice(),
+            joint: match kind {
+                SamplerKind::Sobol => true,
+                SamplerKind::Stratified => spp.is_power_of_two(),
+                SamplerKind::Independent => false,
+            },
+            sobol_points: Vec::new(),
         }
     }
 
@@ -489,28 +511,21 @@ impl Sampler {
     /// 4-D net at power-of-two sample counts, where it is a net, and keeps two 2-D draws
     /// otherwise; independent samples and indices beyond the pattern are two 2-D draws.
     pub fn get_4d(&mut self) -> (Vec2, Vec2) {
-        let joint = match self.kind {
-            SamplerKind::Sobol => true,
-            SamplerKind::Stratified => self.spp.is_power_of_two(),
-            SamplerKind::Independent => false,
-        };
-        if !joint || self.index >= self.spp {
+        if !self.joint || self.index >= self.spp {
             return (self.get_2d(), self.get_2d());
         }
         let (film, lens) = (self.next_dimension(), self.next_dimension());
         // One index for all four coordinates, so that they stay one net's point.
         let s = self.order.apply(self.index, film.key);
+        if self.sobol_points.is_empty() && self.spp <= SOBOL_TABLE {
+            self.sobol_points = (0..self.spp).map(sobol_point).collect();
+        }
+        let [y, u, v] = self.sobol_points.get(s as usize).copied().unwrap_or_else(|| sobol_point(s));
         let coordinate =
             |reversed: u32, key: u64| fixed_to_unit(owen_scramble_reversed(reversed, key as u32));
         (
-            Vec2::new(
-                coordinate(s, film.pattern),
-                coordinate(sobol_reversed(s, &SOBOL_DIM1), film.pattern >> 32),
-            ),
-            Vec2::new(
-                coordinate(sobol_reversed(s, &SOBOL_DIM2), lens.pattern),
-                coordinate(sobol_reversed(s, &SOBOL_DIM3), lens.pattern >> 32),
-            ),
+            Vec2::new(coordinate(s, film.pattern), coordinate(y, film.pattern >> 32)),
+            Vec2::new(coordinate(u, lens.pattern), coordinate(v, lens.pattern >> 32)),
         )
     }
 

@@ -289,12 +289,14 @@ fn sobol_directions_follow_the_recurrence() {
 /// The camera's film and lens draws at a power-of-two count: the film a (0, m, 2)-net,
 /// every coordinate one sample per 1/spp interval, and the four together a net in 4-D
 /// (every elementary box of volume 8/spp holds eight samples, as the quality t = 3 of
-/// Sobol's first four dimensions promises), whatever the seed and pixel, for both patterns that
-/// take it; independent samples and other counts draw what two 2-D draws draw.
+/// Sobol's first four dimensions promises), whatever the seed and pixel, for both patterns
+/// that take it, with Sobol's points kept in a table (up to 4096) or computed at every
+/// draw; independent samples and other counts draw what two 2-D draws draw.
 #[test]
 fn film_and_lens_are_one_net_in_four_dimensions() {
     for kind in [SamplerKind::Stratified, SamplerKind::Sobol] {
-        for k in [4u32, 6, 8] {
+        // 2^13 samples: beyond the kept table of Sobol's points, computed at every draw.
+        for k in [4u32, 6, 8, 13] {
             let spp = 1u32 << k;
             for (seed, pixel) in [(9, UVec2::new(0, 0)), (2, UVec2::new(17, 5))] {
                 let mut sampler = Sampler::new(kind, seed, spp);
