@@ -9,6 +9,7 @@ use tessera_description::bundle::Bundle;
 use tessera_description::math;
 use tessera_film::fixed;
 use tessera_worker::batch::{render_batch, Sums};
+use tessera_worker::render::sampler::hash_words;
 
 const SIZE: (u32, u32) = (64, 40);
 const SPP: u32 = 8;
@@ -79,4 +80,28 @@ fn every_scene_matches_its_golden_image() {
         }
     }
     assert!(failures.is_empty(), "golden images differ:\n{}", failures.join("\n"));
+}
+
+/// The renderer version and the images it makes, recorded together: the hash of the tiny
+/// renders of every scene (their 8-bit values, in the scenes' order). When they change,
+/// `RENDERER_VERSION`'s image count must rise with them (workers of the two builds would
+/// otherwise join one farm and mix their images), and both are recorded here anew.
+const IMAGES: (&str, u64) = ("0.1.0+images.2", 0x5ffb2c481d2ff156);
+
+#[test]
+fn the_renderer_version_names_its_images() {
+    let mut h = 0u64;
+    for scene in scenes() {
+        let name = scene.file_stem().unwrap().to_string_lossy().to_string();
+        h = hash_words(&[h, name.len() as u64]);
+        for chunk in name.as_bytes().chunks(8).chain(render_tiny(&scene).chunks(8)) {
+            h = hash_words(&[h, chunk.iter().fold(0u64, |w, &b| (w << 8) | u64::from(b))]);
+        }
+    }
+    assert_eq!(
+        (tessera_worker::RENDERER_VERSION, h),
+        IMAGES,
+        "the renders and the version no longer match: if the images changed, raise the \
+         +images.N of RENDERER_VERSION (description/src/lib.rs) and record both here"
+    );
 }
