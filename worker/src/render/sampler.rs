@@ -187,20 +187,6 @@ pub const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON / 2.0;
 
 pub use tessera_description::model::SamplerKind;
 
-/// The second dimension of Sobol's sequence (the first is the bit-reversed index): its
-/// direction numbers follow v₁ = 2³¹, vₖ₊₁ = vₖ ⊕ (vₖ ≫ 1).
-fn sobol_dim1(mut i: u32) -> u32 {
-    let (mut v, mut r) = (1u32 << 31, 0u32);
-    while i != 0 {
-        if i & 1 != 0 {
-            r ^= v;
-        }
-        i >>= 1;
-        v ^= v >> 1;
-    }
-    r
-}
-
 /// The direction numbers of one dimension of Sobol's sequence from its primitive
 /// polynomial of degree `s` (inner coefficients `a`, top one first) and initial odd `m`s
 /// (Bratley and Fox's recurrence, as Joe and Kuo tabulate them), each held bit-reversed:
@@ -234,7 +220,7 @@ const fn sobol_directions(s: usize, a: u32, m: [u32; 3]) -> [u32; 32] {
     reversed
 }
 
-/// Sobol's second dimension (what [`sobol_dim1`] computes bit by bit).
+/// Sobol's second dimension (the first is the index itself, bit-reversed).
 const SOBOL_DIM1: [u32; 32] = sobol_directions(1, 0, [1, 0, 0]);
 /// Sobol's dimensions 3 and 4 (polynomials x² + x + 1 and x³ + x + 1), the lens's
 /// coordinates in the camera's 4-D pattern.
@@ -261,14 +247,10 @@ fn sobol_point(i: u32) -> [u32; 3] {
     [sobol_reversed(i, &SOBOL_DIM1), sobol_reversed(i, &SOBOL_DIM2), sobol_reversed(i, &SOBOL_DIM3)]
 }
 
-/// Owen scrambling of a 32-bit fixed-point coordinate by hashing: a keyed function in which
-/// each bit is flipped depending only on the bits above it (Burley 2020, after Laine and
-/// Karras), applied to the bit-reversed value so that it runs from the top bit down.
-fn owen_scramble(x: u32, key: u32) -> u32 {
-    owen_scramble_reversed(x.reverse_bits(), key)
-}
-
-/// [`owen_scramble`] of the coordinate whose bit-reversal is `v`.
+/// Owen scrambling by hashing of the 32-bit fixed-point coordinate whose bit-reversal is
+/// `v`: a keyed function in which each bit of the coordinate is flipped depending only on
+/// the bits above it (Burley 2020, after Laine and Karras), which on the reversed value
+/// runs from the top bit down as a multiplication carries.
 #[inline]
 fn owen_scramble_reversed(mut v: u32, key: u32) -> u32 {
     v = v.wrapping_add(key);
@@ -277,6 +259,13 @@ fn owen_scramble_reversed(mut v: u32, key: u32) -> u32 {
     v ^= v.wrapping_mul(0xc7af_e638);
     v ^= v.wrapping_mul(0x8d22_f6e6);
     v.reverse_bits()
+}
+
+/// A scrambled Sobol coordinate in [0, 1), from its bit-reversal and the pattern's key
+/// (its low 32 bits).
+#[inline]
+fn scrambled(reversed: u32, key: u64) -> f32 {
+    fixed_to_unit(owen_scramble_reversed(reversed, key as u32))
 }
 
 fn fixed_to_unit(x: u32) -> f32 {
@@ -458,10 +447,9 @@ impl Sampler {
         // Cook's random association: each dimension visits the strata in its own order.
         let s = self.order.apply(self.index, k.key);
         match self.kind {
-            SamplerKind::Sobol => Vec2::new(
-                fixed_to_unit(owen_scramble(s.reverse_bits(), k.pattern as u32)),
-                fixed_to_unit(owen_scramble(sobol_dim1(s), (k.pattern >> 32) as u32)),
-            ),
+            SamplerKind::Sobol => {
+                Vec2::new(scrambled(s, k.pattern), scrambled(sobol_reversed(s, &SOBOL_DIM1), k.pattern >> 32))
+            }
             _ => {
                 let cell = self.cmj.cell(s);
                 let offsets = self.fine_offsets(d, cell, k.pattern);
@@ -521,11 +509,9 @@ impl Sampler {
             self.sobol_points = (0..self.spp).map(sobol_point).collect();
         }
         let [y, u, v] = self.sobol_points.get(s as usize).copied().unwrap_or_else(|| sobol_point(s));
-        let coordinate =
-            |reversed: u32, key: u64| fixed_to_unit(owen_scramble_reversed(reversed, key as u32));
         (
-            Vec2::new(coordinate(s, film.pattern), coordinate(y, film.pattern >> 32)),
-            Vec2::new(coordinate(u, lens.pattern), coordinate(v, lens.pattern >> 32)),
+            Vec2::new(scrambled(s, film.pattern), scrambled(y, film.pattern >> 32)),
+            Vec2::new(scrambled(u, lens.pattern), scrambled(v, lens.pattern >> 32)),
         )
     }
 
@@ -537,7 +523,7 @@ impl Sampler {
         }
         let s = self.order.apply(self.index, k.key);
         match self.kind {
-            SamplerKind::Sobol => fixed_to_unit(owen_scramble(s.reverse_bits(), k.pattern as u32)),
+            SamplerKind::Sobol => scrambled(s, k.pattern),
             _ => {
                 // hash_words(&[key, s, 3]).
                 let jitter = unit_float(hash_step(hash_step(k.from_key, u64::from(s)), 3));

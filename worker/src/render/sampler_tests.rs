@@ -3,6 +3,26 @@
 
 use super::*;
 
+/// The second dimension of Sobol's sequence computed bit by bit from its definition
+/// (v₁ = 2³¹, vₖ₊₁ = vₖ ⊕ (vₖ ≫ 1)): the oracle for the direction numbers the sampler
+/// derives from the recurrence.
+fn sobol_dim1(mut i: u32) -> u32 {
+    let (mut v, mut r) = (1u32 << 31, 0u32);
+    while i != 0 {
+        if i & 1 != 0 {
+            r ^= v;
+        }
+        i >>= 1;
+        v ^= v >> 1;
+    }
+    r
+}
+
+/// Owen scrambling of a coordinate in its natural bit order, as the definition states it.
+fn owen_scramble(x: u32, key: u32) -> u32 {
+    owen_scramble_reversed(x.reverse_bits(), key)
+}
+
 /// The draws of dimension `d` of sample `index` of `pixel`, hashed from the start as
 /// the sampler's definition states them (no kept state): the oracle for the kept keys.
 fn fresh_2d(kind: SamplerKind, seed: u64, spp: u32, pixel: UVec2, index: u32, d: u32) -> Vec2 {
