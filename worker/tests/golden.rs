@@ -10,6 +10,7 @@ use tessera_description::math;
 use tessera_film::fixed;
 use tessera_worker::batch::{render_batch, Sums};
 use tessera_worker::render::sampler::hash_words;
+use tessera_worker::render::{SamplerKind, Scene};
 
 const SIZE: (u32, u32) = (64, 40);
 const SPP: u32 = 8;
@@ -21,9 +22,15 @@ fn srgb8(v: f32) -> u8 {
 }
 
 fn render_tiny(path: &Path) -> Vec<u8> {
+    render_tiny_as(path, |_| {})
+}
+
+/// [`render_tiny`], the scene changed by `adjust` after the job's settings.
+fn render_tiny_as(path: &Path, adjust: impl Fn(&mut Scene)) -> Vec<u8> {
     let bundle = Bundle::read(path).unwrap();
     let mut scene = tessera_worker::build::parse_bundle(&bundle).unwrap_or_else(|e| panic!("{e}"));
     scene.apply(Some(SPP), Some(SIZE));
+    adjust(&mut scene);
     let (w, h) = SIZE;
     let mut out = Vec::with_capacity((w * h * 3) as usize);
     for row in 0..h {
@@ -83,18 +90,30 @@ fn every_scene_matches_its_golden_image() {
 }
 
 /// The renderer version and the images it makes, recorded together: the hash of the tiny
-/// renders of every scene (their 8-bit values, in the scenes' order). When they change,
+/// renders of every scene (their 8-bit values, in the scenes' order), and of the Cornell
+/// box's drawn from the other patterns: the first samples of a job in rounds (a pattern
+/// of 2^20 drawn in prefixes), Sobol's and independent samples. When they change,
 /// `RENDERER_VERSION`'s image count must rise with them (workers of the two builds would
 /// otherwise join one farm and mix their images), and both are recorded here anew.
-const IMAGES: (&str, u64) = ("0.1.0+images.2", 0x5ffb2c481d2ff156);
+const IMAGES: (&str, u64) = ("0.1.0+images.3", 0xc7a3_b929_1591_10be);
 
 #[test]
 fn the_renderer_version_names_its_images() {
     let mut h = 0u64;
-    for scene in scenes() {
-        let name = scene.file_stem().unwrap().to_string_lossy().to_string();
+    let cornell = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/cornell.toml");
+    type Adjust = fn(&mut Scene);
+    let patterns: [(&str, Adjust); 3] = [
+        ("cornell in rounds", |s| (s.spp, s.progressive) = (1 << 20, true)),
+        ("cornell sobol", |s| s.sampler = SamplerKind::Sobol),
+        ("cornell independent", |s| s.sampler = SamplerKind::Independent),
+    ];
+    let renders = scenes()
+        .into_iter()
+        .map(|scene| (scene.file_stem().unwrap().to_string_lossy().to_string(), render_tiny(&scene)))
+        .chain(patterns.map(|(name, adjust)| (name.to_string(), render_tiny_as(&cornell, adjust))));
+    for (name, image) in renders {
         h = hash_words(&[h, name.len() as u64]);
-        for chunk in name.as_bytes().chunks(8).chain(render_tiny(&scene).chunks(8)) {
+        for chunk in name.as_bytes().chunks(8).chain(image.chunks(8)) {
             h = hash_words(&[h, chunk.iter().fold(0u64, |w, &b| (w << 8) | u64::from(b))]);
         }
     }

@@ -147,6 +147,7 @@ fn build_observed(
         spp: r.spp,
         seed: r.seed,
         sampler: r.sampler,
+        progressive: false,
         max_depth: r.max_depth,
         background: r.background,
         ambient: r.ambient,

@@ -88,6 +88,32 @@ fn a_job_s_overrides_share_the_world() {
     assert!(Arc::ptr_eq(&world, &s.world));
 }
 
+/// A job in rounds draws the stratified scene's samples from Sobol's pattern (whose
+/// prefixes are nets); an independent scene stays independent; a job drawn whole keeps
+/// the scene's pattern.
+#[test]
+fn a_job_in_rounds_draws_sobol_s_pattern() {
+    use crate::render::{Sampler, SamplerKind};
+    let draws = |s: &crate::render::Scene, kind: Option<SamplerKind>| {
+        let mut sampler = kind.map_or_else(|| s.sampler(), |k| Sampler::new(k, s.seed, s.spp));
+        (0..8)
+            .map(|i| {
+                sampler.start_pixel_sample(glam::UVec2::new(3, 2), i);
+                (sampler.get_2d(), sampler.get_1d())
+            })
+            .collect::<Vec<_>>()
+    };
+    let mut s = parse_scene("t.toml", MINIMAL).unwrap();
+    s.apply(Some(1 << 20), None);
+    assert_eq!(s.sampler, SamplerKind::Stratified);
+    assert_eq!(draws(&s, None), draws(&s, Some(SamplerKind::Stratified)));
+    s.progressive = true;
+    assert_eq!(draws(&s, None), draws(&s, Some(SamplerKind::Sobol)));
+    assert_ne!(draws(&s, None), draws(&s, Some(SamplerKind::Stratified)));
+    s.sampler = SamplerKind::Independent;
+    assert_eq!(draws(&s, None), draws(&s, Some(SamplerKind::Independent)));
+}
+
 #[test]
 fn damaged_pixels_behind_a_good_header_fail_the_build_at_the_texture() {
     // A real 2x2 PNG, its image data chunk then spoiled.

@@ -50,6 +50,7 @@ struct Sequence {
     frames: (u32, u32),
     spp: Option<u32>,
     size: Option<(u32, u32)>,
+    progressive: bool,
 }
 
 impl SceneCache {
@@ -83,12 +84,13 @@ impl SceneCache {
             Some(i) => self.frames.remove(i).expect("found").1,
             None => {
                 let (bundle, memory, frame) = (seq.bundle.clone(), self.memory, b.frame);
-                let (spp, size) = (seq.spp, seq.size);
+                let (spp, size, progressive) = (seq.spp, seq.size, seq.progressive);
                 tokio::task::spawn_blocking(move || {
                     crate::build::parse_bundle_frame_within(&bundle, Some(frame), memory)
                         .map_err(Failure::from)
                         .map(|mut scene| {
                             scene.apply(spp, size);
+                            scene.progressive = progressive;
                             Arc::new(scene)
                         })
                 })
@@ -110,12 +112,16 @@ impl SceneCache {
         let spp = (settings.spp != 0).then_some(settings.spp);
         let size = (settings.width != 0 && settings.height != 0).then_some((settings.width, settings.height));
         let frames = settings.frames.map(|f| (f.first, f.last));
+        // A time budget or a noise target (0 is neither, as `settings_from_wire` reads
+        // them): the job's samples are drawn in rounds, `JobSettings::in_rounds`.
+        let progressive = settings.time_limit_seconds != 0.0 || settings.noise != 0.0;
         let started = std::time::Instant::now();
         let base = match self.bundle_of(job, &claimed, js.bundle).await {
             Err(e) => Err(e),
             Ok(bundle) => {
                 if let Some(frames) = frames {
-                    self.sequences.insert(job, Sequence { bundle: bundle.clone(), frames, spp, size });
+                    self.sequences
+                        .insert(job, Sequence { bundle: bundle.clone(), frames, spp, size, progressive });
                 }
                 let memory = self.memory;
                 let hashed = started.elapsed();
@@ -153,6 +159,7 @@ impl SceneCache {
         let parsed = base.map(|base| {
             let mut scene = Scene::clone(&base);
             scene.apply(spp, size);
+            scene.progressive = progressive;
             Arc::new(scene)
         });
         if let Err(e) = &parsed {
@@ -285,6 +292,15 @@ mod tests {
         assert_eq!((a.width, a.height, a.spp), (8, 6, 16));
         assert_eq!((b.width, b.height, b.spp), (40, 30, 5));
         assert_eq!(cache.built.len(), 1);
+        // Jobs in rounds draw a pattern whose prefixes are stratified.
+        assert!(!a.progressive && !b.progressive);
+        for (id, settings) in [
+            (3, pb::RenderSettings { time_limit_seconds: 2.0, ..Default::default() }),
+            (4, pb::RenderSettings { noise: 0.05, ..Default::default() }),
+        ] {
+            cache.load(pb::JobScene { settings: Some(settings), ..job(id, SCENE, 0, (0, 0)) }).await;
+            assert!(scene_of(&cache, id).progressive, "job {id}");
+        }
     }
 
     #[tokio::test]

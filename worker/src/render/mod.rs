@@ -46,6 +46,10 @@ pub struct Scene {
     pub seed: u64,
     /// The sample pattern.
     pub sampler: SamplerKind,
+    /// Whether the job draws its pixels' samples in rounds (a time budget or a noise
+    /// target), stopping at some prefix of the pattern: the stratified pattern is then
+    /// Sobol's, whose prefixes are stratified too ([`Scene::sampler`]).
+    pub progressive: bool,
     /// Most path segments (camera ray included) and depth of the classic ray tree.
     pub max_depth: u32,
     /// Radiance of rays that escape.
@@ -394,8 +398,15 @@ impl Scene {
         (self.camera.generate_ray(p_film, p_lens), time)
     }
 
-    /// A sampler for this scene's pattern.
+    /// A sampler for this scene's pattern. Cook's jittered strata are stratified as a
+    /// whole, and a prefix of them is spread about as independent samples are; a job in
+    /// rounds ends at a prefix it cannot know beforehand, so it draws Sobol's pattern,
+    /// every power-of-two prefix of which is a net (`sampler::nested_order`).
     pub fn sampler(&self) -> Sampler {
-        Sampler::new(self.sampler, self.seed, self.spp)
+        let kind = match self.sampler {
+            SamplerKind::Stratified if self.progressive => SamplerKind::Sobol,
+            kind => kind,
+        };
+        Sampler::new(kind, self.seed, self.spp)
     }
 }

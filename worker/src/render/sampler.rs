@@ -227,24 +227,50 @@ const SOBOL_DIM1: [u32; 32] = sobol_directions(1, 0, [1, 0, 0]);
 const SOBOL_DIM2: [u32; 32] = sobol_directions(2, 1, [1, 3, 0]);
 const SOBOL_DIM3: [u32; 32] = sobol_directions(3, 1, [1, 3, 1]);
 
-/// Point `i` of a Sobol dimension given by its reversed direction numbers, bit-reversed.
-#[inline]
-fn sobol_reversed(mut i: u32, directions: &[u32; 32]) -> u32 {
-    let (mut r, mut k) = (0u32, 0usize);
-    while i != 0 {
-        if i & 1 != 0 {
-            r ^= directions[k];
+/// A Sobol dimension's reversed direction numbers regrouped by the index's bytes: entry
+/// `[p][b]` is the sum (xor) of the directions of the bits set in `b` as byte `p`.
+type ByBytes = [[u32; 256]; 4];
+
+const fn by_bytes(directions: [u32; 32]) -> ByBytes {
+    let mut t = [[0u32; 256]; 4];
+    let mut p = 0;
+    while p < 4 {
+        let mut b = 1;
+        while b < 256 {
+            // b's lowest set bit added to the entry of b without it.
+            let low = (b as u32).trailing_zeros() as usize;
+            t[p][b] = t[p][b & (b - 1)] ^ directions[8 * p + low];
+            b += 1;
         }
-        i >>= 1;
-        k += 1;
+        p += 1;
     }
-    r
+    t
+}
+
+/// [`SOBOL_DIM1`], [`SOBOL_DIM2`] and [`SOBOL_DIM3`] by bytes (4 KB each).
+static SOBOL_BYTES: [ByBytes; 3] = [by_bytes(SOBOL_DIM1), by_bytes(SOBOL_DIM2), by_bytes(SOBOL_DIM3)];
+
+/// Point `i` of a Sobol dimension, bit-reversed, from its directions by bytes. A point is
+/// linear in the index's bits (a sum of the directions of the bits set), so four lookups
+/// make it: a pattern drawn in rounds takes indices of 20 bits, whose bit-by-bit sum
+/// branched on every bit and made a draw a fifth slower.
+#[inline]
+fn sobol_reversed(i: u32, t: &ByBytes) -> u32 {
+    t[0][(i & 0xff) as usize]
+        ^ t[1][((i >> 8) & 0xff) as usize]
+        ^ t[2][((i >> 16) & 0xff) as usize]
+        ^ t[3][(i >> 24) as usize]
 }
 
 /// Point `i`'s coordinates in Sobol's dimensions 2, 3 and 4, bit-reversed (the first is
 /// `i` itself, reversed).
+#[inline]
 fn sobol_point(i: u32) -> [u32; 3] {
-    [sobol_reversed(i, &SOBOL_DIM1), sobol_reversed(i, &SOBOL_DIM2), sobol_reversed(i, &SOBOL_DIM3)]
+    [
+        sobol_reversed(i, &SOBOL_BYTES[0]),
+        sobol_reversed(i, &SOBOL_BYTES[1]),
+        sobol_reversed(i, &SOBOL_BYTES[2]),
+    ]
 }
 
 /// Owen scrambling by hashing of the 32-bit fixed-point coordinate whose bit-reversal is
@@ -259,6 +285,23 @@ fn owen_scramble_reversed(mut v: u32, key: u32) -> u32 {
     v ^= v.wrapping_mul(0xc7af_e638);
     v ^= v.wrapping_mul(0x8d22_f6e6);
     v.reverse_bits()
+}
+
+/// Sobol's order of a pixel's samples, shuffled: index `i` of a pattern whose sample count
+/// rounds up to `2^bits`, Owen-scrambled as a `bits`-digit fraction (Burley 2020's nested
+/// uniform scramble of the index). Each bit of the index flips depending only on the bits
+/// above it, so the first `2^k` indices go to one aligned block of `2^k` points, and the
+/// points of an aligned block of a digital net are a net: every power-of-two prefix of the
+/// shuffled pattern is as stratified as a whole pattern of that size. A keyed permutation
+/// of the indices (the stratified pattern's order) sends a prefix anywhere, and a pattern
+/// drawn in prefixes (rounds) then converges like independent samples (docs/accuracy.md).
+#[inline]
+fn nested_order(i: u32, key: u32, bits: u32) -> u32 {
+    if bits == 0 {
+        return 0;
+    }
+    // Reversed, the index's top digit is bit 0, as the scramble wants it.
+    owen_scramble_reversed((i << (32 - bits)).reverse_bits(), key) >> (32 - bits)
 }
 
 /// A scrambled Sobol coordinate in [0, 1), from its bit-reversal and the pattern's key
@@ -324,7 +367,10 @@ pub struct Sampler {
     kind: SamplerKind,
     seed: u64,
     spp: u32,
+    /// The stratified pattern's order of its samples (Cook's random association).
     order: Permutation,
+    /// Sobol's pattern: `spp` rounded up to `2^sobol_bits`, the domain of [`nested_order`].
+    sobol_bits: u32,
     cmj: Cmj,
     pixel: UVec2,
     /// The hash state after the seed and the pixel: every dimension's key starts there.
@@ -341,15 +387,7 @@ pub struct Sampler {
     offsets: Box<[u16]>,
     /// Whether [`Sampler::get_4d`] draws one 4-D net (else two 2-D draws).
     joint: bool,
-    /// Sobol's dimensions 2–4 (bit-reversed) of every point `0..spp`, for
-    /// [`Sampler::get_4d`]: filled at its first draw when `spp` is at most
-    /// [`SOBOL_TABLE`]. Computing them bit by bit at every draw took more than the two 2-D
-    /// draws they replace (the loops' branches follow the index's bits and mispredict).
-    sobol_points: Vec<[u32; 3]>,
 }
-
-/// The most points whose Sobol coordinates a sampler keeps (48 KB).
-const SOBOL_TABLE: u32 = 4096;
 
 impl Sampler {
     /// A sampler for patterns of `spp` samples per pixel.
@@ -366,6 +404,7 @@ impl Sampler {
             seed,
             spp,
             order: Permutation::new(spp),
+            sobol_bits: spp.next_power_of_two().trailing_zeros(),
             cmj,
             pixel: UVec2::ZERO,
             pixel_key: Self::key_of(seed, UVec2::ZERO),
@@ -380,7 +419,6 @@ impl Sampler {
                 SamplerKind::Stratified => spp.is_power_of_two(),
                 SamplerKind::Independent => false,
             },
-            sobol_points: Vec::new(),
         }
     }
 
@@ -445,16 +483,27 @@ impl Sampler {
             return Vec2::new(unit_float(h), unit_float(mix64(h)));
         }
         // Cook's random association: each dimension visits the strata in its own order.
-        let s = self.order.apply(self.index, k.key);
+        let s = self.shuffle(k.key);
         match self.kind {
-            SamplerKind::Sobol => {
-                Vec2::new(scrambled(s, k.pattern), scrambled(sobol_reversed(s, &SOBOL_DIM1), k.pattern >> 32))
-            }
+            SamplerKind::Sobol => Vec2::new(
+                scrambled(s, k.pattern),
+                scrambled(sobol_reversed(s, &SOBOL_BYTES[0]), k.pattern >> 32),
+            ),
             _ => {
                 let cell = self.cmj.cell(s);
                 let offsets = self.fine_offsets(d, cell, k.pattern);
                 self.cmj.place(s, cell, offsets, k.from_pattern)
             }
+        }
+    }
+
+    /// Which point of the pattern the current sample is in a dimension keyed by `key`:
+    /// each dimension's own order, Sobol's nested so that its prefixes stay nets.
+    #[inline]
+    fn shuffle(&self, key: u64) -> u32 {
+        match self.kind {
+            SamplerKind::Sobol => nested_order(self.index, key as u32, self.sobol_bits),
+            _ => self.order.apply(self.index, key),
         }
     }
 
@@ -504,11 +553,8 @@ impl Sampler {
         }
         let (film, lens) = (self.next_dimension(), self.next_dimension());
         // One index for all four coordinates, so that they stay one net's point.
-        let s = self.order.apply(self.index, film.key);
-        if self.sobol_points.is_empty() && self.spp <= SOBOL_TABLE {
-            self.sobol_points = (0..self.spp).map(sobol_point).collect();
-        }
-        let [y, u, v] = self.sobol_points.get(s as usize).copied().unwrap_or_else(|| sobol_point(s));
+        let s = self.shuffle(film.key);
+        let [y, u, v] = sobol_point(s);
         (
             Vec2::new(scrambled(s, film.pattern), scrambled(y, film.pattern >> 32)),
             Vec2::new(scrambled(u, lens.pattern), scrambled(v, lens.pattern >> 32)),
@@ -521,7 +567,7 @@ impl Sampler {
         if self.index >= self.spp || self.kind == SamplerKind::Independent {
             return unit_float(hash_step(k.from_key, u64::from(self.index)));
         }
-        let s = self.order.apply(self.index, k.key);
+        let s = self.shuffle(k.key);
         match self.kind {
             SamplerKind::Sobol => scrambled(s, k.pattern),
             _ => {

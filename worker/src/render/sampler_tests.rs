@@ -23,6 +23,16 @@ fn owen_scramble(x: u32, key: u32) -> u32 {
     owen_scramble_reversed(x.reverse_bits(), key)
 }
 
+/// Sobol's shuffled order as its definition states it: the index as a fraction of as many
+/// binary digits as the pattern's rounded-up count has, Owen-scrambled in natural order.
+fn nested_order_definition(index: u32, key: u64, spp: u32) -> u32 {
+    let bits = spp.next_power_of_two().trailing_zeros();
+    if bits == 0 {
+        return 0;
+    }
+    owen_scramble(index << (32 - bits), key as u32) >> (32 - bits)
+}
+
 /// The draws of dimension `d` of sample `index` of `pixel`, hashed from the start as
 /// the sampler's definition states them (no kept state): the oracle for the kept keys.
 fn fresh_2d(kind: SamplerKind, seed: u64, spp: u32, pixel: UVec2, index: u32, d: u32) -> Vec2 {
@@ -31,14 +41,15 @@ fn fresh_2d(kind: SamplerKind, seed: u64, spp: u32, pixel: UVec2, index: u32, d:
         let h = hash_words(&[key, u64::from(index)]);
         return Vec2::new(unit_float(h), unit_float(mix64(h)));
     }
-    let s = permute(index, spp, key);
     let k = mix64(key);
     if kind == SamplerKind::Sobol {
+        let s = nested_order_definition(index, key, spp);
         return Vec2::new(
             fixed_to_unit(owen_scramble(s.reverse_bits(), k as u32)),
             fixed_to_unit(owen_scramble(sobol_dim1(s), (k >> 32) as u32)),
         );
     }
+    let s = permute(index, spp, key);
     let (m, rows) = grid(spp);
     let (col, row) = (s % m, s / m);
     let (sx, sy) = (permute(col, m, k ^ 0x51), permute(row, rows, k ^ 0xa3));
@@ -55,10 +66,11 @@ fn fresh_1d(kind: SamplerKind, seed: u64, spp: u32, pixel: UVec2, index: u32, d:
     if index >= spp || kind == SamplerKind::Independent {
         return unit_float(hash_words(&[key, u64::from(index)]));
     }
-    let s = permute(index, spp, key);
     if kind == SamplerKind::Sobol {
+        let s = nested_order_definition(index, key, spp);
         return fixed_to_unit(owen_scramble(s.reverse_bits(), mix64(key) as u32));
     }
+    let s = permute(index, spp, key);
     let jitter = unit_float(hash_words(&[key, u64::from(s), 3]));
     ((s as f32 + jitter) / spp as f32).min(ONE_MINUS_EPSILON)
 }
@@ -273,6 +285,81 @@ fn sobol_is_a_net_at_powers_of_two() {
     }
 }
 
+/// Sobol's pattern drawn in prefixes, as a job in rounds draws it: the first 2^k samples
+/// of a pixel, whatever k, are a (0, k, 2)-net in every 2-D dimension but the lens's,
+/// each of whose coordinates is stratified, and the film's and lens's four coordinates a
+/// net in 4-D as a whole pattern's are (boxes of volume 8/2^k hold eight), for a pattern of a power of two and of another count. A keyed permutation
+/// of the order, as the stratified pattern has, fails this from k = 2 on.
+#[test]
+fn sobol_prefixes_are_nets() {
+    for spp in [1u32 << 20, 1_000_000, 4096] {
+        for (seed, pixel) in [(9, UVec2::new(0, 0)), (2, UVec2::new(17, 5))] {
+            let mut sampler = Sampler::new(SamplerKind::Sobol, seed, spp);
+            // Per sample: film and lens, a 1-D draw, then two 2-D draws.
+            let draws: Vec<[Vec2; 4]> = (0..1024)
+                .map(|i| {
+                    sampler.start_pixel_sample(pixel, i);
+                    let (film, lens) = sampler.get_4d();
+                    sampler.get_1d();
+                    [film, lens, sampler.get_2d(), sampler.get_2d()]
+                })
+                .collect();
+            for k in 0..=10u32 {
+                let prefix = &draws[..1 << k];
+                for (d, name) in [(0, "film"), (1, "lens"), (2, "a 2-D draw"), (3, "the next 2-D draw")] {
+                    // The lens's pair (Sobol's third and fourth dimensions) is no (0, 2)
+                    // net: each coordinate alone is stratified, and the four together.
+                    let splits: Vec<u32> = if d == 1 { vec![0, k] } else { (0..=k).collect() };
+                    for a in splits {
+                        let cells: std::collections::HashSet<_> = prefix
+                            .iter()
+                            .map(|p| {
+                                (
+                                    (p[d].x * (1u32 << a) as f32) as u32,
+                                    (p[d].y * (1u32 << (k - a)) as f32) as u32,
+                                )
+                            })
+                            .collect();
+                        assert_eq!(cells.len(), 1 << k, "spp {spp}: {name}, prefix 2^{k}, {a}");
+                    }
+                }
+                if k < 3 {
+                    continue;
+                }
+                let t = k - 3;
+                for l0 in 0..=t {
+                    for l1 in 0..=t - l0 {
+                        for l2 in 0..=t - l0 - l1 {
+                            let levels = [l0, l1, l2, t - l0 - l1 - l2];
+                            let mut count = std::collections::HashMap::new();
+                            for p in prefix {
+                                let c = [p[0].x, p[0].y, p[1].x, p[1].y];
+                                let cell: Vec<u32> =
+                                    (0..4).map(|j| (c[j] * (1u32 << levels[j]) as f32) as u32).collect();
+                                *count.entry(cell).or_insert(0u32) += 1;
+                            }
+                            assert!(
+                                count.values().all(|&n| n == 8),
+                                "spp {spp}: prefix 2^{k}, 4-D box {levels:?}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+    // The stratified pattern's order: its prefixes are not nets.
+    let mut sampler = Sampler::new(SamplerKind::Stratified, 9, 1 << 20);
+    let cells: std::collections::HashSet<_> = (0..16)
+        .map(|i| {
+            sampler.start_pixel_sample(UVec2::ZERO, i);
+            let p = sampler.get_2d();
+            ((p.x * 4.0) as u32, (p.y * 4.0) as u32)
+        })
+        .collect();
+    assert!(cells.len() < 16, "{cells:?}");
+}
+
 /// Independent samples are uniform (a coarse histogram) and, like every pattern, a pure
 /// function of (seed, pixel, index).
 #[test]
@@ -296,12 +383,19 @@ fn independent_samples_are_uniform_and_repeatable() {
 /// Kuo's table does (their first points by the index's bits, worked by hand).
 #[test]
 fn sobol_directions_follow_the_recurrence() {
-    for i in 0..1u32 << 16 {
-        assert_eq!(sobol_reversed(i, &SOBOL_DIM1), sobol_dim1(i).reverse_bits(), "point {i}");
+    // Every index of 16 bits, and indices spread over all 32.
+    let indices = (0..1u32 << 16).chain((0..1u32 << 16).map(|k| k.wrapping_mul(0x9e37_79b9)));
+    for i in indices {
+        assert_eq!(sobol_reversed(i, &SOBOL_BYTES[0]), sobol_dim1(i).reverse_bits(), "point {i}");
+        // By bytes, a point is the sum of the directions of the index's bits.
+        for (d, directions) in [SOBOL_DIM1, SOBOL_DIM2, SOBOL_DIM3].iter().enumerate() {
+            let sum = (0..32).filter(|&k| i >> k & 1 == 1).fold(0, |r, k| r ^ directions[k]);
+            assert_eq!(sobol_reversed(i, &SOBOL_BYTES[d]), sum, "dimension {d}, point {i}");
+        }
     }
-    let unit = |i: u32, d: &[u32; 32]| f64::from(sobol_reversed(i, d).reverse_bits()) / 4_294_967_296.0;
-    let third: Vec<f64> = (0..8).map(|i| unit(i, &SOBOL_DIM2)).collect();
-    let fourth: Vec<f64> = (0..8).map(|i| unit(i, &SOBOL_DIM3)).collect();
+    let unit = |i: u32, d: &ByBytes| f64::from(sobol_reversed(i, d).reverse_bits()) / 4_294_967_296.0;
+    let third: Vec<f64> = (0..8).map(|i| unit(i, &SOBOL_BYTES[1])).collect();
+    let fourth: Vec<f64> = (0..8).map(|i| unit(i, &SOBOL_BYTES[2])).collect();
     assert_eq!(third, [0.0, 0.5, 0.75, 0.25, 0.375, 0.875, 0.625, 0.125]);
     assert_eq!(fourth, [0.0, 0.5, 0.75, 0.25, 0.125, 0.625, 0.875, 0.375]);
 }
@@ -310,12 +404,11 @@ fn sobol_directions_follow_the_recurrence() {
 /// every coordinate one sample per 1/spp interval, and the four together a net in 4-D
 /// (every elementary box of volume 8/spp holds eight samples, as the quality t = 3 of
 /// Sobol's first four dimensions promises), whatever the seed and pixel, for both patterns
-/// that take it, with Sobol's points kept in a table (up to 4096) or computed at every
-/// draw; independent samples and other counts draw what two 2-D draws draw.
+/// that take it, at counts up to 2^13; independent samples and other counts draw what two
+/// 2-D draws draw.
 #[test]
 fn film_and_lens_are_one_net_in_four_dimensions() {
     for kind in [SamplerKind::Stratified, SamplerKind::Sobol] {
-        // 2^13 samples: beyond the kept table of Sobol's points, computed at every draw.
         for k in [4u32, 6, 8, 13] {
             let spp = 1u32 << k;
             for (seed, pixel) in [(9, UVec2::new(0, 0)), (2, UVec2::new(17, 5))] {
