@@ -404,7 +404,8 @@ impl Sampler {
             seed,
             spp,
             order: Permutation::new(spp),
-            sobol_bits: spp.next_power_of_two().trailing_zeros(),
+            // Past 2^31 (no job's count; the farm caps them at 2^20) the domain is all 32 bits.
+            sobol_bits: spp.checked_next_power_of_two().map_or(32, u32::trailing_zeros),
             cmj,
             pixel: UVec2::ZERO,
             pixel_key: Self::key_of(seed, UVec2::ZERO),

@@ -348,6 +348,11 @@ fn sobol_prefixes_are_nets() {
             }
         }
     }
+    // The largest count a sampler may be handed (no job's; the farm caps them at 2^20).
+    let mut huge = Sampler::new(SamplerKind::Sobol, 1, u32::MAX);
+    huge.start_pixel_sample(UVec2::ZERO, u32::MAX - 1);
+    let (film, _) = huge.get_4d();
+    assert!((0.0..1.0).contains(&film.x) && (0.0..1.0).contains(&huge.get_2d().y));
     // The stratified pattern's order: its prefixes are not nets.
     let mut sampler = Sampler::new(SamplerKind::Stratified, 9, 1 << 20);
     let cells: std::collections::HashSet<_> = (0..16)
