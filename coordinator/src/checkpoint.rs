@@ -9,9 +9,14 @@
 use crate::scheduler::Completed;
 use tessera_description::ids::JobId;
 
-/// Identifies the header part and its layout: format 3 logs the pass-two batch sizes
-/// (`Completed::sizes`) after the merged ids, in a word counting them after the others.
-const MAGIC: &[u8; 8] = b"TSRCKPT3";
+/// Identifies the header part and its layout: format 4 names the renderer that rendered
+/// the samples (`RENDERER_VERSION`, its bytes after the sizes, counted in a last header
+/// word); format 3 logs the pass-two batch sizes (`Completed::sizes`) after the merged
+/// ids, in a word counting them after the others.
+const MAGIC: &[u8; 8] = b"TSRCKPT4";
+/// Format 3, written before checkpoints named their renderer: read back as one that does
+/// not say.
+const MAGIC_3: &[u8; 8] = b"TSRCKPT3";
 /// Format 2, written before pass-two sizes followed the workers' speed: read back as a
 /// checkpoint whose sizes are the fixed ones (an empty log).
 const MAGIC_2: &[u8; 8] = b"TSRCKPT2";
@@ -21,9 +26,9 @@ pub const PART_PIXELS: usize = 1 << 19;
 /// Bytes a pixel takes: three u64 sums and a u32 count (and a u64 even-sample sum for jobs
 /// with a noise target).
 const PIXEL_BYTES: usize = 28;
-/// Words of the header after the magic, before the merged-batch ids (one fewer in
-/// format 2, which has no count of sizes).
-const HEADER_WORDS: usize = 12;
+/// Words of the header after the magic, before the merged-batch ids (one fewer in format
+/// 3, which has no renderer, and two in format 2, which has no count of sizes either).
+const HEADER_WORDS: usize = 13;
 /// In header word 8: bit 0 says the pixel parts hold even-sample sums; bits 1..=3 are the
 /// job's AOV layers (`tessera_film::aov::Layout::bits`), whose sums follow the pixel parts
 /// in parts of their own, `PART_PIXELS` pixels each. A checkpoint written before AOV layers
@@ -59,6 +64,11 @@ pub struct Checkpoint {
     pub aov_layout: u32,
     /// Their sums, pixel-major, `per_pixel()` a pixel (`AovLayers::sums`); empty for none.
     pub aov: Vec<u64>,
+    /// The renderer that rendered the samples (`tessera_description::RENDERER_VERSION`):
+    /// another's samples of the same indices differ, so a resume from it would not end
+    /// in the bytes of an uninterrupted render. Empty in checkpoints of format 3 and
+    /// older, which did not say.
+    pub renderer: String,
 }
 
 /// One stored part: its bytes and their checksum.
@@ -140,12 +150,14 @@ impl Checkpoint {
         h.extend_from_slice(&(self.spent.as_millis() as u64).to_le_bytes());
         h.extend_from_slice(&(self.completed.above.len() as u64).to_le_bytes());
         h.extend_from_slice(&(self.completed.sizes.len() as u64).to_le_bytes());
+        h.extend_from_slice(&(self.renderer.len() as u64).to_le_bytes());
         for id in &self.completed.above {
             h.extend_from_slice(&id.to_le_bytes());
         }
         for size in &self.completed.sizes {
             h.extend_from_slice(&size.to_le_bytes());
         }
+        h.extend_from_slice(self.renderer.as_bytes());
         let mut parts = vec![Part::new(h)];
         for (k, (sums, counts)) in
             self.sums.chunks(PART_PIXELS).zip(self.counts.chunks(PART_PIXELS)).enumerate()
@@ -186,7 +198,8 @@ impl Checkpoint {
         let h = &header.data;
         let words = match h.get(..8) {
             Some(m) if m == MAGIC => HEADER_WORDS,
-            Some(m) if m == MAGIC_2 => HEADER_WORDS - 1,
+            Some(m) if m == MAGIC_3 => HEADER_WORDS - 1,
+            Some(m) if m == MAGIC_2 => HEADER_WORDS - 2,
             _ => return Err(DecodeError::Magic),
         };
         if h.len() < MAGIC.len() + words * 8 {
@@ -203,18 +216,20 @@ impl Checkpoint {
         let aov_per_pixel = tessera_film::aov::Layout::from_bits(aov_layout)
             .ok_or(DecodeError::AovLayout(aov_layout))?
             .per_pixel();
-        let n_sizes = if words == HEADER_WORDS { word(11) as usize } else { 0 };
+        let n_sizes = if words >= HEADER_WORDS - 1 { word(11) as usize } else { 0 };
+        let n_renderer = if words == HEADER_WORDS { word(12) as usize } else { 0 };
         let expected_len = (8 + words * 8)
             .saturating_add(n_above.saturating_mul(8))
-            .saturating_add(n_sizes.saturating_mul(4));
+            .saturating_add(n_sizes.saturating_mul(4))
+            .saturating_add(n_renderer);
         if h.len() != expected_len {
             return Err(DecodeError::PartLength { part: 0, expected: expected_len, got: h.len() });
         }
         let above = (0..n_above).map(|i| word(words + i)).collect();
-        let sizes = h[8 + (words + n_above) * 8..]
-            .chunks_exact(4)
-            .map(|b| u32::from_le_bytes(b.try_into().expect("4 bytes")))
-            .collect();
+        let (sizes, renderer) = h[8 + (words + n_above) * 8..].split_at(n_sizes * 4);
+        let sizes =
+            sizes.chunks_exact(4).map(|b| u32::from_le_bytes(b.try_into().expect("4 bytes"))).collect();
+        let renderer = String::from_utf8(renderer.to_vec()).map_err(|_| DecodeError::Magic)?;
         let pixels = width as usize * height as usize;
         let aov_parts = if aov_per_pixel > 0 { pixel_parts } else { 0 };
         if pixel_parts != pixels.div_ceil(PART_PIXELS) || parts.len() != pixel_parts + aov_parts + 1 {
@@ -275,6 +290,7 @@ impl Checkpoint {
             spent: std::time::Duration::from_millis(spent_ms),
             aov_layout,
             aov,
+            renderer,
         })
     }
 }
@@ -300,6 +316,7 @@ mod tests {
             spent: std::time::Duration::from_millis(4321),
             aov_layout: if height % 2 == 1 { 5 } else { 0 },
             aov: if height % 2 == 1 { (0..5 * n as u64).map(|i| i * 11).collect() } else { Vec::new() },
+            renderer: tessera_description::RENDERER_VERSION.into(),
         }
     }
 
@@ -321,12 +338,36 @@ mod tests {
     fn format_2_reads_back_without_sizes() {
         let mut c = sample(7, 4);
         c.completed.sizes.clear();
+        c.renderer.clear();
         let mut parts = c.encode();
         let mut h = parts[0].data.clone();
         h[..8].copy_from_slice(MAGIC_2);
-        h.drain(8 + 11 * 8..8 + 12 * 8);
+        h.drain(8 + 11 * 8..8 + 13 * 8);
         parts[0] = Part::new(h);
         assert_eq!(Checkpoint::decode(&parts).unwrap(), c);
+    }
+
+    /// A checkpoint of format 3 (no renderer: its length word and bytes are missing) reads
+    /// back as one that does not say which renderer made it.
+    #[test]
+    fn format_3_reads_back_without_a_renderer() {
+        let mut c = sample(7, 5);
+        let mut h = c.encode()[0].data.clone();
+        h[..8].copy_from_slice(MAGIC_3);
+        h.truncate(h.len() - c.renderer.len());
+        h.drain(8 + 12 * 8..8 + 13 * 8);
+        let mut parts = c.encode();
+        parts[0] = Part::new(h);
+        c.renderer.clear();
+        assert_eq!(Checkpoint::decode(&parts).unwrap(), c);
+        // A renderer's name that is not UTF-8 is no checkpoint of this format.
+        let mut bad = c.clone();
+        bad.renderer = "x".into();
+        let mut parts = bad.encode();
+        let mut h = parts[0].data.clone();
+        *h.last_mut().unwrap() = 0xff;
+        parts[0] = Part::new(h);
+        assert_eq!(Checkpoint::decode(&parts), Err(DecodeError::Magic));
     }
 
     /// Every single flipped bit, in the header or a pixel part, is caught by a checksum;

@@ -400,6 +400,7 @@ impl Snapshot {
             counts,
             aov_layout: self.aov.layout().bits(),
             aov: self.aov.sums(),
+            renderer: tessera_description::RENDERER_VERSION.into(),
         }
     }
 }

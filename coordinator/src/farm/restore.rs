@@ -54,6 +54,16 @@ impl Job {
                     got: format!("{}x{}@{}", c.width, c.height, c.spp),
                 });
             }
+            // Another renderer's samples of the same indices differ: a resume would mix
+            // them into an image neither renders (a checkpoint that does not say is
+            // taken as it always was).
+            let renderer = tessera_description::RENDERER_VERSION;
+            if !c.renderer.is_empty() && c.renderer != renderer {
+                return Err(RestoreJobError::Mismatch {
+                    expected: format!("rendered by renderer {renderer}"),
+                    got: format!("from renderer {}", c.renderer),
+                });
+            }
             if c.even.is_empty() == job.framebuffer.has_even() {
                 return Err(RestoreJobError::Mismatch {
                     expected: format!("noise target {:?}", job.settings.noise),

@@ -131,6 +131,18 @@ fn restored_states_are_kept_and_a_mismatched_checkpoint_is_refused() {
     wrong.spp = 3;
     let e = Farm::new().restore(LoadedJob { record: job.record(), checkpoint: Some(wrong) }, Instant::now());
     assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{e:?}");
+    // Another renderer's checkpoint is not resumed from; one that does not say is.
+    let mut other = job.snapshot(Instant::now()).checkpoint();
+    other.renderer = "0.1.0+images.1".into();
+    let e = Farm::new()
+        .restore(LoadedJob { record: job.record(), checkpoint: Some(other.clone()) }, Instant::now());
+    let e = e.err().map(|e| e.to_string()).unwrap_or_default();
+    assert!(
+        e.contains("from renderer 0.1.0+images.1") && e.contains(tessera_description::RENDERER_VERSION),
+        "{e}"
+    );
+    other.renderer.clear();
+    Farm::new().restore(LoadedJob { record: job.record(), checkpoint: Some(other) }, Instant::now()).unwrap();
 }
 
 /// Per-sample values of a fake scene: a flat left part (it reaches any noise target)

@@ -362,6 +362,7 @@ mod tests {
                 counts: [vec![1; 16], vec![0; 48]].concat(),
                 aov_layout: 0,
                 aov: Vec::new(),
+                renderer: String::new(),
                 even: vec![],
                 spent: Duration::ZERO,
             };

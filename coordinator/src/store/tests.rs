@@ -45,6 +45,7 @@ fn checkpoint(id: u64, pixels: u32, below: u64) -> Checkpoint {
         spent: std::time::Duration::from_millis(1234),
         aov_layout: 4,
         aov: (0..pixels as u64 * 3 * 2).collect(),
+        renderer: "renderer 7".into(),
     }
 }
 
