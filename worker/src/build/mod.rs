@@ -148,7 +148,6 @@ fn build_observed(
         seed: r.seed,
         sampler: r.sampler,
         progressive: false,
-        halves: false,
         max_depth: r.max_depth,
         background: r.background,
         ambient: r.ambient,

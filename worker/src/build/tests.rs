@@ -110,17 +110,6 @@ fn a_job_in_rounds_draws_sobol_s_pattern() {
     s.progressive = true;
     assert_eq!(draws(&s, None), draws(&s, Some(SamplerKind::Sobol)));
     assert_ne!(draws(&s, None), draws(&s, Some(SamplerKind::Stratified)));
-    // A noise target: in halves.
-    s.halves = true;
-    let halved = Sampler::new(SamplerKind::Sobol, s.seed, s.spp).in_halves();
-    let halved: Vec<_> = (0..8)
-        .scan(halved, |sampler, i| {
-            sampler.start_pixel_sample(glam::UVec2::new(3, 2), i);
-            Some((sampler.get_2d(), sampler.get_1d()))
-        })
-        .collect();
-    assert_eq!(draws(&s, None), halved);
-    assert_ne!(draws(&s, None), draws(&s, Some(SamplerKind::Sobol)));
     s.sampler = SamplerKind::Independent;
     assert_eq!(draws(&s, None), draws(&s, Some(SamplerKind::Independent)));
 }

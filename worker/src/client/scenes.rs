@@ -51,7 +51,6 @@ struct Sequence {
     spp: Option<u32>,
     size: Option<(u32, u32)>,
     progressive: bool,
-    halves: bool,
 }
 
 impl SceneCache {
@@ -85,13 +84,13 @@ impl SceneCache {
             Some(i) => self.frames.remove(i).expect("found").1,
             None => {
                 let (bundle, memory, frame) = (seq.bundle.clone(), self.memory, b.frame);
-                let (spp, size, progressive, halves) = (seq.spp, seq.size, seq.progressive, seq.halves);
+                let (spp, size, progressive) = (seq.spp, seq.size, seq.progressive);
                 tokio::task::spawn_blocking(move || {
                     crate::build::parse_bundle_frame_within(&bundle, Some(frame), memory)
                         .map_err(Failure::from)
                         .map(|mut scene| {
                             scene.apply(spp, size);
-                            (scene.progressive, scene.halves) = (progressive, halves);
+                            scene.progressive = progressive;
                             Arc::new(scene)
                         })
                 })
@@ -116,17 +115,13 @@ impl SceneCache {
         // A time budget or a noise target (0 is neither, as `settings_from_wire` reads
         // them): the job's samples are drawn in rounds, `JobSettings::in_rounds`.
         let progressive = settings.time_limit_seconds != 0.0 || settings.noise != 0.0;
-        // A noise target: pixels' noise estimated from their even and odd samples.
-        let halves = settings.noise != 0.0;
         let started = std::time::Instant::now();
         let base = match self.bundle_of(job, &claimed, js.bundle).await {
             Err(e) => Err(e),
             Ok(bundle) => {
                 if let Some(frames) = frames {
-                    self.sequences.insert(
-                        job,
-                        Sequence { bundle: bundle.clone(), frames, spp, size, progressive, halves },
-                    );
+                    self.sequences
+                        .insert(job, Sequence { bundle: bundle.clone(), frames, spp, size, progressive });
                 }
                 let memory = self.memory;
                 let hashed = started.elapsed();
@@ -164,7 +159,7 @@ impl SceneCache {
         let parsed = base.map(|base| {
             let mut scene = Scene::clone(&base);
             scene.apply(spp, size);
-            (scene.progressive, scene.halves) = (progressive, halves);
+            scene.progressive = progressive;
             Arc::new(scene)
         });
         if let Err(e) = &parsed {
@@ -298,14 +293,13 @@ mod tests {
         assert_eq!((b.width, b.height, b.spp), (40, 30, 5));
         assert_eq!(cache.built.len(), 1);
         // Jobs in rounds draw a pattern whose prefixes are stratified.
-        assert!(!a.progressive && !b.progressive && !a.halves);
-        for (id, settings, halves) in [
-            (3, pb::RenderSettings { time_limit_seconds: 2.0, ..Default::default() }, false),
-            (4, pb::RenderSettings { noise: 0.05, ..Default::default() }, true),
+        assert!(!a.progressive && !b.progressive);
+        for (id, settings) in [
+            (3, pb::RenderSettings { time_limit_seconds: 2.0, ..Default::default() }),
+            (4, pb::RenderSettings { noise: 0.05, ..Default::default() }),
         ] {
             cache.load(pb::JobScene { settings: Some(settings), ..job(id, SCENE, 0, (0, 0)) }).await;
-            let s = scene_of(&cache, id);
-            assert!(s.progressive && s.halves == halves, "job {id}");
+            assert!(scene_of(&cache, id).progressive, "job {id}");
         }
     }
 

@@ -50,10 +50,6 @@ pub struct Scene {
     /// target), stopping at some prefix of the pattern: the stratified pattern is then
     /// Sobol's, whose prefixes are stratified too ([`Scene::sampler`]).
     pub progressive: bool,
-    /// Whether the job estimates its pixels' noise from their even- and odd-numbered
-    /// samples (a noise target): Sobol's pattern is then drawn as two independent halves
-    /// (`Sampler::in_halves`), so that the estimate holds.
-    pub halves: bool,
     /// Most path segments (camera ray included) and depth of the classic ray tree.
     pub max_depth: u32,
     /// Radiance of rays that escape.
@@ -411,11 +407,6 @@ impl Scene {
             SamplerKind::Stratified if self.progressive => SamplerKind::Sobol,
             kind => kind,
         };
-        let sampler = Sampler::new(kind, self.seed, self.spp);
-        if self.halves {
-            sampler.in_halves()
-        } else {
-            sampler
-        }
+        Sampler::new(kind, self.seed, self.spp)
     }
 }

@@ -341,9 +341,6 @@ impl DimensionKeys {
     }
 }
 
-/// Mixed into a dimension's keys for the odd half of a pattern drawn in halves.
-const ODD_HALF: u64 = 0x6f64_645f_6861_6c66;
-
 /// Dimensions whose keys a sampler keeps for the pixel at hand: a Cook path of depth 8
 /// with a few lights draws about 30; deeper ones compute the rest at every draw.
 const KEPT_DIMENSIONS: usize = 64;
@@ -372,12 +369,8 @@ pub struct Sampler {
     spp: u32,
     /// The stratified pattern's order of its samples (Cook's random association).
     order: Permutation,
-    /// Sobol's pattern: `spp` rounded up to `2^sobol_bits`, the domain of [`nested_order`]
-    /// (half of `spp` in halves).
+    /// Sobol's pattern: `spp` rounded up to `2^sobol_bits`, the domain of [`nested_order`].
     sobol_bits: u32,
-    /// Sobol's pattern drawn as two ([`Sampler::in_halves`]): even-numbered samples from
-    /// one, odd-numbered ones from another scrambled independently.
-    halves: bool,
     cmj: Cmj,
     pixel: UVec2,
     /// The hash state after the seed and the pixel: every dimension's key starts there.
@@ -412,8 +405,7 @@ impl Sampler {
             spp,
             order: Permutation::new(spp),
             // Past 2^31 (no job's count; the farm caps them at 2^20) the domain is all 32 bits.
-            sobol_bits: Self::bits_for(spp),
-            halves: false,
+            sobol_bits: spp.checked_next_power_of_two().map_or(32, u32::trailing_zeros),
             cmj,
             pixel: UVec2::ZERO,
             pixel_key: Self::key_of(seed, UVec2::ZERO),
@@ -429,28 +421,6 @@ impl Sampler {
                 SamplerKind::Independent => false,
             },
         }
-    }
-
-    /// The same sampler, its Sobol pattern drawn as two independent halves: sample `i`
-    /// is point `i / 2` of the pattern of its parity, and the odd pattern is scrambled
-    /// with keys of its own. A noise target estimates a pixel's error from the difference
-    /// of its even- and odd-numbered samples' means, which measures the error of either
-    /// half only where the two are independent; in one nested pattern they are
-    /// complementary halves of a net, and the estimate overstated the error fourfold
-    /// (docs/accuracy.md). Each half is still nested, so its prefixes stay nets. Other
-    /// kinds are left as they are.
-    pub fn in_halves(mut self) -> Self {
-        if self.kind == SamplerKind::Sobol {
-            self.halves = true;
-            self.sobol_bits = Self::bits_for(self.spp.div_ceil(2));
-        }
-        self
-    }
-
-    /// The bits of the domain of a nested pattern of `n` points: `n` rounded up to a power
-    /// of two. Past 2^31 (no job's count; the farm caps them at 2^20) all 32.
-    fn bits_for(n: u32) -> u32 {
-        n.checked_next_power_of_two().map_or(32, u32::trailing_zeros)
     }
 
     /// `hash_words(&[seed, pixel])`.
@@ -514,11 +484,12 @@ impl Sampler {
             return Vec2::new(unit_float(h), unit_float(mix64(h)));
         }
         // Cook's random association: each dimension visits the strata in its own order.
-        let (s, pattern) = self.shuffle(&k);
+        let s = self.shuffle(k.key);
         match self.kind {
-            SamplerKind::Sobol => {
-                Vec2::new(scrambled(s, pattern), scrambled(sobol_reversed(s, &SOBOL_BYTES[0]), pattern >> 32))
-            }
+            SamplerKind::Sobol => Vec2::new(
+                scrambled(s, k.pattern),
+                scrambled(sobol_reversed(s, &SOBOL_BYTES[0]), k.pattern >> 32),
+            ),
             _ => {
                 let cell = self.cmj.cell(s);
                 let offsets = self.fine_offsets(d, cell, k.pattern);
@@ -527,22 +498,13 @@ impl Sampler {
         }
     }
 
-    /// Which point of the pattern the current sample is in dimension `k`, and the key
-    /// that scrambles its coordinates: each dimension's own order, Sobol's nested so that
-    /// its prefixes stay nets (in halves, the point of the sample's half, whose keys are
-    /// the dimension's own for even samples and mixed anew for odd ones).
+    /// Which point of the pattern the current sample is in a dimension keyed by `key`:
+    /// each dimension's own order, Sobol's nested so that its prefixes stay nets.
     #[inline]
-    fn shuffle(&self, k: &DimensionKeys) -> (u32, u64) {
+    fn shuffle(&self, key: u64) -> u32 {
         match self.kind {
-            SamplerKind::Sobol if self.halves && self.index & 1 == 1 => {
-                let key = mix64(k.key ^ ODD_HALF) as u32;
-                (nested_order(self.index >> 1, key, self.sobol_bits), mix64(k.pattern ^ ODD_HALF))
-            }
-            SamplerKind::Sobol if self.halves => {
-                (nested_order(self.index >> 1, k.key as u32, self.sobol_bits), k.pattern)
-            }
-            SamplerKind::Sobol => (nested_order(self.index, k.key as u32, self.sobol_bits), k.pattern),
-            _ => (self.order.apply(self.index, k.key), k.pattern),
+            SamplerKind::Sobol => nested_order(self.index, key as u32, self.sobol_bits),
+            _ => self.order.apply(self.index, key),
         }
     }
 
@@ -592,13 +554,11 @@ impl Sampler {
         }
         let (film, lens) = (self.next_dimension(), self.next_dimension());
         // One index for all four coordinates, so that they stay one net's point.
-        let (s, film) = self.shuffle(&film);
-        let lens =
-            if self.halves && self.index & 1 == 1 { mix64(lens.pattern ^ ODD_HALF) } else { lens.pattern };
+        let s = self.shuffle(film.key);
         let [y, u, v] = sobol_point(s);
         (
-            Vec2::new(scrambled(s, film), scrambled(y, film >> 32)),
-            Vec2::new(scrambled(u, lens), scrambled(v, lens >> 32)),
+            Vec2::new(scrambled(s, film.pattern), scrambled(y, film.pattern >> 32)),
+            Vec2::new(scrambled(u, lens.pattern), scrambled(v, lens.pattern >> 32)),
         )
     }
 
@@ -608,9 +568,9 @@ impl Sampler {
         if self.index >= self.spp || self.kind == SamplerKind::Independent {
             return unit_float(hash_step(k.from_key, u64::from(self.index)));
         }
-        let (s, pattern) = self.shuffle(&k);
+        let s = self.shuffle(k.key);
         match self.kind {
-            SamplerKind::Sobol => scrambled(s, pattern),
+            SamplerKind::Sobol => scrambled(s, k.pattern),
             _ => {
                 // hash_words(&[key, s, 3]).
                 let jitter = unit_float(hash_step(hash_step(k.from_key, u64::from(s)), 3));

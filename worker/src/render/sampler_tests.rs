@@ -365,54 +365,6 @@ fn sobol_prefixes_are_nets() {
     assert!(cells.len() < 16, "{cells:?}");
 }
 
-/// Sobol's pattern in halves (a job with a noise target): the even-numbered samples are a
-/// nested pattern of their own, whose prefixes of 2^k are nets in the film and in the
-/// next 2-D draw, and so are the odd-numbered ones, scrambled otherwise; a stratified
-/// sampler is left as it is.
-#[test]
-fn halves_are_two_nested_patterns() {
-    for spp in [1u32 << 20, 1000] {
-        let mut sampler = Sampler::new(SamplerKind::Sobol, 4, spp).in_halves();
-        let draws: Vec<[Vec2; 2]> = (0..1000)
-            .map(|i| {
-                sampler.start_pixel_sample(UVec2::new(3, 8), i);
-                let (film, _) = sampler.get_4d();
-                [film, sampler.get_2d()]
-            })
-            .collect();
-        for parity in 0..2 {
-            let half: Vec<_> = draws.iter().skip(parity).step_by(2).collect();
-            for k in 0..=8u32 {
-                for d in 0..2 {
-                    for a in 0..=k {
-                        let cells: std::collections::HashSet<_> = half[..1 << k]
-                            .iter()
-                            .map(|p| {
-                                (
-                                    (p[d].x * (1u32 << a) as f32) as u32,
-                                    (p[d].y * (1u32 << (k - a)) as f32) as u32,
-                                )
-                            })
-                            .collect();
-                        assert_eq!(cells.len(), 1 << k, "spp {spp}, half {parity}, draw {d}, 2^{k}, {a}");
-                    }
-                }
-            }
-        }
-        // The halves are scrambled apart, not the same points twice.
-        assert!(draws.iter().step_by(2).zip(draws.iter().skip(1).step_by(2)).all(|(e, o)| e != o));
-    }
-    let (mut plain, mut halved) = (
-        Sampler::new(SamplerKind::Stratified, 4, 64),
-        Sampler::new(SamplerKind::Stratified, 4, 64).in_halves(),
-    );
-    for i in 0..64 {
-        plain.start_pixel_sample(UVec2::ONE, i);
-        halved.start_pixel_sample(UVec2::ONE, i);
-        assert_eq!((plain.get_4d(), plain.get_2d()), (halved.get_4d(), halved.get_2d()));
-    }
-}
-
 /// Independent samples are uniform (a coarse histogram) and, like every pattern, a pure
 /// function of (seed, pixel, index).
 #[test]
