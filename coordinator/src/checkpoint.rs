@@ -120,6 +120,9 @@ pub enum DecodeError {
     /// The header names AOV layers that do not exist.
     #[error("the header names unknown AOV layers {0:#x}")]
     AovLayout(u32),
+    /// The header's renderer is empty or not UTF-8 (format 4 always names one).
+    #[error("the header's renderer is not a renderer's name")]
+    Renderer,
     /// The counts do not add up to the samples the header claims.
     #[error("the pixels hold {counted} samples, the header says {claimed}")]
     Samples {
@@ -229,7 +232,10 @@ impl Checkpoint {
         let (sizes, renderer) = h[8 + (words + n_above) * 8..].split_at(n_sizes * 4);
         let sizes =
             sizes.chunks_exact(4).map(|b| u32::from_le_bytes(b.try_into().expect("4 bytes"))).collect();
-        let renderer = String::from_utf8(renderer.to_vec()).map_err(|_| DecodeError::Magic)?;
+        let renderer = String::from_utf8(renderer.to_vec()).map_err(|_| DecodeError::Renderer)?;
+        if words == HEADER_WORDS && renderer.is_empty() {
+            return Err(DecodeError::Renderer);
+        }
         let pixels = width as usize * height as usize;
         let aov_parts = if aov_per_pixel > 0 { pixel_parts } else { 0 };
         if pixel_parts != pixels.div_ceil(PART_PIXELS) || parts.len() != pixel_parts + aov_parts + 1 {
@@ -367,7 +373,36 @@ mod tests {
         let mut h = parts[0].data.clone();
         *h.last_mut().unwrap() = 0xff;
         parts[0] = Part::new(h);
-        assert_eq!(Checkpoint::decode(&parts), Err(DecodeError::Magic));
+        assert_eq!(Checkpoint::decode(&parts), Err(DecodeError::Renderer));
+        // Format 4 always names its renderer.
+        bad.renderer.clear();
+        assert_eq!(Checkpoint::decode(&bad.encode()), Err(DecodeError::Renderer));
+    }
+
+    /// A header whose counts (merged ids, sizes, renderer bytes) are huge or one off, its
+    /// checksum made anew, is refused by its length, and nothing is read past its end.
+    #[test]
+    fn crafted_counts_are_refused() {
+        let parts = sample(7, 5).encode();
+        for word in [10, 11, 12] {
+            for value in [u64::MAX, u64::MAX / 8, 1 << 40, 0] {
+                let mut h = parts[0].data.clone();
+                let at = 8 + word * 8;
+                let old = u64::from_le_bytes(h[at..at + 8].try_into().unwrap());
+                for v in [value, old + 1, old.wrapping_sub(1)] {
+                    h[at..at + 8].copy_from_slice(&v.to_le_bytes());
+                    let mut bad = parts.clone();
+                    bad[0] = Part::new(h.clone());
+                    if v != old {
+                        let e = Checkpoint::decode(&bad);
+                        assert!(
+                            matches!(e, Err(DecodeError::PartLength { part: 0, .. })),
+                            "word {word} = {v}: {e:?}"
+                        );
+                    }
+                }
+            }
+        }
     }
 
     /// Every single flipped bit, in the header or a pixel part, is caught by a checksum;

@@ -41,8 +41,9 @@ mod tests;
 /// The renderer's build: what, with a description, fixes an image's bits. Workers and
 /// coordinators refuse each other when it differs, since images are only bit-identical
 /// when every worker runs the same renderer. The crate's version stays put while images
-/// change, so a suffix counts the renderer changes that changed them: `images.3` draws a
-/// job in rounds from Sobol's nested pattern (docs/accuracy.md), `images.2` is the
+/// change, so a suffix counts the renderer changes that changed them: `images.3` orders
+/// Sobol's pattern by a nested scramble and draws jobs in rounds from it (docs/accuracy.md;
+/// scenes of `sampler = "sobol"` changed at every count too), `images.2` is the
 /// camera's 4-D pattern and glass followed both ways (docs/speed.md, fourteenth part), and
 /// every build before them is `images.1` in effect, though it said only `0.1.0`.
 /// `worker/tests/golden.rs` fails when the tiny renders of every scene change and this

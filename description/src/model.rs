@@ -77,8 +77,10 @@ pub enum SamplerKind {
     /// Independent uniform random numbers: the baseline every other pattern must beat.
     Independent,
     /// The first two dimensions of Sobol's sequence, Owen-scrambled per pixel and dimension
-    /// (hash-based nested uniform scrambling), sample order shuffled per dimension. A (0, 2)
-    /// net in base 2: best at power-of-two sample counts.
+    /// (hash-based nested uniform scrambling), the sample order shuffled per dimension by a
+    /// nested scramble of the index, so that every power-of-two prefix of a pixel's
+    /// samples is a (0, 2) net in base 2. Jobs in rounds (a time budget or a noise target)
+    /// draw it in place of `Stratified`.
     Sobol,
 }
 

@@ -36,6 +36,9 @@ pub struct Job {
     pub priority: i32,
     /// Samples per pixel in effect.
     pub spp: u32,
+    /// The scene's sample pattern (`[render] sampler`): which renderer changes changed
+    /// the job's samples (`Job::restore`).
+    pub(super) sampler: tessera_description::model::SamplerKind,
     /// State.
     pub state: JobState,
     /// The name of the principal that submitted it ("" for an in-process submission):
@@ -303,6 +306,7 @@ impl Job {
             settings,
             priority,
             spp,
+            sampler: scene.sampler,
             state: JobState::Queued,
             owner: String::new(),
             queue,

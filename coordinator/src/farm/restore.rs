@@ -12,6 +12,7 @@ use super::{Farm, Job, RestoreJobError};
 use crate::persist::LoadedJob;
 use crate::scheduler::PassQueue;
 use tessera_description::ids::JobId;
+use tessera_description::model::SamplerKind;
 
 impl Farm {
     /// Takes up a stored job again: from its checkpoint if it has one, else from the start.
@@ -54,16 +55,6 @@ impl Job {
                     got: format!("{}x{}@{}", c.width, c.height, c.spp),
                 });
             }
-            // Another renderer's samples of the same indices differ: a resume would mix
-            // them into an image neither renders (a checkpoint that does not say is
-            // taken as it always was).
-            let renderer = tessera_description::RENDERER_VERSION;
-            if !c.renderer.is_empty() && c.renderer != renderer {
-                return Err(RestoreJobError::Mismatch {
-                    expected: format!("rendered by renderer {renderer}"),
-                    got: format!("from renderer {}", c.renderer),
-                });
-            }
             if c.even.is_empty() == job.framebuffer.has_even() {
                 return Err(RestoreJobError::Mismatch {
                     expected: format!("noise target {:?}", job.settings.noise),
@@ -81,6 +72,29 @@ impl Job {
                 let frames = job.settings.frame_count();
                 PassQueue::restore_sequence(w, job.queue.frame_height(), frames, job.spp, &c.completed)?
             };
+            // Another renderer's samples of the same indices differ: going on would mix
+            // them into an image neither renders. A checkpoint that does not say (format
+            // 3 and older) was written before +images.3, which changed the samples of jobs
+            // in rounds and of Sobol's pattern. A job that renders nothing more keeps its
+            // image whatever made it.
+            let renderer = tessera_description::RENDERER_VERSION;
+            let foreign = if c.renderer.is_empty() {
+                job.settings.in_rounds() || job.sampler == SamplerKind::Sobol
+            } else {
+                c.renderer != renderer
+            };
+            let over = matches!(record.state, JobState::Done | JobState::Cancelled | JobState::Failed(_));
+            if foreign && !over && !job.queue.is_finished() {
+                let made_by = if c.renderer.is_empty() {
+                    "a renderer before 0.1.0+images.3".to_owned()
+                } else {
+                    format!("renderer {}", c.renderer)
+                };
+                return Err(RestoreJobError::Mismatch {
+                    expected: format!("rendered by renderer {renderer}"),
+                    got: format!("from {made_by}, whose samples differ"),
+                });
+            }
             if job.queue.samples_done() != c.samples_done {
                 return Err(RestoreJobError::Mismatch {
                     expected: format!("{} samples for its merged batches", job.queue.samples_done()),

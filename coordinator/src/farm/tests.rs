@@ -8,7 +8,7 @@ use tessera_description::ids::WorkerId;
 use tessera_film::Quad;
 
 use super::*;
-use crate::persist::LoadedJob;
+use crate::persist::{JobRecord, LoadedJob};
 use crate::scheduler::BatchSpec;
 
 /// The result a fake worker sends for an assignment.
@@ -141,8 +141,38 @@ fn restored_states_are_kept_and_a_mismatched_checkpoint_is_refused() {
         e.contains("from renderer 0.1.0+images.1") && e.contains(tessera_description::RENDERER_VERSION),
         "{e}"
     );
+    // A job that renders nothing more keeps its image whatever made it.
+    for state in [JobState::Cancelled, JobState::Failed("stopped".into())] {
+        let record = JobRecord { state: state.clone(), ..job.record() };
+        let mut f = Farm::new();
+        f.restore(LoadedJob { record, checkpoint: Some(other.clone()) }, Instant::now()).unwrap();
+        assert_eq!(f.job(id).unwrap().state, state);
+    }
+    // A checkpoint that does not say predates +images.3: it is resumed from where that
+    // renderer change kept the samples (Cook's pattern, drawn whole), not in rounds.
     other.renderer.clear();
     Farm::new().restore(LoadedJob { record: job.record(), checkpoint: Some(other) }, Instant::now()).unwrap();
+    let timed = JobSettings { time_limit: Some(Duration::from_secs(60)), ..settings(8, 8, 2) };
+    let rounds = farm.submit(bundle(), timed, 0).unwrap();
+    let rounds = farm.job(rounds).unwrap();
+    let mut old = rounds.snapshot(Instant::now()).checkpoint();
+    Farm::new()
+        .restore(LoadedJob { record: rounds.record(), checkpoint: Some(old.clone()) }, Instant::now())
+        .unwrap();
+    old.renderer.clear();
+    let e = Farm::new().restore(LoadedJob { record: rounds.record(), checkpoint: Some(old) }, Instant::now());
+    assert!(e.err().is_some_and(|e| e.to_string().contains("a renderer before 0.1.0+images.3")));
+    // So is a scene of Sobol's pattern, drawn whole.
+    let text = SCENE.replacen("[render]", "[render]\nsampler = \"sobol\"", 1);
+    let sobol = Bundle { name: "sobol.toml".into(), text, assets: vec![], refused: vec![] };
+    let sobol = farm.submit(sobol, settings(8, 8, 2), 0).unwrap();
+    let sobol = farm.job(sobol).unwrap();
+    let old = crate::checkpoint::Checkpoint {
+        renderer: String::new(),
+        ..sobol.snapshot(Instant::now()).checkpoint()
+    };
+    let e = Farm::new().restore(LoadedJob { record: sobol.record(), checkpoint: Some(old) }, Instant::now());
+    assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{e:?}");
 }
 
 /// Per-sample values of a fake scene: a flat left part (it reaches any noise target)

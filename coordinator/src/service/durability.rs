@@ -120,6 +120,9 @@ impl CoordinatorService {
             let record = job.record.clone();
             let mut reservation = None;
             let mut admit = |f: &Footprint| {
+                // A second try (the job starting over) gives back the first one's
+                // reservation before asking: held, it would count the job twice.
+                reservation = None;
                 reservation = Some(this.budget.admit(&id.to_string(), f)?);
                 Ok(())
             };
@@ -362,16 +365,30 @@ mod tests {
                 counts: [vec![1; 16], vec![0; 48]].concat(),
                 aov_layout: 0,
                 aov: Vec::new(),
-                renderer: String::new(),
+                renderer: tessera_description::RENDERER_VERSION.into(),
                 even: vec![],
                 spent: Duration::ZERO,
             };
             store.save(&wrong, &JobState::Running).unwrap();
         }
+        // Within a budget that holds the job once but not twice: starting over gives back
+        // the first try's reservation before asking again.
+        let footprint = crate::farm::budget::Footprint {
+            width: 8,
+            height: 8,
+            even_sums: false,
+            bundle_bytes: tessera_description::Description::parse(&bundle()).unwrap().bundle_bytes,
+            aovs: Default::default(),
+        };
+        let budget = footprint.bytes() * 3 / 2;
         let (service, recovery) =
-            CoordinatorService::open(Timing::default(), dir.path(), Duration::from_secs(1)).unwrap();
+            CoordinatorService::open_within(Timing::default(), dir.path(), Duration::from_secs(1), budget)
+                .unwrap();
         assert!(
-            recovery.problems.iter().any(|p| p.contains("restarts from the beginning")),
+            recovery
+                .problems
+                .iter()
+                .any(|p| p.contains("its checkpoint is") && p.contains("restarts from the beginning")),
             "{:?}",
             recovery.problems
         );

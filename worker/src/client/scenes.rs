@@ -5,7 +5,7 @@ use std::collections::{HashMap, VecDeque};
 use std::sync::Arc;
 
 use glam::UVec2;
-use tessera_proto::convert::bundle_from_wire;
+use tessera_proto::convert::{bundle_from_wire, settings_from_wire};
 use tessera_proto::v1 as pb;
 use tracing::{debug, warn};
 
@@ -112,9 +112,9 @@ impl SceneCache {
         let spp = (settings.spp != 0).then_some(settings.spp);
         let size = (settings.width != 0 && settings.height != 0).then_some((settings.width, settings.height));
         let frames = settings.frames.map(|f| (f.first, f.last));
-        // A time budget or a noise target (0 is neither, as `settings_from_wire` reads
-        // them): the job's samples are drawn in rounds, `JobSettings::in_rounds`.
-        let progressive = settings.time_limit_seconds != 0.0 || settings.noise != 0.0;
+        // A time budget or a noise target: the job's samples are drawn in rounds, by the
+        // coordinator's own reading of the settings.
+        let progressive = settings_from_wire(settings).is_ok_and(|s| s.in_rounds());
         let started = std::time::Instant::now();
         let base = match self.bundle_of(job, &claimed, js.bundle).await {
             Err(e) => Err(e),

@@ -1,6 +1,7 @@
 //! Sampling as a pure function of (seed, pixel, sample index), with three patterns: Cook's
 //! jittered strata (the default), independent uniform random numbers, and an Owen-scrambled
-//! Sobol sequence.
+//! Sobol sequence in a nested order, whose every power-of-two prefix is a net (jobs in
+//! rounds draw it: `Scene::sampler`).
 //!
 //! Each 2-D dimension of a pixel's samples (the pixel area now; lens, time, light and
 //! lobes as the scene needs them) is stratified with a correlated multi-jittered pattern
@@ -483,7 +484,8 @@ impl Sampler {
             let h = hash_step(k.from_key, u64::from(self.index));
             return Vec2::new(unit_float(h), unit_float(mix64(h)));
         }
-        // Cook's random association: each dimension visits the strata in its own order.
+        // Cook's random association: each dimension visits the strata (or Sobol's points)
+        // in its own order.
         let s = self.shuffle(k.key);
         match self.kind {
             SamplerKind::Sobol => Vec2::new(

@@ -288,8 +288,9 @@ fn sobol_is_a_net_at_powers_of_two() {
 /// Sobol's pattern drawn in prefixes, as a job in rounds draws it: the first 2^k samples
 /// of a pixel, whatever k, are a (0, k, 2)-net in every 2-D dimension but the lens's,
 /// each of whose coordinates is stratified, and the film's and lens's four coordinates a
-/// net in 4-D as a whole pattern's are (boxes of volume 8/2^k hold eight), for a pattern of a power of two and of another count. A keyed permutation
-/// of the order, as the stratified pattern has, fails this from k = 2 on.
+/// net in 4-D as a whole pattern's are (boxes of volume 8/2^k hold eight), for a pattern
+/// of a power of two and of another count. A keyed permutation of the order, as the
+/// stratified pattern has, fails this from k = 2 on.
 #[test]
 fn sobol_prefixes_are_nets() {
     for spp in [1u32 << 20, 1_000_000, 4096] {
