@@ -85,40 +85,47 @@ pub fn convergence(
         "| sampler | spp | time (s) | RMSE | relMSE | PSNR (dB) |\n| --- | --- | --- | --- | --- | --- |\n",
     );
     let mut series = Vec::new();
-    for kind in [SamplerKind::Independent, SamplerKind::Stratified, SamplerKind::Sobol] {
+    // Each sampler drawn whole (the pattern's size is the sample count), then two runs that
+    // draw the first `spp` samples of a pattern of the most a pixel may take, as a job in
+    // rounds stops: Cook's strata as such jobs drew them before, and the pattern they draw
+    // now (`Scene::progressive`: Sobol's, in a nested order).
+    // (label, sampler, a prefix of the largest pattern, drawn as a job in rounds)
+    let runs = [
+        (SamplerKind::Independent.name(), SamplerKind::Independent, false, false),
+        (SamplerKind::Stratified.name(), SamplerKind::Stratified, false, false),
+        (SamplerKind::Sobol.name(), SamplerKind::Sobol, false, false),
+        ("stratified, a prefix", SamplerKind::Stratified, true, false),
+        ("in rounds", SamplerKind::Stratified, true, true),
+    ];
+    for (label, kind, prefix, progressive) in runs {
         let mut points = Vec::new();
         for &spp in &ladder {
             let mut s = scene.clone();
-            s.spp = spp;
+            s.spp = if prefix { tessera_description::limits::MAX_SPP } else { spp };
             s.sampler = kind;
+            s.progressive = progressive;
             let t = Instant::now();
             let rgb = render_image(&s, 0..spp);
             let seconds = t.elapsed().as_secs_f64();
             let e = errors(w, h, &rgb, &reference);
             println!(
-                "{:>12} {spp:>6} spp {seconds:>8.3} s  rmse {:.5}  relmse {:.5}  psnr {:.2} dB",
-                kind.name(),
-                e.rmse,
-                e.relmse,
-                e.psnr
+                "{label:>20} {spp:>6} spp {seconds:>8.3} s  rmse {:.5}  relmse {:.5}  psnr {:.2} dB",
+                e.rmse, e.relmse, e.psnr
             );
             csv.push_str(&format!(
                 "{},{spp},{seconds:.4},{:.6},{:.6},{:.3}\n",
-                kind.name(),
+                label.replace(',', ""),
                 e.rmse,
                 e.relmse,
                 e.psnr
             ));
             table.push_str(&format!(
-                "| {} | {spp} | {seconds:.3} | {:.5} | {:.5} | {:.2} |\n",
-                kind.name(),
-                e.rmse,
-                e.relmse,
-                e.psnr
+                "| {label} | {spp} | {seconds:.3} | {:.5} | {:.5} | {:.2} |\n",
+                e.rmse, e.relmse, e.psnr
             ));
             points.push((seconds, e.rmse));
         }
-        series.push(Series { name: kind.name().to_string(), points });
+        series.push(Series { name: label.to_string(), points });
     }
     let name = scene_path.file_stem().map_or("scene".into(), |s| s.to_string_lossy().into_owned());
     std::fs::write(out.join("convergence.csv"), csv)?;
