@@ -69,8 +69,10 @@ pub enum BenchCommand {
         runs: usize,
     },
     /// The trade of speed against accuracy: the scene at 1, 4, 16, … spp with each sampler
-    /// (independent, stratified, Sobol), each run's time and error (RMSE, relative MSE,
-    /// PSNR) against a high-sample render; writes a table, a CSV and a log-log plot.
+    /// (independent, stratified, Sobol) and as a job in rounds stops (the first samples of
+    /// the largest pattern: Cook's, and the one rounds draw), each run's time and error
+    /// (RMSE, relative MSE, PSNR) against a high-sample render; writes a table, a CSV and a
+    /// log-log plot.
     Convergence {
         /// The scene file.
         scene: PathBuf,
