@@ -21,7 +21,7 @@ const JOB_CACHE: usize = 8;
 
 /// The scenes of recent jobs. The heavy part of a scene (meshes, BVH, textures) is built
 /// once per content hash and shared by every job that renders it; a job only adds its
-/// settings (spp, size), which cost nothing to apply.
+/// settings ([`Overrides`]: spp, size, drawn in rounds), which cost nothing to apply.
 pub(super) struct SceneCache {
     /// Built scenes by content hash, at the file's own settings, least recently used
     /// first; or why the scene could not be built (the same content fails the same way).
@@ -48,9 +48,32 @@ type FrameKey = (u64, String, u32);
 struct Sequence {
     bundle: Arc<tessera_description::Bundle>,
     frames: (u32, u32),
+    overrides: Overrides,
+}
+
+/// What a job's settings change in its scene, applied to each scene built for it.
+#[derive(Debug, Clone, Copy)]
+struct Overrides {
     spp: Option<u32>,
     size: Option<(u32, u32)>,
+    /// A time budget or a noise target: the samples are drawn in rounds.
     progressive: bool,
+}
+
+impl Overrides {
+    fn of(settings: pb::RenderSettings) -> Overrides {
+        Overrides {
+            spp: (settings.spp != 0).then_some(settings.spp),
+            size: (settings.width != 0 && settings.height != 0).then_some((settings.width, settings.height)),
+            // By the coordinator's own reading of the settings.
+            progressive: settings_from_wire(settings).is_ok_and(|s| s.in_rounds()),
+        }
+    }
+
+    fn apply(self, scene: &mut Scene) {
+        scene.apply(self.spp, self.size);
+        scene.progressive = self.progressive;
+    }
 }
 
 impl SceneCache {
@@ -84,13 +107,12 @@ impl SceneCache {
             Some(i) => self.frames.remove(i).expect("found").1,
             None => {
                 let (bundle, memory, frame) = (seq.bundle.clone(), self.memory, b.frame);
-                let (spp, size, progressive) = (seq.spp, seq.size, seq.progressive);
+                let overrides = seq.overrides;
                 tokio::task::spawn_blocking(move || {
                     crate::build::parse_bundle_frame_within(&bundle, Some(frame), memory)
                         .map_err(Failure::from)
                         .map(|mut scene| {
-                            scene.apply(spp, size);
-                            scene.progressive = progressive;
+                            overrides.apply(&mut scene);
                             Arc::new(scene)
                         })
                 })
@@ -109,19 +131,14 @@ impl SceneCache {
         let job = js.job_id;
         let claimed = js.scene_hash.clone();
         let settings = js.settings.unwrap_or_default();
-        let spp = (settings.spp != 0).then_some(settings.spp);
-        let size = (settings.width != 0 && settings.height != 0).then_some((settings.width, settings.height));
+        let overrides = Overrides::of(settings);
         let frames = settings.frames.map(|f| (f.first, f.last));
-        // A time budget or a noise target: the job's samples are drawn in rounds, by the
-        // coordinator's own reading of the settings.
-        let progressive = settings_from_wire(settings).is_ok_and(|s| s.in_rounds());
         let started = std::time::Instant::now();
         let base = match self.bundle_of(job, &claimed, js.bundle).await {
             Err(e) => Err(e),
             Ok(bundle) => {
                 if let Some(frames) = frames {
-                    self.sequences
-                        .insert(job, Sequence { bundle: bundle.clone(), frames, spp, size, progressive });
+                    self.sequences.insert(job, Sequence { bundle: bundle.clone(), frames, overrides });
                 }
                 let memory = self.memory;
                 let hashed = started.elapsed();
@@ -158,8 +175,7 @@ impl SceneCache {
         };
         let parsed = base.map(|base| {
             let mut scene = Scene::clone(&base);
-            scene.apply(spp, size);
-            scene.progressive = progressive;
+            overrides.apply(&mut scene);
             Arc::new(scene)
         });
         if let Err(e) = &parsed {
