@@ -12,7 +12,9 @@ use crate::model::{Description, Shape, TextureKind};
 pub const PRIMITIVE_BYTES: u64 = 96;
 /// Bytes per primitive in the BVH, at the peak of building it and after: the binary tree
 /// (at most two nodes of 36 bytes a primitive), the builder's boxes and bins (33), the
-/// primitives' bounds (24), the slot a primitive keeps in leaf order (44), and the folded
+/// primitives' bounds (24), the slot a primitive keeps in leaf order (44: its index and
+/// material, and its corners in a pack of four; a mesh's leaves start on a pack, and the
+/// padding, a tenth more slots on the torus knot, is in the test below), and the folded
 /// nodes of eight with the primitive's index (75: up to 67 measured on the trees with the
 /// most nodes per primitive, by a worker test that holds the total to this constant).
 pub const BVH_BYTES_PER_PRIMITIVE: u64 = 2 * 36 + 33 + 24 + 44 + 75;

@@ -123,7 +123,7 @@ pub fn run(dir: &Path, mesh: Option<&Path>, repeats: usize) -> Result<ExitCode> 
     let t = Instant::now();
     let scene = mesh_scene(&mesh)?;
     let load = t.elapsed().as_secs_f64();
-    let tris = scene.world.slots.len();
+    let tris = scene.world.prims.len();
     if tris != meta.triangles {
         bail!("{}: {tris} triangles, rays.json says {}", mesh.display(), meta.triangles);
     }

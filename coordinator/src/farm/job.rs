@@ -39,6 +39,8 @@ pub struct Job {
     /// The scene's sample pattern (`[render] sampler`): which renderer changes changed
     /// the job's samples (`Job::restore`).
     pub(super) sampler: tessera_description::model::SamplerKind,
+    /// The scene has triangles: +images.4 changed its samples (`Job::restore`).
+    pub(super) triangles: bool,
     /// State.
     pub state: JobState,
     /// The name of the principal that submitted it ("" for an in-process submission):
@@ -277,6 +279,7 @@ impl Job {
             return Err(SubmitError::TimeLimit);
         }
         let spp = scene.spp;
+        let triangles = desc.objects.iter().any(|o| o.triangles() > 0);
         admit(&super::budget::Footprint {
             width: scene.width,
             height: scene.height * frames,
@@ -307,6 +310,7 @@ impl Job {
             priority,
             spp,
             sampler: scene.sampler,
+            triangles,
             state: JobState::Queued,
             owner: String::new(),
             queue,

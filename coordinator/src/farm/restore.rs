@@ -75,11 +75,12 @@ impl Job {
             // Another renderer's samples of the same indices differ: going on would mix
             // them into an image neither renders. A checkpoint that does not say (format
             // 3 and older) was written before +images.3, which changed the samples of jobs
-            // in rounds and of Sobol's pattern. A job that renders nothing more keeps its
-            // image whatever made it.
+            // in rounds and of Sobol's pattern, and before +images.4, which changed those
+            // of scenes with triangles. A job that renders nothing more keeps its image
+            // whatever made it.
             let renderer = tessera_description::RENDERER_VERSION;
             let foreign = if c.renderer.is_empty() {
-                job.settings.in_rounds() || job.sampler == SamplerKind::Sobol
+                job.settings.in_rounds() || job.sampler == SamplerKind::Sobol || job.triangles
             } else {
                 c.renderer != renderer
             };

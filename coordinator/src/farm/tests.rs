@@ -173,6 +173,19 @@ fn restored_states_are_kept_and_a_mismatched_checkpoint_is_refused() {
     };
     let e = Farm::new().restore(LoadedJob { record: sobol.record(), checkpoint: Some(old) }, Instant::now());
     assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{e:?}");
+    // And a scene with triangles, whose samples +images.4 changed.
+    let text = format!(
+        "{SCENE}\n[[triangle]]\nvertices = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]\nmaterial = \"floor\"\n"
+    );
+    let mesh = Bundle { name: "tri.toml".into(), text, assets: vec![], refused: vec![] };
+    let mesh = farm.submit(mesh, settings(8, 8, 2), 0).unwrap();
+    let mesh = farm.job(mesh).unwrap();
+    let old = crate::checkpoint::Checkpoint {
+        renderer: String::new(),
+        ..mesh.snapshot(Instant::now()).checkpoint()
+    };
+    let e = Farm::new().restore(LoadedJob { record: mesh.record(), checkpoint: Some(old) }, Instant::now());
+    assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{e:?}");
 }
 
 /// Per-sample values of a fake scene: a flat left part (it reaches any noise target)

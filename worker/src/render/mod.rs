@@ -74,7 +74,7 @@ pub struct World {
     /// The BVH over `prims`.
     pub bvh: Bvh,
     /// The BVH's slots in leaf order: its static triangles inline (`triangles::slots`).
-    pub slots: Vec<triangles::Slot>,
+    pub slots: triangles::Slots,
     /// Infinite planes with their material (not in the BVH: they have no bounds).
     pub planes: Vec<(Plane, u32)>,
     /// Triangle meshes.
@@ -189,43 +189,80 @@ impl Scene {
         // `Primitive::intersect` would have made.
         let mut nearest: Option<Candidate> = None;
         let mut best: Option<SurfaceHit> = None;
-        let t_max = w.bvh.traverse_slots::<COHERENT>(ray, t_max, |k, t_max| match w.slots[k].kind() {
-            triangles::SlotKind::Triangle(i) => {
-                let (t, b1, b2) = w.slots[k].hit(ray, t_max)?;
-                if ALPHA && !w.covers_slot(i, b1, b2, ray) {
+        // Slot k's test; returns the distance of a hit nearer than `t_max`. `tri` is the
+        // hit of an inline triangle its leaf's test found (only without alpha cut-outs),
+        // which then needs neither the slot nor a test of its own.
+        let mut slot = |k: usize, t_max: f32, tri: Option<(f32, f32, f32)>| -> Option<f32> {
+            if let Some((t, b1, b2)) = tri {
+                if !(t < t_max) {
                     return None;
                 }
                 nearest = Some(Candidate::Triangle(k, t, b1, b2));
                 best = None;
-                Some(t)
+                return Some(t);
             }
-            triangles::SlotKind::Generic(i) => {
-                let prim = &w.prims[i as usize];
-                let alpha = ALPHA && w.surfaces.alpha[prim.material as usize];
-                match (&prim.shape, prim.motion, alpha) {
-                    (shape::Shape::Rect(r), None, false) => {
-                        let (t, s, tt) = r.candidate(ray, t_max)?;
-                        nearest = Some(Candidate::Rect(i, t, s, tt));
-                        best = None;
-                        return Some(t);
+            match w.slots[k].kind() {
+                triangles::SlotKind::Triangle(i) => {
+                    let (t, b1, b2) = w.slots.hit(k, ray, t_max)?;
+                    if ALPHA && !w.covers_slot(i, b1, b2, ray) {
+                        return None;
                     }
-                    (shape::Shape::Sphere(s), None, false) => {
-                        let t = s.candidate(ray, t_max)?;
-                        nearest = Some(Candidate::Sphere(i, t));
-                        best = None;
-                        return Some(t);
+                    nearest = Some(Candidate::Triangle(k, t, b1, b2));
+                    best = None;
+                    Some(t)
+                }
+                triangles::SlotKind::Generic(i) => {
+                    let prim = &w.prims[i as usize];
+                    let alpha = ALPHA && w.surfaces.alpha[prim.material as usize];
+                    match (&prim.shape, prim.motion, alpha) {
+                        (shape::Shape::Rect(r), None, false) => {
+                            let (t, s, tt) = r.candidate(ray, t_max)?;
+                            nearest = Some(Candidate::Rect(i, t, s, tt));
+                            best = None;
+                            return Some(t);
+                        }
+                        (shape::Shape::Sphere(s), None, false) => {
+                            let t = s.candidate(ray, t_max)?;
+                            nearest = Some(Candidate::Sphere(i, t));
+                            best = None;
+                            return Some(t);
+                        }
+                        _ => {}
                     }
-                    _ => {}
+                    let mut hit = prim.intersect(ray, t_max, time, &w.meshes, &w.motions)?;
+                    if alpha && !w.covers_hit(i, hit.p, hit.uv, ray, time) {
+                        return None;
+                    }
+                    hit.prim = i;
+                    nearest = None;
+                    best = Some(SurfaceHit { hit, material: prim.material, light: prim.light });
+                    Some(hit.t)
                 }
-                let mut hit = prim.intersect(ray, t_max, time, &w.meshes, &w.motions)?;
-                if alpha && !w.covers_hit(i, hit.p, hit.uv, ray, time) {
-                    return None;
-                }
-                hit.prim = i;
-                nearest = None;
-                best = Some(SurfaceHit { hit, material: prim.material, light: prim.light });
-                Some(hit.t)
             }
+        };
+        let r4 = triangles::Ray4::new(ray);
+        let t_max = w.bvh.traverse_leaves::<COHERENT>(ray, t_max, |first, count, mut t_max| {
+            if !ALPHA && w.slots.any_inline() {
+                // The leaf's triangles tested at once, then taken in slot order with the
+                // other slots, each against the `t_max` the ones before it left.
+                let h = w.slots.leaf(first, count, &r4);
+                let mut m = h.mask | h.generic;
+                while m != 0 {
+                    let i = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    let tri = (h.generic & (1 << i) == 0).then(|| (h.t[i], h.b1[i], h.b2[i]));
+                    if let Some(t) = slot(h.base + i, t_max, tri) {
+                        t_max = t_max.min(t);
+                    }
+                }
+                return t_max;
+            }
+            for k in first..first + count {
+                if let Some(t) = slot(k, t_max, None) {
+                    t_max = t_max.min(t);
+                }
+            }
+            t_max
         });
         let complete = |i: u32, hit: Option<Hit>| {
             let prim = &w.prims[i as usize];
@@ -240,7 +277,7 @@ impl Scene {
                 let i = slot.index();
                 if let Some(material) = slot.plain_material() {
                     // Neither the primitive nor its mesh is read (`triangles`'s comment).
-                    best = slot.plain_hit(t, b1, b2).map(|mut hit| {
+                    best = w.slots.plain_hit(k, t, b1, b2).map(|mut hit| {
                         hit.prim = i;
                         SurfaceHit { hit, material, light: None }
                     });
@@ -323,11 +360,12 @@ impl Scene {
         };
         let mut open = true;
         let w = &*self.world;
-        w.bvh.visit_slots(ray, dist, |k| {
+        // Slot k's crossings, given its triangle's hit when it holds one; false ends the
+        // walk (the light is blocked).
+        let mut cross = |k: usize, tri_hit: Option<(f32, f32, f32)>| {
             let (i, crossings) = match w.slots[k].kind() {
                 triangles::SlotKind::Triangle(i) => {
-                    let hit = w.slots[k].hit(ray, dist);
-                    let hit = match hit {
+                    let hit = match tri_hit {
                         Some((_, b1, b2)) if ALPHA => w.covers_slot(i, b1, b2, ray),
                         hit => hit.is_some(),
                     };
@@ -361,6 +399,32 @@ impl Scene {
                 }
             }
             open
+        };
+        let r4 = triangles::Ray4::new(ray);
+        w.bvh.visit_leaves(ray, dist, |first, count| {
+            if !ALPHA && w.slots.any_inline() {
+                // The leaf's triangles tested at once; those crossed are taken in slot
+                // order with the other slots.
+                let h = w.slots.leaf(first, count, &r4);
+                let mut m = h.mask | h.generic;
+                while m != 0 {
+                    let i = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    let tri =
+                        (h.generic & (1 << i) == 0 && h.t[i] < dist).then(|| (h.t[i], h.b1[i], h.b2[i]));
+                    if !cross(h.base + i, tri) {
+                        return false;
+                    }
+                }
+                return true;
+            }
+            (first..first + count).all(|k| {
+                let hit = match w.slots[k].kind() {
+                    triangles::SlotKind::Triangle(_) => w.slots.hit(k, ray, dist),
+                    triangles::SlotKind::Generic(_) => None,
+                };
+                cross(k, hit)
+            })
         });
         if !open {
             return Vec3::ZERO;

@@ -1,13 +1,17 @@
 //! The BVH's primitives in its leaf order, with static triangles stored inline (their
 //! corners, ready for Möller–Trumbore): a leaf's triangles sit next to each other in
-//! memory, and a triangle test reads one record instead of following primitive → mesh →
-//! index → vertex. A plain triangle (no normals or texture coordinates in its mesh, no
-//! emission) also completes its hit from the slot, which holds its material: on a million
-//! triangles those three dependent loads were a quarter of a random ray's time
+//! memory, and a triangle test reads them instead of following primitive → mesh → index →
+//! vertex. The corners are kept four slots to a [`Pack`], lane by lane, so that a leaf's
+//! triangles are tested at once: Möller–Trumbore in four SIMD lanes, the scalar test's
+//! operations lane for lane (the same bits), then each lane's distance compared in slot
+//! order with the `t_max` the slots before it left, as one test after another would
+//! (docs/speed.md, sixteenth part). A plain triangle (no normals or texture coordinates in
+//! its mesh, no emission) also completes its hit from its slot, which holds its material:
+//! on a million triangles those three dependent loads were a quarter of a random ray's time
 //! (docs/speed.md, "Seventh part"). Everything else (spheres, parallelograms, moving or
 //! degenerate triangles) points back to its primitive.
 
-use glam::Vec3;
+use glam::{Vec3, Vec4};
 
 use super::bvh::Bvh;
 use super::geometry::{Hit, Ray};
@@ -20,12 +24,9 @@ const PLAIN: u32 = 1 << 30;
 /// The primitive's index.
 const INDEX: u32 = PLAIN - 1;
 
-/// One BVH slot.
+/// One BVH slot; an inline triangle's corners are in its [`Pack`].
 #[derive(Debug, Clone, Copy)]
 pub struct Slot {
-    /// An inline triangle's corners (the same ones as its mesh's, so the edges Möller–Trumbore
-    /// takes are the same differences and the hits the same bits).
-    p: [Vec3; 3],
     /// The primitive's index, with [`GENERIC`] set unless the slot is an inline triangle
     /// and [`PLAIN`] set if it is a plain one.
     prim: u32,
@@ -52,14 +53,6 @@ impl Slot {
         }
     }
 
-    /// For an inline triangle: (t, b1, b2) of its hit in (0, t_max), the same bits as
-    /// [`Mesh::intersect`] gives.
-    #[inline(always)]
-    pub fn hit(&self, ray: &Ray, t_max: f32) -> Option<(f32, f32, f32)> {
-        let [p0, p1, p2] = self.p;
-        moller_trumbore(p0, p1 - p0, p2 - p0, ray, t_max)
-    }
-
     /// The primitive's index.
     #[inline(always)]
     pub fn index(&self) -> u32 {
@@ -70,14 +63,6 @@ impl Slot {
     #[inline(always)]
     pub fn plain_material(&self) -> Option<u32> {
         (self.prim & (GENERIC | PLAIN) == PLAIN).then_some(self.material)
-    }
-
-    /// For a plain triangle: the hit at (t, b1, b2) from [`Slot::hit`], the bits
-    /// [`Mesh::hit_at`] gives (inline triangles have finite normals, so it is never `None`
-    /// for them).
-    #[inline]
-    pub fn plain_hit(&self, t: f32, b1: f32, b2: f32) -> Option<Hit> {
-        plain_hit(self.p, t, b1, b2)
     }
 }
 
@@ -98,23 +83,226 @@ fn plain(prim: &Primitive, meshes: &[Mesh]) -> bool {
     prim.light.is_none() && c[0][1] == u32::MAX && c[0][2] == u32::MAX
 }
 
+/// Four consecutive slots' triangle corners, lane by lane (slot 4j + l in lane l of pack
+/// j): corner, axis, lane. A slot that is not an inline triangle has NaN corners, which
+/// no ray hits and which mark it for its leaf's walk ([`LeafHits::generic`]); a lane past
+/// the last slot, or of the padding between leaves (`bvh::PADDING`), has zeros, and is
+/// never in a leaf.
+#[derive(Debug, Clone, Copy)]
+#[repr(C, align(16))]
+pub struct Pack {
+    p: [[Vec4; 3]; 3],
+}
+
+/// A ray's origin and direction splatted over four lanes, for [`Slots::leaf`].
+pub struct Ray4 {
+    o: [Vec4; 3],
+    d: [Vec4; 3],
+}
+
+impl Ray4 {
+    /// The ray in every lane.
+    #[inline(always)]
+    pub fn new(ray: &Ray) -> Ray4 {
+        let (o, d) = (ray.origin, ray.dir);
+        Ray4 {
+            o: [Vec4::splat(o.x), Vec4::splat(o.y), Vec4::splat(o.z)],
+            d: [Vec4::splat(d.x), Vec4::splat(d.y), Vec4::splat(d.z)],
+        }
+    }
+}
+
+/// glam's `Vec3::cross`, lane by lane: the same products and differences in the same order.
+#[inline(always)]
+fn cross4(a: [Vec4; 3], b: [Vec4; 3]) -> [Vec4; 3] {
+    [a[1] * b[2] - b[1] * a[2], a[2] * b[0] - b[2] * a[0], a[0] * b[1] - b[0] * a[1]]
+}
+
+/// glam's `Vec3::dot`, lane by lane: (x + y) + z.
+#[inline(always)]
+fn dot4(a: [Vec4; 3], b: [Vec4; 3]) -> Vec4 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+}
+
+impl Pack {
+    const EMPTY: Pack = Pack { p: [[Vec4::ZERO; 3]; 3] };
+
+    /// [`moller_trumbore`] in four lanes without its last comparison (`t < t_max`, which
+    /// the caller makes in slot order): bit l set where lane l's line meets its triangle at
+    /// t > 0, and t, b1, b2. Every operation is the scalar test's, lane for lane, with the
+    /// same operands (`slot_and_leaf_tests_agree_bit_for_bit`).
+    #[inline(always)]
+    fn hit(&self, r: &Ray4) -> (u32, Vec4, Vec4, Vec4) {
+        let [p0, p1, p2] = self.p;
+        let sub = |a: [Vec4; 3], b: [Vec4; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+        let (e1, e2) = (sub(p1, p0), sub(p2, p0));
+        let pv = cross4(r.d, e2);
+        let det = dot4(e1, pv);
+        let inv = Vec4::ONE / det;
+        let tv = sub(r.o, p0);
+        let b1 = dot4(tv, pv) * inv;
+        let qv = cross4(tv, e1);
+        let b2 = dot4(r.d, qv) * inv;
+        let t = dot4(e2, qv) * inv;
+        // The scalar test's rejections, negated: NaN fails each as it fails there.
+        let ok = det.cmpne(Vec4::ZERO)
+            & det.is_finite_mask()
+            & b1.cmpge(Vec4::ZERO)
+            & b1.cmple(Vec4::ONE)
+            & !b2.cmplt(Vec4::ZERO)
+            & !(b1 + b2).cmpgt(Vec4::ONE)
+            & t.cmpgt(Vec4::ZERO);
+        (ok.bitmask(), t, b1, b2)
+    }
+}
+
+/// The lanes' hits of the packs a leaf spans (at most three: a leaf holds at most eight
+/// slots), from [`Slots::leaf`]: slot `base + i` for bit i of `mask`.
+pub struct LeafHits {
+    /// The leaf's first pack's first slot.
+    pub base: usize,
+    /// Bit i: slot `base + i` is in the leaf and its line meets its triangle at t > 0.
+    pub mask: u32,
+    /// Bit i: slot `base + i` is in the leaf and not an inline triangle.
+    pub generic: u32,
+    /// t, b1 and b2 of slot `base + i` at index i.
+    pub t: [f32; 12],
+    /// First barycentric.
+    pub b1: [f32; 12],
+    /// Second barycentric.
+    pub b2: [f32; 12],
+}
+
+/// The BVH's slots and their triangles' corners.
+#[derive(Debug, Clone, Default)]
+pub struct Slots {
+    slots: Vec<Slot>,
+    packs: Vec<Pack>,
+    /// Some slot is an inline triangle: leaves are tested pack by pack.
+    any_inline: bool,
+}
+
+impl std::ops::Index<usize> for Slots {
+    type Output = Slot;
+
+    #[inline(always)]
+    fn index(&self, k: usize) -> &Slot {
+        &self.slots[k]
+    }
+}
+
+impl Slots {
+    /// Bytes a slot takes: its record and a quarter of a pack.
+    pub const BYTES_PER_SLOT: usize = std::mem::size_of::<Slot>() + std::mem::size_of::<Pack>() / 4;
+
+    /// The slots.
+    pub fn iter(&self) -> impl Iterator<Item = &Slot> {
+        self.slots.iter()
+    }
+
+    /// How many.
+    pub fn len(&self) -> usize {
+        self.slots.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.slots.is_empty()
+    }
+
+    /// Whether some slot is an inline triangle.
+    #[inline(always)]
+    pub fn any_inline(&self) -> bool {
+        self.any_inline
+    }
+
+    /// Slot `k`'s corners (zeros unless it is an inline triangle).
+    #[inline(always)]
+    fn corners(&self, k: usize) -> [Vec3; 3] {
+        let (p, l) = (&self.packs[k / 4].p, k % 4);
+        p.map(|c| Vec3::new(c[0][l], c[1][l], c[2][l]))
+    }
+
+    /// For an inline triangle in slot `k`: (t, b1, b2) of its hit in (0, t_max), the same
+    /// bits as [`Mesh::intersect`] gives.
+    #[inline(always)]
+    pub fn hit(&self, k: usize, ray: &Ray, t_max: f32) -> Option<(f32, f32, f32)> {
+        let [p0, p1, p2] = self.corners(k);
+        moller_trumbore(p0, p1 - p0, p2 - p0, ray, t_max)
+    }
+
+    /// The hits of the leaf `first..first + count` (at most eight slots), every triangle
+    /// lane at once: [`Slots::hit`]'s bits for each of its inline triangles but the last
+    /// comparison with `t_max`, which is the caller's, in slot order.
+    #[inline(always)]
+    pub fn leaf(&self, first: usize, count: usize, r: &Ray4) -> LeafHits {
+        let (lo, hi) = (first / 4, (first + count - 1) / 4);
+        let mut out =
+            LeafHits { base: 4 * lo, mask: 0, generic: 0, t: [0.0; 12], b1: [0.0; 12], b2: [0.0; 12] };
+        for j in 0..=hi - lo {
+            let pack = &self.packs[lo + j];
+            let (mask, t, b1, b2) = pack.hit(r);
+            out.mask |= mask << (4 * j);
+            out.generic |= pack.p[0][0].is_nan_mask().bitmask() << (4 * j);
+            out.t[4 * j..4 * j + 4].copy_from_slice(&t.to_array());
+            out.b1[4 * j..4 * j + 4].copy_from_slice(&b1.to_array());
+            out.b2[4 * j..4 * j + 4].copy_from_slice(&b2.to_array());
+        }
+        let window = ((1u32 << count) - 1) << (first - out.base);
+        out.mask &= window;
+        out.generic &= window;
+        out
+    }
+
+    /// For a plain triangle in slot `k`: the hit at (t, b1, b2) from [`Slots::hit`], the
+    /// bits [`Mesh::hit_at`] gives (inline triangles have finite normals, so it is never
+    /// `None` for them).
+    #[inline]
+    pub fn plain_hit(&self, k: usize, t: f32, b1: f32, b2: f32) -> Option<Hit> {
+        plain_hit(self.corners(k), t, b1, b2)
+    }
+}
+
 /// The slots of a BVH built over `prims`, in its leaf order (slot k holds primitive
 /// `bvh.indices()[k]`).
-pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Vec<Slot> {
+pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Slots {
     use rayon::prelude::*;
     assert!(prims.len() <= INDEX as usize, "more primitives than slots can index");
-    // A map in order: the same slots on any number of threads.
-    bvh.indices()
+    let indices = bvh.indices();
+    // Maps in order: the same slots on any number of threads.
+    let slots: Vec<Slot> = indices
         .par_iter()
         .map(|&i| {
-            let prim = &prims[i as usize];
+            let Some(prim) = prims.get(i as usize) else {
+                // Padding (`bvh::PADDING`): never visited.
+                return Slot { prim: INDEX | GENERIC, material: 0 };
+            };
             match inline(prim, meshes) {
-                Some(p) if plain(prim, meshes) => Slot { p, prim: i | PLAIN, material: prim.material },
-                Some(p) => Slot { p, prim: i, material: prim.material },
-                None => Slot { p: [Vec3::ZERO; 3], prim: i | GENERIC, material: prim.material },
+                Some(_) if plain(prim, meshes) => Slot { prim: i | PLAIN, material: prim.material },
+                Some(_) => Slot { prim: i, material: prim.material },
+                None => Slot { prim: i | GENERIC, material: prim.material },
             }
         })
-        .collect()
+        .collect();
+    let packs = indices
+        .par_chunks(4)
+        .map(|four| {
+            let mut pack = Pack::EMPTY;
+            for (l, &i) in four.iter().enumerate() {
+                let Some(prim) = prims.get(i as usize) else { continue };
+                // A slot that is not an inline triangle is marked by NaN corners.
+                let corners = inline(prim, meshes).unwrap_or([Vec3::NAN; 3]);
+                for (c, p) in corners.iter().enumerate() {
+                    for a in 0..3 {
+                        pack.p[c][a][l] = p[a];
+                    }
+                }
+            }
+            pack
+        })
+        .collect();
+    let any_inline = slots.par_iter().any(|s| s.prim & GENERIC == 0);
+    Slots { slots, packs, any_inline }
 }
 
 #[cfg(test)]

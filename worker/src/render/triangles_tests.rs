@@ -138,3 +138,77 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
     }
     assert!(plain > 0, "no plain triangle slot was tested");
 }
+
+/// A leaf's four-lane test gives each inline triangle the bits of its own scalar test (but
+/// the comparison with `t_max`, which is the caller's), marks the other slots generic, and
+/// says nothing of slots outside the leaf: on random rays (some along an axis, where the
+/// test meets infinities) and every run of one to eight slots, at any alignment.
+#[test]
+fn leaf_tests_give_each_slot_s_bits() {
+    use super::{Ray4, SlotKind};
+    use crate::render::bvh::PADDING;
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    let mixed = crate::build::parse_bundle(&Bundle::read(&root.join("mesh.toml")).unwrap()).unwrap();
+    let (mut hits, mut generic) = (0, 0);
+    for (name, scene) in [("plain meshes", plain_scene(&root)), ("mesh.toml", mixed)] {
+        let slots = &scene.world.slots;
+        let indices = scene.world.bvh.indices();
+        let others: Vec<usize> = (0..slots.len())
+            .filter(|&k| indices[k] != PADDING && matches!(slots[k].kind(), SlotKind::Generic(_)))
+            .collect();
+        let b = scene.world.bvh.bounds();
+        let (c, r) = (b.centroid(), (b.max - b.min).length());
+        for k in 0..4_000u64 {
+            let h = |j: u64| (hash_words(&[k, j, 7]) >> 40) as f32 / (1u64 << 24) as f32 - 0.5;
+            let count = 1 + (hash_words(&[k, 8]) % 8) as usize;
+            // Half the runs around a slot that is not an inline triangle (there are few).
+            let around = match (k % 2, others.len()) {
+                (1, n) if n > 0 => others[(hash_words(&[k, 10]) % n as u64) as usize],
+                _ => (hash_words(&[k, 9]) % slots.len() as u64) as usize,
+            };
+            let first = around.saturating_sub(count / 2).min(slots.len() - count);
+            // Aimed near a triangle of the run most of the time, so that many lanes hit.
+            let origin = c + Vec3::new(h(0), h(1), h(2)) * r;
+            let [p0, p1, p2] = slots.corners(first + (k as usize) % count);
+            let (u, v) = (h(3) + 0.5, h(4) + 0.5);
+            let aim = p0 + (p1 - p0) * u + (p2 - p0) * v * (1.0 - u);
+            let mut dir =
+                if aim.is_finite() && k % 4 != 0 { aim - origin } else { Vec3::new(h(3), h(4), h(5)) };
+            if k % 5 == 0 {
+                // Along a plane or an axis: some reciprocals are infinite in the box test,
+                // and products with zero components in this one.
+                dir[(k / 5 % 3) as usize] = 0.0;
+            }
+            let Some(dir) = dir.try_normalize() else { continue };
+            let ray = Ray::new(origin, dir);
+            let got = slots.leaf(first, count, &Ray4::new(&ray));
+            assert_eq!(got.base, first / 4 * 4, "{name}: ray {k}");
+            for i in 0..12 {
+                let slot = got.base + i;
+                let (hit, gen) = (got.mask >> i & 1 == 1, got.generic >> i & 1 == 1);
+                if !(first..first + count).contains(&slot) {
+                    assert!(!hit && !gen, "{name}: ray {k}: slot {slot} outside the leaf");
+                    continue;
+                }
+                match slots[slot].kind() {
+                    // The padding between leaves is in none (runs here may take it in).
+                    _ if indices[slot] == PADDING => assert!(!hit && !gen, "{name}: ray {k}: slot {slot}"),
+                    SlotKind::Generic(_) => {
+                        assert!(gen && !hit, "{name}: ray {k}: slot {slot}");
+                        generic += 1;
+                    }
+                    SlotKind::Triangle(_) => {
+                        let want = slots.hit(slot, &ray, f32::INFINITY);
+                        let lane = hit.then(|| (got.t[i], got.b1[i], got.b2[i]));
+                        let bits =
+                            |h: Option<(f32, f32, f32)>| h.map(|(t, u, v)| [t, u, v].map(f32::to_bits));
+                        assert!(!gen, "{name}: ray {k}: slot {slot}");
+                        assert_eq!(bits(lane), bits(want), "{name}: ray {k}: slot {slot}");
+                        hits += usize::from(hit);
+                    }
+                }
+            }
+        }
+    }
+    assert!(hits > 100 && generic > 100, "{hits} hits and {generic} generic slots tested");
+}

@@ -194,6 +194,8 @@ fn split(p: &Prims, items: &mut [u32], bin_ids: &mut [u8], node_bounds: &Aabb, c
     }
     let (mut acc, mut count) = (Gather::EMPTY, 0);
     let mut best = (f32::INFINITY, 0, Gather::EMPTY);
+    // A leaf's tests are counted in the blocks its primitives are tested in.
+    let blocks = |n: usize| n.div_ceil(p.policy.block) as f32;
     for b in 0..BINS - 1 {
         acc = acc.union(&bins[b].0);
         count += bins[b].1;
@@ -201,12 +203,12 @@ fn split(p: &Prims, items: &mut [u32], bin_ids: &mut [u8], node_bounds: &Aabb, c
         if count == 0 || rc == 0 {
             continue;
         }
-        let cost = acc.area() * count as f32 + ra * rc as f32;
+        let cost = acc.area() * blocks(count) + ra * blocks(rc);
         if cost < best.0 {
             best = (cost, b, acc);
         }
     }
-    let leaf_cost = node_bounds.surface_area() * n as f32;
+    let leaf_cost = node_bounds.surface_area() * blocks(n);
     let split_cost = p.policy.traversal_cost * node_bounds.surface_area() + best.0;
     if best.0.is_infinite() || (split_cost >= leaf_cost && n <= MAX_LEAF) {
         return (n > MAX_LEAF).then(|| median(items));

@@ -48,9 +48,12 @@ pub(super) fn build(bounds: &[Aabb]) -> Binary {
 /// position and axis, or `None` for a leaf.
 fn split(idx: &mut [u32], bounds: &[Aabb], centroids: &[Vec3], node_bounds: &Aabb) -> Option<(usize, usize)> {
     let n = idx.len();
-    if n <= 2 {
+    // The triangles' policy: sets of four are leaves, and leaves are costed in the blocks
+    // of four their triangles are tested in.
+    if n <= 4 {
         return None;
     }
+    let blocks = |n: usize| n.div_ceil(4) as f32;
     let cb = Aabb::from_points(idx.iter().map(|&i| centroids[i as usize]));
     let extent = cb.max - cb.min;
     let axis = if extent.x >= extent.y && extent.x >= extent.z {
@@ -91,13 +94,13 @@ fn split(idx: &mut [u32], bounds: &[Aabb], centroids: &[Vec3], node_bounds: &Aab
         if count == 0 || rc == 0 {
             continue;
         }
-        let cost = acc.surface_area() * count as f32 + ra * rc as f32;
+        let cost = acc.surface_area() * blocks(count) + ra * blocks(rc);
         if cost < best.0 {
             best = (cost, b);
         }
     }
-    let leaf_cost = node_bounds.surface_area() * n as f32;
-    // A node visit costs what a primitive test does.
+    let leaf_cost = node_bounds.surface_area() * blocks(n);
+    // A node visit costs what a block's test does.
     let split_cost = node_bounds.surface_area() + best.0;
     if best.0.is_infinite() || (split_cost >= leaf_cost && n <= MAX_LEAF) {
         return (n > MAX_LEAF).then(|| median_split(idx, centroids, axis));

@@ -78,9 +78,30 @@ impl Wide {
         self
     }
 
-    /// Visits the slots of the leaves the ray enters before `t_max` in the binary tree's
-    /// order, nearest-first by split axis; `hit(slot, t_max)` returns the distance of a hit
-    /// closer than `t_max`, which then shortens the search. Returns the final `t_max`.
+    /// [`Wide::nearest_leaves`] a slot at a time: `hit(slot, t_max)` returns the distance
+    /// of a hit closer than `t_max`, which then shortens the search. For tests.
+    #[cfg(test)]
+    pub(super) fn nearest<const COHERENT: bool>(
+        &self,
+        origin: Vec3,
+        dir: Vec3,
+        t_max: f32,
+        mut hit: impl FnMut(usize, f32) -> Option<f32>,
+    ) -> f32 {
+        self.nearest_leaves::<COHERENT>(origin, dir, t_max, |first, count, mut t_max| {
+            for k in first..first + count {
+                if let Some(t) = hit(k, t_max) {
+                    t_max = t_max.min(t);
+                }
+            }
+            t_max
+        })
+    }
+
+    /// Visits the leaves the ray enters before `t_max` in the binary tree's order,
+    /// nearest-first by split axis: `leaf(first, count, t_max)` tests slots
+    /// `first..first + count` in order, each against the `t_max` the ones before it left,
+    /// and returns the last, which then shortens the search. Returns the final `t_max`.
     ///
     /// `COHERENT` chooses how a node's entered lanes are gathered, never what is visited:
     /// with a branch on each lane for rays traced beside others like them (a pixel's
@@ -89,12 +110,12 @@ impl Wide {
     /// third of the time). Each way costs the other kind of ray 3–30 % (docs/speed.md,
     /// tenth part).
     #[inline]
-    pub(super) fn nearest<const COHERENT: bool>(
+    pub(super) fn nearest_leaves<const COHERENT: bool>(
         &self,
         origin: Vec3,
         dir: Vec3,
         t_max: f32,
-        hit: impl FnMut(usize, f32) -> Option<f32>,
+        hit: impl FnMut(usize, usize, f32) -> f32,
     ) -> f32 {
         if self.nodes.is_empty() {
             return t_max;
@@ -124,7 +145,7 @@ impl Wide {
         &self,
         r: &RayLanes,
         t_max: f32,
-        hit: impl FnMut(usize, f32) -> Option<f32>,
+        hit: impl FnMut(usize, usize, f32) -> f32,
     ) -> f32 {
         self.with_stack(|stack| match r.exact {
             false => self.nearest_in::<false, COHERENT, Avx>(r, t_max, hit, stack),
@@ -149,7 +170,7 @@ impl Wide {
         &self,
         r: &RayLanes,
         mut t_max: f32,
-        mut hit: impl FnMut(usize, f32) -> Option<f32>,
+        mut hit: impl FnMut(usize, usize, f32) -> f32,
         stack: &mut [Entry],
     ) -> f32 {
         let mut top = 0;
@@ -202,11 +223,7 @@ impl Wide {
                     node = first;
                     continue;
                 }
-                for k in first..first + count {
-                    if let Some(t) = hit(k, t_max) {
-                        t_max = t_max.min(t);
-                    }
-                }
+                t_max = hit(first, count, t_max);
             }
             // The next child the ray still enters before the current `t_max`.
             loop {
@@ -224,19 +241,22 @@ impl Wide {
                     node = first;
                     break;
                 }
-                for k in first..first + count {
-                    if let Some(t) = hit(k, t_max) {
-                        t_max = t_max.min(t);
-                    }
-                }
+                t_max = hit(first, count, t_max);
             }
         }
     }
 
-    /// Visits the slots of the leaves the ray enters before `t_max` in the binary tree's
-    /// depth-first order (first child first), while `f` returns true.
+    /// [`Wide::each_leaf`] a slot at a time, while `f` returns true. For tests.
+    #[cfg(test)]
+    pub(super) fn each(&self, origin: Vec3, dir: Vec3, t_max: f32, mut f: impl FnMut(usize) -> bool) {
+        self.each_leaf(origin, dir, t_max, |first, count| (first..first + count).all(&mut f))
+    }
+
+    /// Visits the leaves the ray enters before `t_max` in the binary tree's depth-first
+    /// order (first child first): `leaf(first, count)` visits slots `first..first + count`
+    /// in order and returns whether the walk goes on.
     #[inline]
-    pub(super) fn each(&self, origin: Vec3, dir: Vec3, t_max: f32, f: impl FnMut(usize) -> bool) {
+    pub(super) fn each_leaf(&self, origin: Vec3, dir: Vec3, t_max: f32, f: impl FnMut(usize, usize) -> bool) {
         if self.nodes.is_empty() {
             return;
         }
@@ -257,7 +277,7 @@ impl Wide {
     #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
     #[target_feature(enable = "avx,avx2")]
     #[allow(unsafe_code)]
-    unsafe fn each_avx(&self, r: &RayLanes, t_max: f32, f: impl FnMut(usize) -> bool) {
+    unsafe fn each_avx(&self, r: &RayLanes, t_max: f32, f: impl FnMut(usize, usize) -> bool) {
         self.with_stack(|stack| match r.exact {
             false => self.each_in::<false, Avx>(r, t_max, f, stack),
             true => self.each_in::<true, Avx>(r, t_max, f, stack),
@@ -269,7 +289,7 @@ impl Wide {
         &self,
         r: &RayLanes,
         t_max: f32,
-        mut f: impl FnMut(usize) -> bool,
+        mut f: impl FnMut(usize, usize) -> bool,
         stack: &mut [Entry],
     ) {
         let mut top = 0;
@@ -293,10 +313,8 @@ impl Wide {
                     node = first;
                     continue;
                 }
-                for k in first..first + count {
-                    if !f(k) {
-                        return;
-                    }
+                if !f(first, count) {
+                    return;
                 }
             }
             // `t_max` does not change: every entry on the stack is visited.
@@ -312,10 +330,8 @@ impl Wide {
                     node = first;
                     break;
                 }
-                for k in first..first + count {
-                    if !f(k) {
-                        return;
-                    }
+                if !f(first, count) {
+                    return;
                 }
             }
         }
@@ -355,7 +371,7 @@ impl Wide {
                 }
             }
         }
-        match seen.iter().position(|s| !s) {
+        match seen.iter().zip(indices).position(|(s, &i)| !s && i != super::PADDING) {
             Some(k) => Err(format!("slot {k} in no leaf")),
             None => Ok(()),
         }
