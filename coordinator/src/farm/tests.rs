@@ -162,30 +162,24 @@ fn restored_states_are_kept_and_a_mismatched_checkpoint_is_refused() {
     old.renderer.clear();
     let e = Farm::new().restore(LoadedJob { record: rounds.record(), checkpoint: Some(old) }, Instant::now());
     assert!(e.err().is_some_and(|e| e.to_string().contains("a renderer before 0.1.0+images.3")));
-    // So is a scene of Sobol's pattern, drawn whole.
-    let text = SCENE.replacen("[render]", "[render]\nsampler = \"sobol\"", 1);
-    let sobol = Bundle { name: "sobol.toml".into(), text, assets: vec![], refused: vec![] };
-    let sobol = farm.submit(sobol, settings(8, 8, 2), 0).unwrap();
-    let sobol = farm.job(sobol).unwrap();
-    let old = crate::checkpoint::Checkpoint {
-        renderer: String::new(),
-        ..sobol.snapshot(Instant::now()).checkpoint()
-    };
-    let e = Farm::new().restore(LoadedJob { record: sobol.record(), checkpoint: Some(old) }, Instant::now());
-    assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{e:?}");
-    // And a scene with triangles, whose samples +images.4 changed.
-    let text = format!(
+    // So is one of a scene of Sobol's pattern, drawn whole, and of a scene with triangles
+    // (+images.4 changed their samples).
+    let sobol = SCENE.replacen("[render]", "[render]\nsampler = \"sobol\"", 1);
+    let triangle = format!(
         "{SCENE}\n[[triangle]]\nvertices = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]\nmaterial = \"floor\"\n"
     );
-    let mesh = Bundle { name: "tri.toml".into(), text, assets: vec![], refused: vec![] };
-    let mesh = farm.submit(mesh, settings(8, 8, 2), 0).unwrap();
-    let mesh = farm.job(mesh).unwrap();
-    let old = crate::checkpoint::Checkpoint {
-        renderer: String::new(),
-        ..mesh.snapshot(Instant::now()).checkpoint()
-    };
-    let e = Farm::new().restore(LoadedJob { record: mesh.record(), checkpoint: Some(old) }, Instant::now());
-    assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{e:?}");
+    for (name, text) in [("sobol.toml", sobol), ("triangle.toml", triangle)] {
+        let scene = Bundle { name: name.into(), text, assets: vec![], refused: vec![] };
+        let id = farm.submit(scene, settings(8, 8, 2), 0).unwrap();
+        let job = farm.job(id).unwrap();
+        let old = crate::checkpoint::Checkpoint {
+            renderer: String::new(),
+            ..job.snapshot(Instant::now()).checkpoint()
+        };
+        let e =
+            Farm::new().restore(LoadedJob { record: job.record(), checkpoint: Some(old) }, Instant::now());
+        assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{name}: {e:?}");
+    }
 }
 
 /// Per-sample values of a fake scene: a flat left part (it reaches any noise target)

@@ -245,13 +245,8 @@ impl Scene {
             if !ALPHA && w.slots.any_inline() {
                 // The leaf's triangles tested at once, then taken in slot order with the
                 // other slots, each against the `t_max` the ones before it left.
-                let h = w.slots.leaf(first, count, &r4);
-                let mut m = h.mask | h.generic;
-                while m != 0 {
-                    let i = m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    let tri = (h.generic & (1 << i) == 0).then(|| (h.t[i], h.b1[i], h.b2[i]));
-                    if let Some(t) = slot(h.base + i, t_max, tri) {
+                for (k, tri) in w.slots.leaf(first, count, &r4).in_order() {
+                    if let Some(t) = slot(k, t_max, tri) {
                         t_max = t_max.min(t);
                     }
                 }
@@ -405,18 +400,11 @@ impl Scene {
             if !ALPHA && w.slots.any_inline() {
                 // The leaf's triangles tested at once; those crossed are taken in slot
                 // order with the other slots.
-                let h = w.slots.leaf(first, count, &r4);
-                let mut m = h.mask | h.generic;
-                while m != 0 {
-                    let i = m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    let tri =
-                        (h.generic & (1 << i) == 0 && h.t[i] < dist).then(|| (h.t[i], h.b1[i], h.b2[i]));
-                    if !cross(h.base + i, tri) {
-                        return false;
-                    }
-                }
-                return true;
+                return w
+                    .slots
+                    .leaf(first, count, &r4)
+                    .in_order()
+                    .all(|(k, tri)| cross(k, tri.filter(|h| h.0 < dist)));
             }
             (first..first + count).all(|k| {
                 let hit = match w.slots[k].kind() {

@@ -130,7 +130,7 @@ impl Pack {
     /// [`moller_trumbore`] in four lanes without its last comparison (`t < t_max`, which
     /// the caller makes in slot order): bit l set where lane l's line meets its triangle at
     /// t > 0, and t, b1, b2. Every operation is the scalar test's, lane for lane, with the
-    /// same operands (`slot_and_leaf_tests_agree_bit_for_bit`).
+    /// same operands (`leaf_tests_give_each_slot_s_bits`).
     #[inline(always)]
     fn hit(&self, r: &Ray4) -> (u32, Vec4, Vec4, Vec4) {
         let [p0, p1, p2] = self.p;
@@ -171,6 +171,23 @@ pub struct LeafHits {
     pub b1: [f32; 12],
     /// Second barycentric.
     pub b2: [f32; 12],
+}
+
+impl LeafHits {
+    /// The leaf's slots that need a look, in slot order: each inline triangle its line
+    /// meets at t > 0, with (t, b1, b2), and each slot that is not an inline triangle, with
+    /// `None`.
+    #[inline(always)]
+    pub fn in_order(&self) -> impl Iterator<Item = (usize, Option<(f32, f32, f32)>)> + '_ {
+        let mut m = self.mask | self.generic;
+        std::iter::from_fn(move || {
+            (m != 0).then(|| {
+                let i = m.trailing_zeros() as usize;
+                m &= m - 1;
+                (self.base + i, (self.generic & (1 << i) == 0).then(|| (self.t[i], self.b1[i], self.b2[i])))
+            })
+        })
+    }
 }
 
 /// The BVH's slots and their triangles' corners.
@@ -216,7 +233,8 @@ impl Slots {
         self.any_inline
     }
 
-    /// Slot `k`'s corners (zeros unless it is an inline triangle).
+    /// Slot `k`'s corners (NaN for a slot that is not an inline triangle, zeros for
+    /// padding).
     #[inline(always)]
     fn corners(&self, k: usize) -> [Vec3; 3] {
         let (p, l) = (&self.packs[k / 4].p, k % 4);
