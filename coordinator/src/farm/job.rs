@@ -36,11 +36,6 @@ pub struct Job {
     pub priority: i32,
     /// Samples per pixel in effect.
     pub spp: u32,
-    /// The scene's sample pattern (`[render] sampler`): which renderer changes changed
-    /// the job's samples (`Job::restore`).
-    pub(super) sampler: tessera_description::model::SamplerKind,
-    /// The scene has triangles: +images.4 changed its samples (`Job::restore`).
-    pub(super) triangles: bool,
     /// State.
     pub state: JobState,
     /// The name of the principal that submitted it ("" for an in-process submission):
@@ -279,7 +274,6 @@ impl Job {
             return Err(SubmitError::TimeLimit);
         }
         let spp = scene.spp;
-        let triangles = desc.objects.iter().any(|o| o.triangles() > 0);
         admit(&super::budget::Footprint {
             width: scene.width,
             height: scene.height * frames,
@@ -309,8 +303,6 @@ impl Job {
             settings,
             priority,
             spp,
-            sampler: scene.sampler,
-            triangles,
             state: JobState::Queued,
             owner: String::new(),
             queue,

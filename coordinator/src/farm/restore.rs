@@ -12,7 +12,6 @@ use super::{Farm, Job, RestoreJobError};
 use crate::persist::LoadedJob;
 use crate::scheduler::PassQueue;
 use tessera_description::ids::JobId;
-use tessera_description::model::SamplerKind;
 
 impl Farm {
     /// Takes up a stored job again: from its checkpoint if it has one, else from the start.
@@ -74,20 +73,17 @@ impl Job {
             };
             // Another renderer's samples of the same indices differ: going on would mix
             // them into an image neither renders. A checkpoint that does not say (format
-            // 3 and older) was written before +images.3, which changed the samples of jobs
-            // in rounds and of Sobol's pattern, and before +images.4, which changed those
-            // of scenes with triangles. A job that renders nothing more keeps its image
-            // whatever made it.
+            // 3 and older) is another renderer's too: such checkpoints were written by
+            // builds from before +images.2 to +images.3, and which of their samples a
+            // later renderer keeps depends on the scene (glass and lenses, jobs in rounds,
+            // Sobol's pattern, triangles) in ways no rule of the coordinator's can follow
+            // without mistakes; starting over costs time, never the image. A job that
+            // renders nothing more keeps its image whatever made it.
             let renderer = tessera_description::RENDERER_VERSION;
-            let foreign = if c.renderer.is_empty() {
-                job.settings.in_rounds() || job.sampler == SamplerKind::Sobol || job.triangles
-            } else {
-                c.renderer != renderer
-            };
             let over = matches!(record.state, JobState::Done | JobState::Cancelled | JobState::Failed(_));
-            if foreign && !over && !job.queue.is_finished() {
+            if c.renderer != renderer && !over && !job.queue.is_finished() {
                 let made_by = if c.renderer.is_empty() {
-                    "a renderer before 0.1.0+images.3".to_owned()
+                    "a renderer that did not name itself (checkpoint format 3 or older)".to_owned()
                 } else {
                     format!("renderer {}", c.renderer)
                 };

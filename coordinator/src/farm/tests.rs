@@ -131,7 +131,7 @@ fn restored_states_are_kept_and_a_mismatched_checkpoint_is_refused() {
     wrong.spp = 3;
     let e = Farm::new().restore(LoadedJob { record: job.record(), checkpoint: Some(wrong) }, Instant::now());
     assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{e:?}");
-    // Another renderer's checkpoint is not resumed from; one that does not say is.
+    // Another renderer's checkpoint is not resumed from, nor one that does not say.
     let mut other = job.snapshot(Instant::now()).checkpoint();
     other.renderer = "0.1.0+images.1".into();
     let e = Farm::new()
@@ -148,34 +148,35 @@ fn restored_states_are_kept_and_a_mismatched_checkpoint_is_refused() {
         f.restore(LoadedJob { record, checkpoint: Some(other.clone()) }, Instant::now()).unwrap();
         assert_eq!(f.job(id).unwrap().state, state);
     }
-    // A checkpoint that does not say predates +images.3: it is resumed from where that
-    // renderer change kept the samples (Cook's pattern, drawn whole), not in rounds.
+    // A checkpoint that does not name its renderer (format 3 and older) is not resumed
+    // from either, whatever the job: a scene drawn whole by Cook's pattern, one in rounds,
+    // one of Sobol's pattern, one with triangles. A finished job keeps its image.
     other.renderer.clear();
-    Farm::new().restore(LoadedJob { record: job.record(), checkpoint: Some(other) }, Instant::now()).unwrap();
+    let e = Farm::new()
+        .restore(LoadedJob { record: job.record(), checkpoint: Some(other.clone()) }, Instant::now());
+    assert!(e.err().is_some_and(|e| e.to_string().contains("did not name itself")));
+    let record = JobRecord { state: JobState::Cancelled, ..job.record() };
+    Farm::new().restore(LoadedJob { record, checkpoint: Some(other) }, Instant::now()).unwrap();
     let timed = JobSettings { time_limit: Some(Duration::from_secs(60)), ..settings(8, 8, 2) };
-    let rounds = farm.submit(bundle(), timed, 0).unwrap();
-    let rounds = farm.job(rounds).unwrap();
-    let mut old = rounds.snapshot(Instant::now()).checkpoint();
-    Farm::new()
-        .restore(LoadedJob { record: rounds.record(), checkpoint: Some(old.clone()) }, Instant::now())
-        .unwrap();
-    old.renderer.clear();
-    let e = Farm::new().restore(LoadedJob { record: rounds.record(), checkpoint: Some(old) }, Instant::now());
-    assert!(e.err().is_some_and(|e| e.to_string().contains("a renderer before 0.1.0+images.3")));
-    // So is one of a scene of Sobol's pattern, drawn whole, and of a scene with triangles
-    // (+images.4 changed their samples).
     let sobol = SCENE.replacen("[render]", "[render]\nsampler = \"sobol\"", 1);
     let triangle = format!(
         "{SCENE}\n[[triangle]]\nvertices = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]\nmaterial = \"floor\"\n"
     );
-    for (name, text) in [("sobol.toml", sobol), ("triangle.toml", triangle)] {
+    let whole = settings(8, 8, 2);
+    let jobs = [
+        ("rounds.toml", SCENE.to_owned(), timed),
+        ("sobol.toml", sobol, whole.clone()),
+        ("triangle.toml", triangle, whole),
+    ];
+    for (name, text, how) in jobs {
         let scene = Bundle { name: name.into(), text, assets: vec![], refused: vec![] };
-        let id = farm.submit(scene, settings(8, 8, 2), 0).unwrap();
+        let id = farm.submit(scene, how, 0).unwrap();
         let job = farm.job(id).unwrap();
-        let old = crate::checkpoint::Checkpoint {
-            renderer: String::new(),
-            ..job.snapshot(Instant::now()).checkpoint()
-        };
+        let mut old = job.snapshot(Instant::now()).checkpoint();
+        Farm::new()
+            .restore(LoadedJob { record: job.record(), checkpoint: Some(old.clone()) }, Instant::now())
+            .unwrap();
+        old.renderer.clear();
         let e =
             Farm::new().restore(LoadedJob { record: job.record(), checkpoint: Some(old) }, Instant::now());
         assert!(matches!(e, Err(RestoreJobError::Mismatch { .. })), "{name}: {e:?}");

@@ -153,10 +153,12 @@ fn the_summary_costs_cover_the_renderer_types() {
 /// of at most two nodes per primitive and the primitives' bounds, beside the folded nodes
 /// and indices) and the slots kept after, on the trees that take the most nodes per
 /// primitive: one primitive to a leaf (scenes of spheres and parallelograms) and small
-/// triangle leaves, on scattered boxes and on boxes in a row.
+/// triangle leaves, on scattered boxes, on boxes in a row, and on clusters of four with a
+/// lone box split off each, which would pad three slots for every five primitives but
+/// for `bvh::MAX_PADDING`.
 #[test]
 fn the_summary_bvh_cost_covers_the_nodes_and_slots() {
-    use crate::render::bvh::{Aabb, Bvh, LeafPolicy};
+    use crate::render::bvh::{Aabb, Bvh, LeafPolicy, MAX_PADDING, PADDING_ALLOWANCE};
     use crate::render::sampler::hash_words;
     use tessera_description::summary as s;
     let unit = |w: &[u64]| (hash_words(w) >> 40) as f32 / (1u64 << 24) as f32;
@@ -172,12 +174,22 @@ fn the_summary_bvh_cost_covers_the_nodes_and_slots() {
             max: glam::Vec3::new(i as f32 + 0.5, 1.0, 1.0),
         })
         .collect();
+    let lone: Vec<Aabb> = (0..20_000)
+        .map(|i| {
+            let x = (i / 5) as f32 * 1000.0 + if i % 5 == 4 { 300.0 } else { (i % 5) as f32 };
+            let min = glam::Vec3::new(x, 0.0, 0.0);
+            Aabb { min, max: min + 0.001 }
+        })
+        .collect();
     // The primitives' bounds are held while the tree is built.
     let building = Bvh::BUILD_BYTES_PER_PRIMITIVE + std::mem::size_of::<Aabb>();
     let slot = crate::render::triangles::Slots::BYTES_PER_SLOT;
-    for (name, boxes) in [("scattered", &scattered), ("row", &row)] {
+    for (name, boxes) in [("scattered", &scattered), ("row", &row), ("lone", &lone)] {
         for policy in [LeafPolicy::TRIANGLES, LeafPolicy::SHAPES] {
             let bvh = Bvh::build_with(boxes, policy);
+            let padding = bvh.indices().len() - boxes.len();
+            let most = (boxes.len() as f64 * MAX_PADDING) as usize + PADDING_ALLOWANCE;
+            assert!(padding <= most, "{name} {policy:?}: {padding} padding slots");
             // A slot for every entry of the leaf order, the padding of leaves to blocks too.
             let slots = bvh.indices().len() * slot;
             let per = (bvh.bytes() + boxes.len() * building + slots) as f64 / boxes.len() as f64;

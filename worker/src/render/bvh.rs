@@ -140,12 +140,22 @@ pub struct LeafPolicy {
 /// An entry of [`Bvh::indices`] that holds no primitive: the rest of a leaf's last block.
 pub const PADDING: u32 = u32::MAX;
 
+/// The most padding a tree takes, as a fraction of its primitives. Meshes take a tenth or
+/// less (the torus knot 0.104, the terrain less), but a mesh made for it (clusters of four
+/// triangles with lone ones split off at growing distances) could make every other leaf a
+/// lone triangle padded to four slots; the bound keeps the memory the summary reserves
+/// (`tessera_description::summary::BVH_BYTES_PER_PRIMITIVE`) true.
+pub const MAX_PADDING: f64 = 0.25;
+/// Padding slots any tree may take beyond [`MAX_PADDING`], so that small meshes (the
+/// 33 triangles of `scenes/emissive_mesh.toml` take 8) keep every leaf on a block.
+pub const PADDING_ALLOWANCE: usize = 256;
+
 impl LeafPolicy {
     /// For triangle meshes: a leaf's inline triangles are tested four at a time
     /// (`triangles::Pack`), which costs about what a node's box test does, so leaves fill
     /// blocks of four and start on one. Against leaves of one to three triangles tested one
-    /// by one, the terrain's render took 10 % less time and the torus knot's random rays a
-    /// fifth (docs/speed.md, sixteenth part).
+    /// by one, the terrain's render took 10 % less time and the torus knot's random rays
+    /// about a tenth (docs/speed.md, sixteenth part).
     pub const TRIANGLES: LeafPolicy = LeafPolicy { traversal_cost: 1.0, always_leaf: 4, block: 4 };
     /// For scenes made mostly of other shapes than still triangles (spheres,
     /// parallelograms, moving primitives): one of their tests costs several box tests (a
@@ -198,7 +208,8 @@ impl Bvh {
         2 * std::mem::size_of::<Node>() + std::mem::size_of::<PrimBox>() + std::mem::size_of::<u8>();
 
     /// The primitive in each slot of the leaf order: a leaf holds slots `offset..offset +
-    /// count`.
+    /// count`. Slots between leaves of a policy with blocks hold [`PADDING`], no primitive:
+    /// the walks never hand them over, and whatever reads this array whole must skip them.
     pub fn indices(&self) -> &[u32] {
         &self.indices
     }
@@ -213,7 +224,7 @@ impl Bvh {
     /// [`Bvh::traverse`] by slot: `hit(slot, t_max)`, where slot k holds primitive
     /// `indices()[k]` (for data stored in leaf order). `COHERENT`: the ray is traced among
     /// others like it (a pixel's camera rays), which chooses the walk's loop and nothing it
-    /// visits (`Wide::nearest`).
+    /// visits (`Wide::nearest_leaves`).
     #[inline]
     pub fn traverse_slots<const COHERENT: bool>(
         &self,
@@ -275,11 +286,19 @@ impl Bvh {
 }
 
 /// `indices` with each leaf of `nodes` moved to start on a multiple of `block`, the gaps
-/// filled with [`PADDING`]; the leaves' offsets follow.
+/// filled with [`PADDING`]; the leaves' offsets follow. At most [`MAX_PADDING`] of the
+/// primitives' count is padding: once that is spent, leaves start where the last one
+/// ended, which the leaf tests take as well (a leaf of up to eight then spans three
+/// blocks), at some speed.
 fn pad(nodes: &mut [Node], indices: &[u32], block: usize) -> Vec<u32> {
-    let mut out = Vec::with_capacity(indices.len() + indices.len() / 2);
+    let mut spare = (indices.len() as f64 * MAX_PADDING) as usize + PADDING_ALLOWANCE;
+    let mut out = Vec::with_capacity(indices.len() + spare + block);
     for n in nodes.iter_mut().filter(|n| n.count > 0) {
-        out.resize(out.len().next_multiple_of(block), PADDING);
+        let gap = out.len().next_multiple_of(block) - out.len();
+        if gap <= spare {
+            out.resize(out.len() + gap, PADDING);
+            spare -= gap;
+        }
         let first = n.offset as usize;
         n.offset = out.len() as u32;
         out.extend_from_slice(&indices[first..first + n.count as usize]);
@@ -443,7 +462,8 @@ mod tests {
                     assert!(visited.contains(&(i as u32)), "ray {k} missed box {i}");
                 }
             }
-            // The triangles' leaves start on a block of four and hold no padding.
+            // The triangles' leaves start on a block of four (these boxes take less padding
+            // than `MAX_PADDING` allows) and hold no padding.
             bvh.visit_leaves(&ray, f32::INFINITY, |first, count| {
                 assert_eq!(first % 4, 0, "ray {k}: a leaf at slot {first}");
                 assert!((1..=MAX_LEAF).contains(&count), "ray {k}: a leaf of {count}");

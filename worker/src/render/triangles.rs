@@ -282,7 +282,7 @@ impl Slots {
 }
 
 /// The slots of a BVH built over `prims`, in its leaf order (slot k holds primitive
-/// `bvh.indices()[k]`).
+/// `bvh.indices()[k]`, or nothing where that is `bvh::PADDING`).
 pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Slots {
     use rayon::prelude::*;
     assert!(prims.len() <= INDEX as usize, "more primitives than slots can index");

@@ -4,6 +4,7 @@
 use glam::Vec3;
 use tessera_description::bundle::{Assets, Bundle};
 
+use crate::render::bvh::{MAX_PADDING, PADDING_ALLOWANCE};
 use crate::render::geometry::{Hit, Ray};
 use crate::render::sampler::hash_words;
 use crate::render::{Scene, SurfaceHit};
@@ -64,6 +65,36 @@ fn plain_scene(root: &std::path::Path) -> Scene {
     crate::build::parse_scene_with_assets("plain.toml", text, &files).unwrap()
 }
 
+/// A mesh whose tree wants more padding than `bvh::MAX_PADDING` allows: clusters of four
+/// triangles, each with a lone one off to the side that the SAH splits off, so that once
+/// the allowance is spent leaves start anywhere in their packs.
+fn lone_scene() -> Scene {
+    struct Files(String);
+    impl Assets for Files {
+        fn get(&self, path: &str) -> Option<&[u8]> {
+            (path == "lone.obj").then_some(self.0.as_bytes())
+        }
+    }
+    let mut obj = String::new();
+    let mut v = 0;
+    for g in 0..512 {
+        let c = Vec3::new((g % 8) as f32, (g / 8 % 8) as f32, (g / 64) as f32) * 10.0;
+        for i in 0..5 {
+            let at = if i == 4 { c + Vec3::new(4.0, 3.0, 2.0) } else { c + Vec3::splat(i as f32 * 0.3) };
+            for corner in [Vec3::ZERO, Vec3::new(1.0, 0.2, 0.0), Vec3::new(0.1, 1.0, 0.6)] {
+                let p = at + corner;
+                obj += &format!("v {} {} {}\n", p.x, p.y, p.z);
+            }
+            obj += &format!("f {} {} {}\n", v + 1, v + 2, v + 3);
+            v += 3;
+        }
+    }
+    let text = "[render]\nwidth = 1\nheight = 1\nspp = 1\n[camera]\nposition = [0, 0, 5]\n\
+                look_at = [0, 0, 0]\nfov = 40\n[materials.m]\ntype = \"lambert\"\nalbedo = 0.5\n\
+                [[mesh]]\nfile = \"lone.obj\"\nmaterial = \"m\"\n";
+    crate::build::parse_scene_with_assets("lone.toml", text, &Files(obj)).unwrap()
+}
+
 fn bits(h: &Hit) -> Vec<u32> {
     let mut v = vec![h.t.to_bits(), h.prim];
     for x in [h.p, h.p_error, h.n, h.ns] {
@@ -76,7 +107,8 @@ fn bits(h: &Hit) -> Vec<u32> {
 /// The slots give the same hits, bit for bit, as every primitive through its own
 /// test, and the same shadows, on random rays into the mesh, motion, shadow and emitting
 /// scenes: inline triangles with and without normals and texture coordinates, plain ones
-/// completed from their slots, emitting ones, moving ones.
+/// completed from their slots, emitting ones, moving ones, and leaves that do not start
+/// on a pack (`lone_scene`).
 #[test]
 fn slots_hit_what_the_primitives_hit_bit_for_bit() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
@@ -87,7 +119,10 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
         .map(|name| {
             (name.to_string(), crate::build::parse_bundle(&Bundle::read(&root.join(name)).unwrap()).unwrap())
         })
-        .chain([("plain meshes".to_string(), plain_scene(&root))]);
+        .chain([
+            ("plain meshes".to_string(), plain_scene(&root)),
+            ("lone triangles".to_string(), lone_scene()),
+        ]);
     for (name, scene) in scenes {
         plain += scene.world.slots.iter().filter(|s| s.plain_material().is_some()).count();
         let b = scene.world.bvh.bounds();
@@ -96,7 +131,12 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
         for k in 0..20_000u64 {
             let h = |j: u64| (hash_words(&[k, j, 99]) >> 40) as f32 / (1u64 << 24) as f32 - 0.5;
             let origin = c + Vec3::new(h(0), h(1), h(2)) * r;
-            let Some(dir) = Vec3::new(h(3), h(4), h(5)).try_normalize() else { continue };
+            // Every other ray aimed at a primitive, so that small ones are hit too.
+            let w = &scene.world;
+            let aim =
+                w.prims[(hash_words(&[k, 8]) % w.prims.len() as u64) as usize].bounds(&w.meshes, &w.motions);
+            let towards = if k % 2 == 1 { aim.centroid() - origin } else { Vec3::new(h(3), h(4), h(5)) };
+            let Some(dir) = towards.try_normalize() else { continue };
             let ray = Ray::new(origin, dir);
             let time = h(6) + 0.5;
             let (new, old) = (
@@ -137,6 +177,11 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
         );
     }
     assert!(plain > 0, "no plain triangle slot was tested");
+    // The lone triangles spent the tree's padding allowance, so some leaves begin inside
+    // a pack: the case the leaf test takes across three packs.
+    let w = lone_scene().world;
+    let allowance = (w.prims.len() as f64 * MAX_PADDING) as usize + PADDING_ALLOWANCE;
+    assert_eq!(w.bvh.indices().len() - w.prims.len(), allowance);
 }
 
 /// A leaf's four-lane test gives each inline triangle the bits of its own scalar test (but

@@ -2,7 +2,7 @@
 //! instructions of [`Node8::hit`]'s two 128-bit groups, lane for lane, so the decisions and
 //! entry distances are the same bits (`wide_tests::avx_box_test_gives_the_sse_bits`).
 //! AVX2 is chosen at run time ([`available`]) and the traversals are compiled twice, once
-//! with it enabled (`Wide::nearest`, `Wide::each`): a build for baseline x86-64 then runs
+//! with it enabled (`Wide::nearest_leaves`, `Wide::each_leaf`): a build for baseline x86-64 then runs
 //! the wider test on the machines that have it. No fused multiply-add: `avx` does not
 //! enable FMA, and Rust never contracts a multiply and an add on its own.
 //!

@@ -133,7 +133,7 @@ impl Wide {
         })
     }
 
-    /// [`Wide::nearest`] compiled with AVX2 enabled, so that its box tests and everything
+    /// [`Wide::nearest_leaves`] compiled with AVX2 enabled, so that its box tests and everything
     /// inlined into it (the primitives' tests too) may use it. The stack's closure is
     /// written here, not in a helper shared with the SSE2 path: a closure made in a function
     /// without the feature does not get it, and with such a helper the knot's rays took
@@ -273,7 +273,7 @@ impl Wide {
         })
     }
 
-    /// [`Wide::each`] compiled with AVX2 enabled.
+    /// [`Wide::each_leaf`] compiled with AVX2 enabled.
     #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
     #[target_feature(enable = "avx,avx2")]
     #[allow(unsafe_code)]
