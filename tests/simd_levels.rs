@@ -12,6 +12,7 @@
 
 mod common;
 
+use common::builds::*;
 use common::*;
 use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
@@ -27,30 +28,11 @@ const SPP: &str = "4";
 /// dependencies' features are this run's (a plain `cargo build` leaves out those of the
 /// dev-dependencies, and would compile them again).
 fn cargo_build(scalar: bool) -> std::io::Result<std::process::ExitStatus> {
-    let cargo = std::env::var_os("CARGO").unwrap_or_else(|| "cargo".into());
-    let mut cmd = Command::new(cargo);
-    cmd.args(["test", "--no-run", "--test", "simd_levels", "--manifest-path"]).arg(root().join("Cargo.toml"));
+    let mut cmd = nested_cargo(&["test", "--no-run", "--test", "simd_levels"]);
     if scalar {
         cmd.args(["--features", "scalar"]);
     }
-    let profile = PathBuf::from(env!("CARGO_BIN_EXE_tessera"));
-    if profile.parent().and_then(Path::file_name).is_some_and(|p| p == "release") {
-        cmd.arg("--release");
-    }
-    // What cargo set for this test process (the package's name, manifest, out dir) is not
-    // the nested cargo's business, and build scripts that watch such variables (ring's)
-    // would run again and take everything above them along, in both builds.
-    for (key, _) in std::env::vars_os() {
-        let k = key.to_string_lossy();
-        let set_by_cargo = ["CARGO_PKG_", "CARGO_MANIFEST_", "CARGO_CFG_", "CARGO_BIN_", "CARGO_CRATE_"]
-            .iter()
-            .any(|p| k.starts_with(p))
-            || ["CARGO_PRIMARY_PACKAGE", "CARGO_TARGET_TMPDIR", "OUT_DIR"].contains(&k.as_ref());
-        if set_by_cargo {
-            cmd.env_remove(&key);
-        }
-    }
-    cmd.env("CARGO_TARGET_DIR", target_dir()).stdin(Stdio::null()).status()
+    cmd.env("CARGO_TARGET_DIR", target_dir()).status()
 }
 
 /// The other build's `tessera` (scalar if this run's is not, and the other way round),
@@ -104,39 +86,6 @@ fn run_bin(bin: &Path, args: &[&str]) {
     assert!(out.status.success(), "{} {args:?}: {}", bin.display(), String::from_utf8_lossy(&out.stderr));
 }
 
-/// Every scene file under `scenes/` whose assets are all there (the terrain's mesh is
-/// generated, not kept in git), sorted.
-fn scenes() -> Vec<PathBuf> {
-    fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
-        for e in std::fs::read_dir(dir).unwrap() {
-            let p = e.unwrap().path();
-            if p.is_dir() {
-                walk(&p, out);
-            } else if p.extension().is_some_and(|e| e == "toml")
-                && !p.file_name().is_some_and(|n| n.to_string_lossy().starts_with('.'))
-            {
-                out.push(p);
-            }
-        }
-    }
-    let mut all = Vec::new();
-    walk(&root().join("scenes"), &mut all);
-    all.sort();
-    all.retain(|p| {
-        let bundle = tessera_description::Bundle::read(p);
-        let present = bundle.is_ok_and(|b| tessera_description::Description::parse(&b).is_ok());
-        if !present {
-            eprintln!(
-                "note: {} left out: it does not validate here (the terrain's mesh is generated, not in git)",
-                p.display()
-            );
-        }
-        present
-    });
-    assert!(all.len() >= 15, "expected the scenes of scenes/, found {all:?}");
-    all
-}
-
 /// The render arguments of `scene` into `out`: the scene as a still, or, for one with an
 /// animation, two frames mid-sequence (keys evaluated at a later time).
 fn render_args(scene: &Path, out: &Path) -> Vec<String> {
@@ -188,7 +137,7 @@ fn simd_and_scalar_builds_render_every_scene_to_the_same_bytes() {
     assert!(read(&default) != read(scalar), "the two builds are the same binary: nothing would be tested");
     let dir = tempfile::tempdir().unwrap();
     let mut failures = Vec::new();
-    for scene in scenes() {
+    for scene in scene_files() {
         let name = scene.strip_prefix(root().join("scenes")).unwrap().display().to_string().replace('/', "_");
         let simd_out = dir.path().join(format!("{name}.simd.exr"));
         let scalar_out = dir.path().join(format!("{name}.scalar.exr"));
@@ -203,47 +152,13 @@ fn simd_and_scalar_builds_render_every_scene_to_the_same_bytes() {
     assert!(failures.is_empty(), "the scalar build renders other bits:\n{}", failures.join("\n"));
 }
 
-/// A sample of `/metrics` (a counter without labels, or with the labels given).
-fn metric(text: &str, name: &str) -> f64 {
-    text.lines()
-        .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.trim().parse().ok())
-        .unwrap_or_else(|| panic!("no {name} in the metrics:\n{text}"))
-}
-
-/// The coordinator's `/metrics` over plain HTTP on loopback (an open coordinator).
-fn scrape(http: &str) -> String {
-    use std::io::{Read, Write};
-    let mut s = std::net::TcpStream::connect(http).unwrap();
-    s.set_read_timeout(Some(Duration::from_secs(30))).unwrap();
-    write!(s, "GET /metrics HTTP/1.1\r\nHost: {http}\r\nConnection: close\r\n\r\n").unwrap();
-    let mut raw = String::new();
-    s.read_to_string(&mut raw).unwrap();
-    let (head, body) = raw.split_once("\r\n\r\n").unwrap();
-    assert!(head.starts_with("HTTP/1.1 200"), "{head}");
-    assert!(!head.to_ascii_lowercase().contains("chunked"), "{head}");
-    body.to_string()
-}
-
 /// A worker built for another SIMD level in the farm: a default worker and a scalar one,
 /// every batch audited (rendered again on the other and compared bit for bit). Every
 /// audit agrees, nobody is struck, and the images are the local render's bytes.
 #[test]
 fn a_farm_of_a_simd_and_a_scalar_worker_agrees_bit_for_bit() {
     let Some(scalar) = other_build() else { return };
-    let dir = tempfile::tempdir().unwrap();
-    let coord = Proc::spawn(&[
-        "coordinator",
-        "--listen",
-        "127.0.0.1:0",
-        "--http",
-        "127.0.0.1:0",
-        "--audit-fraction",
-        "1",
-    ]);
-    let line = coord.wait_for("coordinator listening on ", Duration::from_secs(30));
-    let url = format!("http://{}", line.rsplit("listening on ").next().unwrap().trim());
-    let line = coord.wait_for("web dashboard on http://", Duration::from_secs(30));
-    let http = line.rsplit("http://").next().unwrap().trim().to_string();
+    let (_coord, url, http) = auditing_coordinator();
     let simd = Proc::spawn(&["worker", "--coordinator", &url, "--threads", "1", "--name", "simd"]);
     let other = Proc::spawn_command(Command::new(scalar).args([
         "worker",
@@ -260,35 +175,5 @@ fn a_farm_of_a_simd_and_a_scalar_worker_agrees_bit_for_bit() {
     // Scenes with motion, textures, an environment map, glTF nodes and many BSDFs.
     let picked =
         ["showcase.toml", "environment.toml", "motion_blur.toml", "gltf_quad/quad_gltf.toml", "gloss.toml"];
-    for name in picked {
-        let scene = root().join("scenes").join(name);
-        let stem = name.replace('/', "_");
-        let local = dir.path().join(format!("{stem}.local.exr"));
-        render_local(&scene, &local, 1, &["--spp", SPP, "--size", SIZE]);
-        let farm = dir.path().join(format!("{stem}.farm.exr"));
-        let o = run(&[
-            "submit",
-            scene.to_str().unwrap(),
-            "--coordinator",
-            &url,
-            "--spp",
-            SPP,
-            "--size",
-            SIZE,
-            "-o",
-            farm.to_str().unwrap(),
-        ]);
-        assert!(o.status.success(), "submit {name}: {}", String::from_utf8_lossy(&o.stderr));
-        assert!(
-            read(&farm) == read(&local),
-            "{name}: the farm's image is not the local render's: {}",
-            difference(&farm, &local)
-        );
-    }
-    let m = scrape(&http);
-    let agreed = metric(&m, "tessera_audits_total{outcome=\"agreed\"}");
-    let disagreed = metric(&m, "tessera_audits_total{outcome=\"disagreed\"}");
-    assert!(agreed > 0.0 && disagreed == 0.0, "audits: {agreed} agreed, {disagreed} disagreed\n{m}");
-    assert_eq!(metric(&m, "tessera_strikes_total"), 0.0, "{m}");
-    assert_eq!(metric(&m, "tessera_quarantines_total"), 0.0, "{m}");
+    farm_agrees_with_local("simd and scalar", &url, &http, &picked, SIZE, SPP);
 }

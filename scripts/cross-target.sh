@@ -1,0 +1,73 @@
+#!/usr/bin/env bash
+# Makes another target ready for tests/other_targets.rs: the Rust standard library for it
+# (`rustup target add`), a C compiler and linker for it (ring, SQLite and BLAKE3 compile C),
+# and for aarch64 qemu's user-mode emulator, which runs its binaries on this machine.
+# Debian's packages, installed with apt when this runs as root on a machine with apt, under
+# the lock every helper script takes for apt/dpkg. Exits 0 when the target is ready; exits
+# 2 with one line on stderr saying why not (the test then prints SKIPPED with that line).
+# Usage: scripts/cross-target.sh aarch64-unknown-linux-gnu | x86_64-unknown-linux-musl
+set -euo pipefail
+target=${1:?usage: scripts/cross-target.sh TARGET}
+case "$target" in
+  aarch64-unknown-linux-gnu)
+    tools=(aarch64-linux-gnu-gcc qemu-aarch64)
+    packages=(gcc-aarch64-linux-gnu libc6-dev-arm64-cross qemu-user)
+    ;;
+  x86_64-unknown-linux-musl)
+    tools=(musl-gcc)
+    packages=(musl-tools)
+    ;;
+  *)
+    echo "scripts/cross-target.sh knows no target $target" >&2
+    exit 2
+    ;;
+esac
+
+missing() {
+  local t
+  for t in "${tools[@]}"; do
+    command -v "$t" >/dev/null 2>&1 || return 0
+  done
+  return 1
+}
+
+if missing; then
+  if ! command -v apt-get >/dev/null 2>&1; then
+    echo "no ${tools[*]} for $target, and no apt-get to install ${packages[*]}" >&2
+    exit 2
+  fi
+  if [ "$(id -u)" != 0 ]; then
+    echo "no ${tools[*]} for $target, and installing ${packages[*]} needs root" >&2
+    exit 2
+  fi
+  log=$(mktemp)
+  trap 'rm -f "$log"' EXIT
+  install() {
+    DEBIAN_FRONTEND=noninteractive flock /tmp/tessera-apt.lock \
+      apt-get install -y --no-install-recommends "${packages[@]}" >"$log" 2>&1
+  }
+  # A machine that has never fetched the package lists knows none of them yet.
+  if ! install; then
+    flock /tmp/tessera-apt.lock apt-get update >>"$log" 2>&1 || true
+    if ! install; then
+      echo "apt-get install ${packages[*]} failed: $(grep -E '^E:' "$log" | head -1)" >&2
+      exit 2
+    fi
+  fi
+  if missing; then
+    echo "${packages[*]} installed, but ${tools[*]} are not all on PATH" >&2
+    exit 2
+  fi
+fi
+
+# The standard library for the target, in the toolchain that builds the project.
+if [ ! -d "$(rustc --print sysroot)/lib/rustlib/$target/lib" ]; then
+  if ! command -v rustup >/dev/null 2>&1; then
+    echo "the toolchain has no standard library for $target, and there is no rustup to add it" >&2
+    exit 2
+  fi
+  if ! out=$(flock /tmp/tessera-rustup.lock rustup target add "$target" 2>&1); then
+    echo "rustup target add $target failed: $(echo "$out" | tail -1)" >&2
+    exit 2
+  fi
+fi

@@ -1,0 +1,167 @@
+//! The same bits on other machines (docs/determinism.md): `tessera` built for aarch64 (run
+//! here by qemu's user-mode emulator, which computes IEEE arithmetic as an aarch64 CPU
+//! does) and for x86-64 against musl's C library instead of glibc renders every scene of
+//! `scenes/` to this run's checksums, and a worker of each, in a farm with one of this
+//! run's, passes every audit bit for bit.
+//!
+//! `scripts/cross-target.sh` makes each target ready (the standard library through rustup,
+//! Debian's cross compiler or musl-gcc, qemu-user); where it cannot, the tests print
+//! SKIPPED with its reason. The builds go to their own target directory
+//! (`<target>/other-targets`), in this run's profile: minutes each, the first time.
+
+mod common;
+
+use common::builds::*;
+use common::*;
+use std::path::{Path, PathBuf};
+use std::process::{Command, Stdio};
+use std::sync::OnceLock;
+use std::time::Duration;
+
+/// Small and few samples: every code path of a scene, in seconds even under emulation.
+const SIZE: &str = "40x30";
+const SPP: &str = "4";
+
+/// A target this file builds for, and how its binaries run here.
+#[derive(Clone, Copy, Debug)]
+enum Target {
+    /// aarch64 Linux with glibc, under `qemu-aarch64`.
+    Aarch64,
+    /// x86-64 Linux with musl, statically linked: it runs as it is.
+    Musl,
+}
+
+impl Target {
+    const ALL: [Target; 2] = [Target::Aarch64, Target::Musl];
+
+    fn triple(self) -> &'static str {
+        match self {
+            Target::Aarch64 => "aarch64-unknown-linux-gnu",
+            Target::Musl => "x86_64-unknown-linux-musl",
+        }
+    }
+
+    /// The C compiler (and linker) cargo and the `cc` crate use for the target.
+    fn env(self) -> Vec<(String, &'static str)> {
+        let under = self.triple().replace('-', "_");
+        match self {
+            Target::Aarch64 => vec![
+                (format!("CARGO_TARGET_{}_LINKER", under.to_uppercase()), "aarch64-linux-gnu-gcc"),
+                (format!("CC_{under}"), "aarch64-linux-gnu-gcc"),
+                (format!("AR_{under}"), "aarch64-linux-gnu-ar"),
+            ],
+            Target::Musl => vec![(format!("CC_{under}"), "musl-gcc")],
+        }
+    }
+
+    /// A command that runs `bin` here.
+    fn command(self, bin: &Path) -> Command {
+        let mut cmd = match self {
+            Target::Aarch64 => {
+                let mut c = Command::new("qemu-aarch64");
+                // Where Debian's cross packages put aarch64's dynamic loader and glibc.
+                c.args(["-L", "/usr/aarch64-linux-gnu"]).arg(bin);
+                c
+            }
+            Target::Musl => Command::new(bin),
+        };
+        cmd.env("RUST_LOG", "info").stdin(Stdio::null());
+        cmd
+    }
+
+    /// This target's `tessera`, built on first use; `None` (after saying why) where the
+    /// target cannot be made ready here.
+    fn build(self) -> Option<&'static Path> {
+        static BUILT: [OnceLock<Option<PathBuf>>; 2] = [OnceLock::new(), OnceLock::new()];
+        BUILT[self as usize]
+            .get_or_init(|| {
+                let ready = Command::new("bash")
+                    .arg(root().join("scripts/cross-target.sh"))
+                    .arg(self.triple())
+                    .stdin(Stdio::null())
+                    .output();
+                match ready {
+                    Ok(o) if o.status.success() => {}
+                    Ok(o) => {
+                        let why = String::from_utf8_lossy(&o.stderr).trim().to_string();
+                        eprintln!("SKIPPED: {}: {why}", self.triple());
+                        return None;
+                    }
+                    Err(e) => {
+                        eprintln!("SKIPPED: {}: cannot run scripts/cross-target.sh: {e}", self.triple());
+                        return None;
+                    }
+                }
+                let dir = target_dir().join("other-targets");
+                let mut cargo = nested_cargo(&["build", "--bin", "tessera", "--target", self.triple()]);
+                cargo.env("CARGO_TARGET_DIR", &dir).envs(self.env());
+                let status = cargo.status().expect("cargo runs");
+                assert!(status.success(), "building tessera for {} failed", self.triple());
+                // `debug` or `release`, as this run's.
+                let ours = PathBuf::from(env!("CARGO_BIN_EXE_tessera"));
+                let profile = ours.parent().and_then(Path::file_name).expect("a profile directory");
+                let bin = dir.join(self.triple()).join(profile).join("tessera");
+                assert!(bin.is_file(), "no {}", bin.display());
+                Some(bin)
+            })
+            .as_deref()
+    }
+}
+
+/// The checksum `tessera bench samples` prints for `scene` (the renderer in-process: a
+/// `render` would start a worker process, which the emulator does not follow into).
+fn checksum(mut cmd: Command, scene: &Path) -> String {
+    let args = ["bench", "samples", "--threads", "1", "--runs", "1", "--size", SIZE, "--spp", SPP];
+    let out = cmd.args(args).arg(scene).stdout(Stdio::piped()).stderr(Stdio::piped()).output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "bench samples {}: {text}", scene.display());
+    let found = text.lines().find_map(|l| l.split("image checksum ").nth(1)).map(str::trim);
+    found.unwrap_or_else(|| panic!("no checksum from bench samples {}: {text}", scene.display())).to_string()
+}
+
+/// Every scene renders to this run's bits on aarch64 and with musl.
+#[test]
+fn other_targets_render_every_scene_to_the_same_bytes() {
+    let scenes = scene_files();
+    let ours: Vec<String> = scenes.iter().map(|s| checksum(tessera(), s)).collect();
+    for target in Target::ALL {
+        let Some(bin) = target.build() else { continue };
+        let mut failures = Vec::new();
+        for (scene, want) in scenes.iter().zip(&ours) {
+            let got = checksum(target.command(bin), scene);
+            if &got != want {
+                failures.push(format!("{}: {got} against {want}", scene.display()));
+            }
+        }
+        assert!(failures.is_empty(), "{:?} renders other bits:\n{}", target, failures.join("\n"));
+    }
+}
+
+/// A worker of each other target in a farm with one of this run's, every batch audited
+/// (rendered again on the other worker and compared bit for bit): every audit agrees,
+/// nobody is struck, and the images are the local render's bytes.
+#[test]
+fn a_farm_with_an_aarch64_and_a_musl_worker_agrees_bit_for_bit() {
+    for target in Target::ALL {
+        let Some(bin) = target.build() else { continue };
+        let (_coord, url, http) = auditing_coordinator();
+        let name = format!("{target:?}");
+        let ours = Proc::spawn(&["worker", "--coordinator", &url, "--threads", "1", "--name", "ours"]);
+        let other = Proc::spawn_command(target.command(bin).args([
+            "worker",
+            "--coordinator",
+            &url,
+            "--threads",
+            "1",
+            "--name",
+            &name,
+        ]));
+        ours.wait_for("connected to", Duration::from_secs(30));
+        // Emulated, the worker starts in seconds rather than milliseconds.
+        other.wait_for("connected to", Duration::from_secs(120));
+
+        // Motion, textures, an environment map, glTF nodes, many BSDFs, a mesh.
+        let picked = ["showcase.toml", "environment.toml", "motion_blur.toml", "gltf_quad/quad_gltf.toml"];
+        farm_agrees_with_local(&name, &url, &http, &picked, SIZE, SPP);
+    }
+}
