@@ -43,12 +43,13 @@ if missing; then
   log=$(mktemp)
   trap 'rm -f "$log"' EXIT
   install() {
-    DEBIAN_FRONTEND=noninteractive flock /tmp/tessera-apt.lock \
-      apt-get install -y --no-install-recommends "${packages[@]}" >"$log" 2>&1
+    # dpkg's own lock too: a fresh machine may be running unattended upgrades.
+    DEBIAN_FRONTEND=noninteractive flock /tmp/tessera-apt.lock timeout 900 \
+      apt-get install -y --no-install-recommends -o DPkg::Lock::Timeout=300 "${packages[@]}" >"$log" 2>&1
   }
   # A machine that has never fetched the package lists knows none of them yet.
   if ! install; then
-    flock /tmp/tessera-apt.lock apt-get update >>"$log" 2>&1 || true
+    flock /tmp/tessera-apt.lock timeout 600 apt-get update >>"$log" 2>&1 || true
     if ! install; then
       echo "apt-get install ${packages[*]} failed: $(grep -E '^E:' "$log" | head -1)" >&2
       exit 2
@@ -66,8 +67,28 @@ if [ ! -d "$(rustc --print sysroot)/lib/rustlib/$target/lib" ]; then
     echo "the toolchain has no standard library for $target, and there is no rustup to add it" >&2
     exit 2
   fi
-  if ! out=$(flock /tmp/tessera-rustup.lock rustup target add "$target" 2>&1); then
+  if ! out=$(flock /tmp/tessera-rustup.lock timeout 900 rustup target add "$target" 2>&1); then
     echo "rustup target add $target failed: $(echo "$out" | tail -1)" >&2
     exit 2
   fi
+fi
+
+# The tools on PATH are not enough: a C program built for the target must link against
+# its C library and run here (under qemu for aarch64, with the loader where the test
+# points it: Debian's /usr/aarch64-linux-gnu).
+work=$(mktemp -d)
+trap 'rm -rf "$work" "${log:-}"' EXIT
+printf '#include <stdio.h>\nint main(void) { puts("ok"); return 0; }\n' >"$work/ok.c"
+case "$target" in
+  aarch64-unknown-linux-gnu)
+    built=$(aarch64-linux-gnu-gcc "$work/ok.c" -o "$work/ok" 2>&1) &&
+      ran=$(timeout 60 qemu-aarch64 -L /usr/aarch64-linux-gnu "$work/ok" 2>&1) || true
+    ;;
+  x86_64-unknown-linux-musl)
+    built=$(musl-gcc -static "$work/ok.c" -o "$work/ok" 2>&1) && ran=$(timeout 60 "$work/ok" 2>&1) || true
+    ;;
+esac
+if [ "${ran:-}" != ok ]; then
+  echo "a C program for $target does not build and run here: $(echo "${built:-}${ran:-}" | head -1)" >&2
+  exit 2
 fi

@@ -69,42 +69,44 @@ impl Target {
         cmd
     }
 
-    /// This target's `tessera`, built on first use; `None` (after saying why) where the
-    /// target cannot be made ready here.
+    /// This target's `tessera`, built on first use; `None` (after saying why, in every
+    /// test that asks) where the target cannot be made ready here.
     fn build(self) -> Option<&'static Path> {
-        static BUILT: [OnceLock<Option<PathBuf>>; 2] = [OnceLock::new(), OnceLock::new()];
-        BUILT[self as usize]
-            .get_or_init(|| {
-                let ready = Command::new("bash")
-                    .arg(root().join("scripts/cross-target.sh"))
-                    .arg(self.triple())
-                    .stdin(Stdio::null())
-                    .output();
-                match ready {
-                    Ok(o) if o.status.success() => {}
-                    Ok(o) => {
-                        let why = String::from_utf8_lossy(&o.stderr).trim().to_string();
-                        eprintln!("SKIPPED: {}: {why}", self.triple());
-                        return None;
-                    }
-                    Err(e) => {
-                        eprintln!("SKIPPED: {}: cannot run scripts/cross-target.sh: {e}", self.triple());
-                        return None;
-                    }
-                }
-                let dir = target_dir().join("other-targets");
-                let mut cargo = nested_cargo(&["build", "--bin", "tessera", "--target", self.triple()]);
-                cargo.env("CARGO_TARGET_DIR", &dir).envs(self.env());
-                let status = cargo.status().expect("cargo runs");
-                assert!(status.success(), "building tessera for {} failed", self.triple());
-                // `debug` or `release`, as this run's.
-                let ours = PathBuf::from(env!("CARGO_BIN_EXE_tessera"));
-                let profile = ours.parent().and_then(Path::file_name).expect("a profile directory");
-                let bin = dir.join(self.triple()).join(profile).join("tessera");
-                assert!(bin.is_file(), "no {}", bin.display());
-                Some(bin)
-            })
-            .as_deref()
+        static BUILT: [OnceLock<Result<PathBuf, String>>; 2] = [OnceLock::new(), OnceLock::new()];
+        let built = BUILT[self as usize].get_or_init(|| {
+            let mut script = Command::new("bash");
+            script.arg(root().join("scripts/cross-target.sh")).arg(self.triple()).stdin(Stdio::null());
+            // The script's own waits (apt, rustup) are bounded by `timeout` inside it.
+            let ready = output_within(&mut script, Duration::from_secs(40 * 60));
+            if !ready.status.success() {
+                let why = String::from_utf8_lossy(&ready.stderr).trim().to_string();
+                return Err(if why.is_empty() {
+                    format!("scripts/cross-target.sh: {}", ready.status)
+                } else {
+                    why
+                });
+            }
+            let dir = target_dir().join("other-targets");
+            let mut cargo = nested_cargo(&["build", "--bin", "tessera", "--target", self.triple()]);
+            cargo.env("CARGO_TARGET_DIR", &dir).envs(self.env());
+            // About six minutes on two cores; a download that stalls fails here.
+            let out = output_within(&mut cargo, Duration::from_secs(45 * 60));
+            let log = String::from_utf8_lossy(&out.stderr);
+            assert!(out.status.success(), "building tessera for {} failed:\n{log}", self.triple());
+            // `debug` or `release`, as this run's.
+            let ours = PathBuf::from(env!("CARGO_BIN_EXE_tessera"));
+            let profile = ours.parent().and_then(Path::file_name).expect("a profile directory");
+            let bin = dir.join(self.triple()).join(profile).join("tessera");
+            assert!(bin.is_file(), "no {}", bin.display());
+            Ok(bin)
+        });
+        match built {
+            Ok(bin) => Some(bin),
+            Err(why) => {
+                eprintln!("SKIPPED: {}: {why}", self.triple());
+                None
+            }
+        }
     }
 }
 
@@ -112,16 +114,18 @@ impl Target {
 /// `render` would start a worker process, which the emulator does not follow into).
 fn checksum(mut cmd: Command, scene: &Path) -> String {
     let args = ["bench", "samples", "--threads", "1", "--runs", "1", "--size", SIZE, "--spp", SPP];
-    let out = cmd.args(args).arg(scene).stdout(Stdio::piped()).stderr(Stdio::piped()).output().unwrap();
+    // Emulated, a scene takes a second or two.
+    let out = output_within(cmd.args(args).arg(scene), Duration::from_secs(300));
     let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
     assert!(out.status.success(), "bench samples {}: {text}", scene.display());
     let found = text.lines().find_map(|l| l.split("image checksum ").nth(1)).map(str::trim);
     found.unwrap_or_else(|| panic!("no checksum from bench samples {}: {text}", scene.display())).to_string()
 }
 
-/// Every scene renders to this run's bits on aarch64 and with musl.
+/// Every scene renders to the fixed-point sums of this run's build on aarch64 and with musl
+/// (the checksum of every pixel's sums, which decide the image's bytes).
 #[test]
-fn other_targets_render_every_scene_to_the_same_bytes() {
+fn other_targets_render_every_scene_to_the_same_sums() {
     let scenes = scene_files();
     let ours: Vec<String> = scenes.iter().map(|s| checksum(tessera(), s)).collect();
     for target in Target::ALL {

@@ -114,20 +114,6 @@ fn outputs(scene: &Path, out: &Path) -> Vec<PathBuf> {
     }
 }
 
-/// How two EXR images differ, for the failure message.
-fn difference(a: &Path, b: &Path) -> String {
-    let (Ok(x), Ok(y)) = (image::open(a), image::open(b)) else {
-        return "the files differ and do not both decode".into();
-    };
-    let (x, y) = (x.into_rgb32f().into_raw(), y.into_rgb32f().into_raw());
-    if x.len() != y.len() {
-        return format!("{} against {} values", x.len(), y.len());
-    }
-    let off = x.iter().zip(&y).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
-    let max = x.iter().zip(&y).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
-    format!("{off} of {} values differ, by up to {max:e}", x.len())
-}
-
 /// The renderer on glam's SSE2 paths and on its scalar code gives the same bytes, scene by
 /// scene: the SIMD code's results equal the scalar path's.
 #[test]

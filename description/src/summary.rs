@@ -15,8 +15,8 @@ pub const PRIMITIVE_BYTES: u64 = 96;
 /// primitives' bounds (24), the slots in leaf order (44 bytes each: a primitive's index
 /// and material, and its corners in a pack of four; a mesh's leaves start on a pack, and
 /// the padding between them, a tenth more slots on the torus knot, is at most a quarter
-/// more, `MAX_PADDING`: 55 a primitive), and the folded nodes of eight with the
-/// primitive's index (75: up to 67 measured on the trees with the most nodes per
+/// more, `MAX_PADDING`, and 256 slots: 55 a primitive), and the folded nodes of eight
+/// with the primitive's index (75: up to 67 measured on the trees with the most nodes per
 /// primitive). A worker test (`build::tests`) builds such trees, padding included, and
 /// holds the total to this constant.
 pub const BVH_BYTES_PER_PRIMITIVE: u64 = 2 * 36 + 33 + 24 + 55 + 75;

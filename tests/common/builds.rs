@@ -3,7 +3,7 @@
 //! coordinator's metrics that say whether every audit agreed.
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Stdio};
+use std::process::{Command, Output, Stdio};
 use std::time::Duration;
 
 use super::{read, render_local, root, run_with_timeout, Proc};
@@ -31,6 +31,41 @@ pub fn nested_cargo(args: &[&str]) -> Command {
     }
     cmd.stdin(Stdio::null());
     cmd
+}
+
+/// Runs `cmd` to completion, its output captured; panics, with what it printed, if it
+/// takes longer than `limit` (a stuck emulator or a network that drops packets must fail
+/// the test, not hang the suite).
+pub fn output_within(cmd: &mut Command, limit: Duration) -> Output {
+    let mut child =
+        cmd.stdout(Stdio::piped()).stderr(Stdio::piped()).spawn().unwrap_or_else(|e| panic!("{cmd:?}: {e}"));
+    // Drained on threads, so that a chatty child does not block on a full pipe.
+    let drain = |mut r: Box<dyn std::io::Read + Send>| {
+        std::thread::spawn(move || {
+            let mut v = Vec::new();
+            let _ = r.read_to_end(&mut v);
+            v
+        })
+    };
+    let out = drain(Box::new(child.stdout.take().unwrap()));
+    let err = drain(Box::new(child.stderr.take().unwrap()));
+    let start = std::time::Instant::now();
+    let status = loop {
+        if let Some(s) = child.try_wait().unwrap() {
+            break Some(s);
+        }
+        if start.elapsed() > limit {
+            let _ = child.kill();
+            let _ = child.wait();
+            break None;
+        }
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    let (stdout, stderr) = (out.join().unwrap(), err.join().unwrap());
+    match status {
+        Some(status) => Output { status, stdout, stderr },
+        None => panic!("{cmd:?} ran over {limit:?}; stderr:\n{}", String::from_utf8_lossy(&stderr)),
+    }
 }
 
 /// Whether this run's `tessera` was built with the release profile.
@@ -130,7 +165,11 @@ pub fn farm_agrees_with_local(who: &str, url: &str, http: &str, scenes: &[&str],
         // Emulated workers are slow.
         let o = run_with_timeout(&[&args[..], &[farm.to_str().unwrap()]].concat(), Duration::from_secs(300));
         assert!(o.status.success(), "{who}, submit {name}: {}", String::from_utf8_lossy(&o.stderr));
-        assert!(read(&farm) == read(&local), "{who}, {name}: the farm's image is not the local render's");
+        assert!(
+            read(&farm) == read(&local),
+            "{who}, {name}: the farm's image is not the local render's: {}",
+            difference(&farm, &local)
+        );
     }
     let m = scrape_metrics(http);
     let agreed = metric(&m, "tessera_audits_total{outcome=\"agreed\"}");
@@ -138,4 +177,18 @@ pub fn farm_agrees_with_local(who: &str, url: &str, http: &str, scenes: &[&str],
     assert!(agreed > 0.0 && disagreed == 0.0, "{who}: audits: {agreed} agreed, {disagreed} disagreed\n{m}");
     assert_eq!(metric(&m, "tessera_strikes_total"), 0.0, "{who}: {m}");
     assert_eq!(metric(&m, "tessera_quarantines_total"), 0.0, "{who}: {m}");
+}
+
+/// How two EXR images differ, for a failure message.
+pub fn difference(a: &Path, b: &Path) -> String {
+    let (Ok(x), Ok(y)) = (image::open(a), image::open(b)) else {
+        return "the files differ and do not both decode".into();
+    };
+    let (x, y) = (x.into_rgb32f().into_raw(), y.into_rgb32f().into_raw());
+    if x.len() != y.len() {
+        return format!("{} against {} values", x.len(), y.len());
+    }
+    let off = x.iter().zip(&y).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+    let max = x.iter().zip(&y).map(|(a, b)| (a - b).abs()).fold(0f32, f32::max);
+    format!("{off} of {} values differ, by up to {max:e}", x.len())
 }

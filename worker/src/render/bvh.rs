@@ -140,11 +140,11 @@ pub struct LeafPolicy {
 /// An entry of [`Bvh::indices`] that holds no primitive: the rest of a leaf's last block.
 pub const PADDING: u32 = u32::MAX;
 
-/// The most padding a tree takes, as a fraction of its primitives. Meshes take a tenth or
-/// less (the torus knot 0.104, the terrain less), but a mesh made for it (clusters of four
-/// triangles with lone ones split off at growing distances) could make every other leaf a
-/// lone triangle padded to four slots; the bound keeps the memory the summary reserves
-/// (`tessera_description::summary::BVH_BYTES_PER_PRIMITIVE`) true.
+/// The most padding a tree takes, as a fraction of its primitives. Meshes take an eighth or
+/// less (the terrain 0.04, the torus knot 0.10, `scenes/mesh.toml` 0.12), but a mesh made
+/// for it (clusters of four triangles with lone ones split off at growing distances) could
+/// make every other leaf a lone triangle padded to four slots; the bound keeps the memory
+/// the summary reserves (`tessera_description::summary::BVH_BYTES_PER_PRIMITIVE`) true.
 pub const MAX_PADDING: f64 = 0.25;
 /// Padding slots any tree may take beyond [`MAX_PADDING`], so that small meshes (the
 /// 33 triangles of `scenes/emissive_mesh.toml` take 8) keep every leaf on a block.

@@ -177,11 +177,13 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
         );
     }
     assert!(plain > 0, "no plain triangle slot was tested");
-    // The lone triangles spent the tree's padding allowance, so some leaves begin inside
-    // a pack: the case the leaf test takes across three packs.
+    // The lone triangles spent the tree's padding allowance (all but less than a block of
+    // it), so some leaves begin inside a pack: the case the leaf test takes across three
+    // packs.
     let w = lone_scene().world;
     let allowance = (w.prims.len() as f64 * MAX_PADDING) as usize + PADDING_ALLOWANCE;
-    assert_eq!(w.bvh.indices().len() - w.prims.len(), allowance);
+    let padding = w.bvh.indices().len() - w.prims.len();
+    assert!(padding <= allowance && padding + 3 >= allowance, "{padding} padding slots of {allowance}");
 }
 
 /// A leaf's four-lane test gives each inline triangle the bits of its own scalar test (but
