@@ -147,7 +147,7 @@ pub const PADDING: u32 = u32::MAX;
 /// the summary reserves (`tessera_description::summary::BVH_BYTES_PER_PRIMITIVE`) true.
 pub const MAX_PADDING: f64 = 0.25;
 /// Padding slots any tree may take beyond [`MAX_PADDING`], so that small meshes (the
-/// 33 triangles of `scenes/emissive_mesh.toml` take 8) keep every leaf on a block.
+/// 33 triangles of `scenes/emissive_mesh.toml` take 12) keep every leaf on a block.
 pub const PADDING_ALLOWANCE: usize = 256;
 
 impl LeafPolicy {
