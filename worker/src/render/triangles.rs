@@ -287,38 +287,33 @@ pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Slots {
     use rayon::prelude::*;
     assert!(prims.len() <= INDEX as usize, "more primitives than slots can index");
     let indices = bvh.indices();
-    // Maps in order: the same slots on any number of threads.
-    let slots: Vec<Slot> = indices
-        .par_iter()
-        .map(|&i| {
-            let Some(prim) = prims.get(i as usize) else {
-                // Padding (`bvh::PADDING`): never visited.
-                return Slot { prim: INDEX | GENERIC, material: 0 };
-            };
-            match inline(prim, meshes) {
-                Some(_) if plain(prim, meshes) => Slot { prim: i | PLAIN, material: prim.material },
-                Some(_) => Slot { prim: i, material: prim.material },
-                None => Slot { prim: i | GENERIC, material: prim.material },
-            }
-        })
-        .collect();
-    let packs = indices
+    // A pack's four slots and their corners in one pass, each primitive's corners found
+    // once; maps in order: the same slots on any number of threads.
+    let (packs, fours): (Vec<Pack>, Vec<[Slot; 4]>) = indices
         .par_chunks(4)
         .map(|four| {
             let mut pack = Pack::EMPTY;
+            // Padding (`bvh::PADDING`), and lanes past the last slot: never visited.
+            let mut slots = [Slot { prim: INDEX | GENERIC, material: 0 }; 4];
             for (l, &i) in four.iter().enumerate() {
                 let Some(prim) = prims.get(i as usize) else { continue };
+                let corners = inline(prim, meshes);
+                slots[l] = match corners {
+                    Some(_) if plain(prim, meshes) => Slot { prim: i | PLAIN, material: prim.material },
+                    Some(_) => Slot { prim: i, material: prim.material },
+                    None => Slot { prim: i | GENERIC, material: prim.material },
+                };
                 // A slot that is not an inline triangle is marked by NaN corners.
-                let corners = inline(prim, meshes).unwrap_or([Vec3::NAN; 3]);
-                for (c, p) in corners.iter().enumerate() {
+                for (c, p) in corners.unwrap_or([Vec3::NAN; 3]).iter().enumerate() {
                     for a in 0..3 {
                         pack.p[c][a][l] = p[a];
                     }
                 }
             }
-            pack
+            (pack, slots)
         })
-        .collect();
+        .unzip();
+    let slots: Vec<Slot> = fours.into_iter().flatten().take(indices.len()).collect();
     let any_inline = slots.par_iter().any(|s| s.prim & GENERIC == 0);
     Slots { slots, packs, any_inline }
 }
