@@ -137,6 +137,25 @@ pub struct LeafPolicy {
     block: usize,
 }
 
+/// A leaf's slots `first..first + count` tested one after another, `hit(slot, t_max)`
+/// returning the distance of a hit closer than `t_max`, each against the `t_max` the ones
+/// before it left; returns the last. The order every leaf test keeps, the one of four
+/// lanes at once included.
+#[inline(always)]
+pub fn nearest_in_leaf(
+    first: usize,
+    count: usize,
+    mut t_max: f32,
+    mut hit: impl FnMut(usize, f32) -> Option<f32>,
+) -> f32 {
+    for k in first..first + count {
+        if let Some(t) = hit(k, t_max) {
+            t_max = t_max.min(t);
+        }
+    }
+    t_max
+}
+
 /// An entry of [`Bvh::indices`] that holds no primitive: the rest of a leaf's last block.
 pub const PADDING: u32 = u32::MAX;
 
@@ -232,13 +251,8 @@ impl Bvh {
         t_max: f32,
         mut hit: impl FnMut(usize, f32) -> Option<f32>,
     ) -> f32 {
-        self.wide.nearest_leaves::<COHERENT>(ray.origin, ray.dir, t_max, |first, count, mut t_max| {
-            for k in first..first + count {
-                if let Some(t) = hit(k, t_max) {
-                    t_max = t_max.min(t);
-                }
-            }
-            t_max
+        self.wide.nearest_leaves::<COHERENT>(ray.origin, ray.dir, t_max, |first, count, t_max| {
+            nearest_in_leaf(first, count, t_max, &mut hit)
         })
     }
 

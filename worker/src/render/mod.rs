@@ -252,12 +252,7 @@ impl Scene {
                 }
                 return t_max;
             }
-            for k in first..first + count {
-                if let Some(t) = slot(k, t_max, None) {
-                    t_max = t_max.min(t);
-                }
-            }
-            t_max
+            bvh::nearest_in_leaf(first, count, t_max, |k, t_max| slot(k, t_max, None))
         });
         let complete = |i: u32, hit: Option<Hit>| {
             let prim = &w.prims[i as usize];

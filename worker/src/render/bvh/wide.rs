@@ -88,13 +88,8 @@ impl Wide {
         t_max: f32,
         mut hit: impl FnMut(usize, f32) -> Option<f32>,
     ) -> f32 {
-        self.nearest_leaves::<COHERENT>(origin, dir, t_max, |first, count, mut t_max| {
-            for k in first..first + count {
-                if let Some(t) = hit(k, t_max) {
-                    t_max = t_max.min(t);
-                }
-            }
-            t_max
+        self.nearest_leaves::<COHERENT>(origin, dir, t_max, |first, count, t_max| {
+            super::nearest_in_leaf(first, count, t_max, &mut hit)
         })
     }
 
