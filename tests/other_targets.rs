@@ -150,19 +150,8 @@ fn a_farm_with_an_aarch64_and_a_musl_worker_agrees_bit_for_bit() {
         let Some(bin) = target.build() else { continue };
         let (_coord, url, http) = auditing_coordinator();
         let name = format!("{target:?}");
-        let ours = Proc::spawn(&["worker", "--coordinator", &url, "--threads", "1", "--name", "ours"]);
-        let other = Proc::spawn_command(target.command(bin).args([
-            "worker",
-            "--coordinator",
-            &url,
-            "--threads",
-            "1",
-            "--name",
-            &name,
-        ]));
-        ours.wait_for("connected to", Duration::from_secs(30));
         // Emulated, the worker starts in seconds rather than milliseconds.
-        other.wait_for("connected to", Duration::from_secs(120));
+        let _workers = two_workers(&url, "ours", &mut target.command(bin), &name, Duration::from_secs(120));
 
         // Motion, textures, an environment map, glTF nodes, many BSDFs, a mesh.
         let picked = ["showcase.toml", "environment.toml", "motion_blur.toml", "gltf_quad/quad_gltf.toml"];

@@ -145,18 +145,7 @@ fn simd_and_scalar_builds_render_every_scene_to_the_same_bytes() {
 fn a_farm_of_a_simd_and_a_scalar_worker_agrees_bit_for_bit() {
     let Some(scalar) = other_build() else { return };
     let (_coord, url, http) = auditing_coordinator();
-    let simd = Proc::spawn(&["worker", "--coordinator", &url, "--threads", "1", "--name", "simd"]);
-    let other = Proc::spawn_command(Command::new(scalar).args([
-        "worker",
-        "--coordinator",
-        &url,
-        "--threads",
-        "1",
-        "--name",
-        "scalar",
-    ]));
-    simd.wait_for("connected to", Duration::from_secs(30));
-    other.wait_for("connected to", Duration::from_secs(30));
+    let _workers = two_workers(&url, "simd", &mut Command::new(scalar), "scalar", Duration::from_secs(30));
 
     // Scenes with motion, textures, an environment map, glTF nodes and many BSDFs.
     let picked =

@@ -148,6 +148,23 @@ pub fn auditing_coordinator() -> (Proc, String, String) {
     (coord, url, http)
 }
 
+/// Two workers of one thread each on the farm at `url`, connected: one of this run's build
+/// named `ours`, and one run by `other` (a command the worker's arguments are added to)
+/// named `theirs`, whose connection is waited for up to `connect`.
+pub fn two_workers(
+    url: &str,
+    ours: &str,
+    other: &mut Command,
+    theirs: &str,
+    connect: Duration,
+) -> (Proc, Proc) {
+    let args = |name| ["worker", "--coordinator", url, "--threads", "1", "--name", name];
+    let (ours, theirs) = (Proc::spawn(&args(ours)), Proc::spawn_command(other.args(args(theirs))));
+    ours.wait_for("connected to", Duration::from_secs(30));
+    theirs.wait_for("connected to", connect);
+    (ours, theirs)
+}
+
 /// Each of `scenes` (paths under `scenes/`) submitted to the farm at `url` at `size` and
 /// `spp` gives the bytes of a local render of this run's build; then the coordinator at
 /// `http` shows audits agreed and none disagreed, no strike and no quarantine. `who` names
