@@ -59,6 +59,7 @@ pub fn render_batch_layers(
     for (k, &pixel) in pixels.iter().enumerate() {
         let mut acc = [0u64; 3];
         let mut acc_even = 0u64;
+        sampler.plan_pixel(pixel, samples.clone());
         for index in samples.clone() {
             if per > 0 {
                 let hit = aov::first_hit(scene, &mut aov_sampler, pixel, index);

@@ -188,134 +188,6 @@ pub const ONE_MINUS_EPSILON: f32 = 1.0 - f32::EPSILON / 2.0;
 
 pub use tessera_description::model::SamplerKind;
 
-/// The direction numbers of one dimension of Sobol's sequence from its primitive
-/// polynomial of degree `s` (inner coefficients `a`, top one first) and initial odd `m`s
-/// (Bratley and Fox's recurrence, as Joe and Kuo tabulate them), each held bit-reversed:
-/// the scrambling below works on reversed coordinates.
-const fn sobol_directions(s: usize, a: u32, m: [u32; 3]) -> [u32; 32] {
-    let mut mk = [0u32; 32];
-    let mut k = 0;
-    while k < 32 {
-        mk[k] = if k < s {
-            m[k]
-        } else {
-            let mut v = mk[k - s] ^ (mk[k - s] << s);
-            let mut j = 1;
-            while j < s {
-                if (a >> (s - 1 - j)) & 1 == 1 {
-                    v ^= mk[k - j] << j;
-                }
-                j += 1;
-            }
-            v
-        };
-        k += 1;
-    }
-    let mut reversed = [0u32; 32];
-    let mut k = 0;
-    while k < 32 {
-        // vₖ = mₖ · 2^(31 − k), bit-reversed: mₖ's bits from bit k down.
-        reversed[k] = (mk[k] << (31 - k)).reverse_bits();
-        k += 1;
-    }
-    reversed
-}
-
-/// Sobol's second dimension (the first is the index itself, bit-reversed).
-const SOBOL_DIM1: [u32; 32] = sobol_directions(1, 0, [1, 0, 0]);
-/// Sobol's dimensions 3 and 4 (polynomials x² + x + 1 and x³ + x + 1), the lens's
-/// coordinates in the camera's 4-D pattern.
-const SOBOL_DIM2: [u32; 32] = sobol_directions(2, 1, [1, 3, 0]);
-const SOBOL_DIM3: [u32; 32] = sobol_directions(3, 1, [1, 3, 1]);
-
-/// A Sobol dimension's reversed direction numbers regrouped by the index's bytes: entry
-/// `[p][b]` is the sum (xor) of the directions of the bits set in `b` as byte `p`.
-type ByBytes = [[u32; 256]; 4];
-
-const fn by_bytes(directions: [u32; 32]) -> ByBytes {
-    let mut t = [[0u32; 256]; 4];
-    let mut p = 0;
-    while p < 4 {
-        let mut b = 1;
-        while b < 256 {
-            // b's lowest set bit added to the entry of b without it.
-            let low = (b as u32).trailing_zeros() as usize;
-            t[p][b] = t[p][b & (b - 1)] ^ directions[8 * p + low];
-            b += 1;
-        }
-        p += 1;
-    }
-    t
-}
-
-/// [`SOBOL_DIM1`], [`SOBOL_DIM2`] and [`SOBOL_DIM3`] by bytes (4 KB each).
-static SOBOL_BYTES: [ByBytes; 3] = [by_bytes(SOBOL_DIM1), by_bytes(SOBOL_DIM2), by_bytes(SOBOL_DIM3)];
-
-/// Point `i` of a Sobol dimension, bit-reversed, from its directions by bytes. A point is
-/// linear in the index's bits (a sum of the directions of the bits set), so four lookups
-/// make it: a pattern drawn in rounds takes indices of 20 bits, whose bit-by-bit sum
-/// branched on every bit and made a draw a fifth slower.
-#[inline]
-fn sobol_reversed(i: u32, t: &ByBytes) -> u32 {
-    t[0][(i & 0xff) as usize]
-        ^ t[1][((i >> 8) & 0xff) as usize]
-        ^ t[2][((i >> 16) & 0xff) as usize]
-        ^ t[3][(i >> 24) as usize]
-}
-
-/// Point `i`'s coordinates in Sobol's dimensions 2, 3 and 4, bit-reversed (the first is
-/// `i` itself, reversed).
-#[inline]
-fn sobol_point(i: u32) -> [u32; 3] {
-    [
-        sobol_reversed(i, &SOBOL_BYTES[0]),
-        sobol_reversed(i, &SOBOL_BYTES[1]),
-        sobol_reversed(i, &SOBOL_BYTES[2]),
-    ]
-}
-
-/// Owen scrambling by hashing of the 32-bit fixed-point coordinate whose bit-reversal is
-/// `v`: a keyed function in which each bit of the coordinate is flipped depending only on
-/// the bits above it (Burley 2020, after Laine and Karras), which on the reversed value
-/// runs from the top bit down as a multiplication carries.
-#[inline]
-fn owen_scramble_reversed(mut v: u32, key: u32) -> u32 {
-    v = v.wrapping_add(key);
-    v ^= v.wrapping_mul(0x6c50_b47c);
-    v ^= v.wrapping_mul(0xb82f_1e52);
-    v ^= v.wrapping_mul(0xc7af_e638);
-    v ^= v.wrapping_mul(0x8d22_f6e6);
-    v.reverse_bits()
-}
-
-/// Sobol's order of a pixel's samples, shuffled: index `i` of a pattern whose sample count
-/// rounds up to `2^bits`, Owen-scrambled as a `bits`-digit fraction (Burley 2020's nested
-/// uniform scramble of the index). Each bit of the index flips depending only on the bits
-/// above it, so the first `2^k` indices go to one aligned block of `2^k` points, and the
-/// points of an aligned block of a digital net are a net: every power-of-two prefix of the
-/// shuffled pattern is as stratified as a whole pattern of that size. A keyed permutation
-/// of the indices (the stratified pattern's order) sends a prefix anywhere, and a pattern
-/// drawn in prefixes (rounds) then converges like independent samples (docs/accuracy.md).
-#[inline]
-fn nested_order(i: u32, key: u32, bits: u32) -> u32 {
-    if bits == 0 {
-        return 0;
-    }
-    // Reversed, the index's top digit is bit 0, as the scramble wants it.
-    owen_scramble_reversed((i << (32 - bits)).reverse_bits(), key) >> (32 - bits)
-}
-
-/// A scrambled Sobol coordinate in [0, 1), from its bit-reversal and the pattern's key
-/// (its low 32 bits).
-#[inline]
-fn scrambled(reversed: u32, key: u64) -> f32 {
-    fixed_to_unit(owen_scramble_reversed(reversed, key as u32))
-}
-
-fn fixed_to_unit(x: u32) -> f32 {
-    ((x >> 8) as f32 * (1.0 / (1u32 << 24) as f32)).min(ONE_MINUS_EPSILON)
-}
-
 /// What every draw of one dimension of one pixel shares, whatever the sample index: the
 /// dimension's key and the hash states that start from it.
 #[derive(Debug, Clone, Copy, Default)]
@@ -388,6 +260,8 @@ pub struct Sampler {
     offsets: Box<[u16]>,
     /// Whether [`Sampler::get_4d`] draws one 4-D net (else two 2-D draws).
     joint: bool,
+    /// The first dimensions of the planned samples of `pixel` ([`Sampler::plan_pixel`]).
+    table: DrawTable,
 }
 
 impl Sampler {
@@ -421,6 +295,7 @@ impl Sampler {
                 SamplerKind::Stratified => spp.is_power_of_two(),
                 SamplerKind::Independent => false,
             },
+            table: DrawTable::default(),
         }
     }
 
@@ -429,13 +304,30 @@ impl Sampler {
         hash_words(&[seed, u64::from(pixel.x) | (u64::from(pixel.y) << 32)])
     }
 
-    /// Positions the sampler at sample `index` of `pixel`; the next draw is dimension 0.
-    pub fn start_pixel_sample(&mut self, pixel: UVec2, index: u32) {
+    /// Says that samples `samples` of `pixel` come next, in any order: their first
+    /// dimensions are then drawn for all of them at once (`sampler_table`). Without a
+    /// plan every draw is computed alone; the values are the same.
+    pub fn plan_pixel(&mut self, pixel: UVec2, samples: std::ops::Range<u32>) {
+        self.move_to_pixel(pixel);
+        if self.kind == SamplerKind::Independent {
+            return;
+        }
+        // Indices beyond the pattern draw plain random numbers, never from the table.
+        self.table.plan(samples.start, samples.end.min(self.spp));
+    }
+
+    fn move_to_pixel(&mut self, pixel: UVec2) {
         if pixel != self.pixel {
             self.pixel_key = Self::key_of(self.seed, pixel);
             self.pixel = pixel;
             self.kept = 0;
+            self.table.clear();
         }
+    }
+
+    /// Positions the sampler at sample `index` of `pixel`; the next draw is dimension 0.
+    pub fn start_pixel_sample(&mut self, pixel: UVec2, index: u32) {
+        self.move_to_pixel(pixel);
         self.index = index;
         self.dimension = 0;
     }
@@ -484,9 +376,22 @@ impl Sampler {
             let h = hash_step(k.from_key, u64::from(self.index));
             return Vec2::new(unit_float(h), unit_float(mix64(h)));
         }
+        let tabled = self.tabled(d, Shape::Two, |s, i| {
+            let v = s.pattern_2d(d, k, i);
+            [v.x, v.y, 0.0, 0.0]
+        });
+        match tabled {
+            Some([x, y, ..]) => Vec2::new(x, y),
+            None => self.pattern_2d(d, k, self.index),
+        }
+    }
+
+    /// Dimension `d`'s point (keys `k`) at sample `index`, below `spp`, of a pattern.
+    #[inline]
+    fn pattern_2d(&mut self, d: u32, k: DimensionKeys, index: u32) -> Vec2 {
         // Cook's random association: each dimension visits the strata (or Sobol's points)
         // in its own order.
-        let s = self.shuffle(k.key);
+        let s = self.shuffle(k.key, index);
         match self.kind {
             SamplerKind::Sobol => Vec2::new(
                 scrambled(s, k.pattern),
@@ -500,14 +405,33 @@ impl Sampler {
         }
     }
 
-    /// Which point of the pattern the current sample is in a dimension keyed by `key`:
-    /// each dimension's own order, Sobol's nested so that its prefixes stay nets.
+    /// Which point of the pattern sample `index` is in a dimension keyed by `key`: each
+    /// dimension's own order, Sobol's nested so that its prefixes stay nets.
     #[inline]
-    fn shuffle(&self, key: u64) -> u32 {
+    fn shuffle(&self, key: u64, index: u32) -> u32 {
         match self.kind {
-            SamplerKind::Sobol => nested_order(self.index, key as u32, self.sobol_bits),
-            _ => self.order.apply(self.index, key),
+            SamplerKind::Sobol => nested_order(index, key as u32, self.sobol_bits),
+            _ => self.order.apply(index, key),
         }
+    }
+
+    /// The current sample's draw of dimension `d` in `shape` from the pixel's table, drawn
+    /// for all its planned samples (`value(sampler, index)`) if it is not there yet; `None`
+    /// when the table cannot hold it.
+    #[inline]
+    fn tabled(
+        &mut self,
+        d: u32,
+        shape: Shape,
+        value: impl Fn(&mut Self, u32) -> [f32; 4],
+    ) -> Option<[f32; 4]> {
+        let at = self.table.entry(d, self.index, shape)?;
+        if !self.table.is_filled(d) {
+            let mut table = std::mem::take(&mut self.table);
+            table.fill(d, shape, |i| value(self, i));
+            self.table = table;
+        }
+        Some(self.table.get(at))
     }
 
     /// The fine-grid offsets (of the column, of the row) of `cell` in dimension `d`'s
@@ -554,23 +478,45 @@ impl Sampler {
         if !self.joint || self.index >= self.spp {
             return (self.get_2d(), self.get_2d());
         }
+        let d = self.dimension;
         let (film, lens) = (self.next_dimension(), self.next_dimension());
+        let [a, b, c, e] = self
+            .tabled(d, Shape::Four, |s, i| s.pattern_4d(film, lens, i))
+            .unwrap_or_else(|| self.pattern_4d(film, lens, self.index));
+        (Vec2::new(a, b), Vec2::new(c, e))
+    }
+
+    /// The film's and the lens's coordinates of the 4-D net at sample `index`.
+    #[inline]
+    fn pattern_4d(&self, film: DimensionKeys, lens: DimensionKeys, index: u32) -> [f32; 4] {
         // One index for all four coordinates, so that they stay one net's point.
-        let s = self.shuffle(film.key);
+        let s = self.shuffle(film.key, index);
         let [y, u, v] = sobol_point(s);
-        (
-            Vec2::new(scrambled(s, film.pattern), scrambled(y, film.pattern >> 32)),
-            Vec2::new(scrambled(u, lens.pattern), scrambled(v, lens.pattern >> 32)),
-        )
+        [
+            scrambled(s, film.pattern),
+            scrambled(y, film.pattern >> 32),
+            scrambled(u, lens.pattern),
+            scrambled(v, lens.pattern >> 32),
+        ]
     }
 
     /// The next 1-D dimension, following the pixel's pattern.
     pub fn get_1d(&mut self) -> f32 {
+        let d = self.dimension;
         let k = self.next_dimension();
         if self.index >= self.spp || self.kind == SamplerKind::Independent {
             return unit_float(hash_step(k.from_key, u64::from(self.index)));
         }
-        let s = self.shuffle(k.key);
+        match self.tabled(d, Shape::One, |s, i| [s.pattern_1d(k, i), 0.0, 0.0, 0.0]) {
+            Some([x, ..]) => x,
+            None => self.pattern_1d(k, self.index),
+        }
+    }
+
+    /// Dimension `k`'s value at sample `index`, below `spp`, of a pattern.
+    #[inline]
+    fn pattern_1d(&self, k: DimensionKeys, index: u32) -> f32 {
+        let s = self.shuffle(k.key, index);
         match self.kind {
             SamplerKind::Sobol => scrambled(s, k.pattern),
             _ => {
@@ -581,6 +527,14 @@ impl Sampler {
         }
     }
 }
+
+#[path = "sampler_sobol.rs"]
+mod sobol;
+use sobol::{nested_order, scrambled, sobol_point, sobol_reversed, SOBOL_BYTES};
+
+#[path = "sampler_table.rs"]
+mod table;
+use table::{DrawTable, Shape};
 
 #[cfg(test)]
 #[path = "sampler_tests.rs"]

@@ -1,6 +1,7 @@
 //! The sampler's draws against their definition, hashed from the start (a file of its
 //! own: the sampler's tests outgrew it).
 
+use super::sobol::*;
 use super::*;
 
 /// The second dimension of Sobol's sequence computed bit by bit from its definition
