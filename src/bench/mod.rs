@@ -9,6 +9,7 @@ use glam::UVec2;
 use tessera_description::bundle::Bundle;
 use tessera_worker::batch::{render_batch, Sums};
 use tessera_worker::build::parse_bundle;
+use tessera_worker::render::sampler::MOST_PLANNED;
 
 use crate::local::{render_local, LocalOptions};
 use rows::rows_in_parallel;
@@ -422,6 +423,11 @@ fn whitted(path: &std::path::Path, runs: usize) -> Result<ExitCode> {
             .flat_map(|&p| {
                 let mut acc = [0u64; 3];
                 for i in 0..n {
+                    // Planned as `render_batch` plans, so that the two differ by their
+                    // integrators only.
+                    if i % MOST_PLANNED == 0 {
+                        sampler.plan_pixel(p, i..n.min(i + MOST_PLANNED));
+                    }
                     let l = reference.sample(&mut sampler, p, i);
                     for (c, v) in acc.iter_mut().zip([l.x, l.y, l.z]) {
                         *c += tessera_film::fixed::to_fixed(v).unwrap_or(0);

@@ -5,6 +5,7 @@ use std::ops::Range;
 use glam::UVec2;
 
 use crate::aov;
+use crate::render::sampler::MOST_PLANNED as PLANNED;
 use crate::render::Scene;
 use tessera_film::aov::Layout;
 use tessera_film::fixed;
@@ -59,8 +60,12 @@ pub fn render_batch_layers(
     for (k, &pixel) in pixels.iter().enumerate() {
         let mut acc = [0u64; 3];
         let mut acc_even = 0u64;
-        sampler.plan_pixel(pixel, samples.clone());
         for index in samples.clone() {
+            // Runs of as many samples as the sampler's table holds: a farm's second pass
+            // renders all but one of a pixel's samples in one batch.
+            if (index - samples.start).is_multiple_of(PLANNED) {
+                sampler.plan_pixel(pixel, index..samples.end.min(index + PLANNED));
+            }
             if per > 0 {
                 let hit = aov::first_hit(scene, &mut aov_sampler, pixel, index);
                 layout.accumulate(&mut layers[k * per..(k + 1) * per], hit.as_ref(), background);

@@ -448,7 +448,7 @@ impl Scene {
     /// A sampler for this scene's pattern. Cook's jittered strata are stratified as a
     /// whole, and a prefix of them is spread about as independent samples are; a job in
     /// rounds ends at a prefix it cannot know beforehand, so it draws Sobol's pattern,
-    /// every power-of-two prefix of which is a net (`sampler::nested_order`).
+    /// every power-of-two prefix of which is a net (`sampler::sobol::nested_order`).
     pub fn sampler(&self) -> Sampler {
         let kind = match self.sampler {
             SamplerKind::Stratified if self.progressive => SamplerKind::Sobol,

@@ -10,8 +10,9 @@
 //! associated at random, as Cook's paper asks, by passing the sample index through a
 //! different keyed permutation for each dimension; the camera's film and lens, which
 //! decide together what an out-of-focus ray sees, are the exception: one 4-D pattern
-//! ([`Sampler::get_4d`]). Nothing is stored and nothing is seeded from entropy, so any
-//! worker, in any order, computes the same sample.
+//! ([`Sampler::get_4d`]). Nothing is seeded from entropy, and what a sampler keeps (a
+//! pixel's keys, offsets and planned draws) is a function of (seed, pixel, dimension,
+//! index), so any worker, in any order, computes the same sample.
 
 use glam::{UVec2, Vec2};
 
@@ -234,7 +235,9 @@ const UNKNOWN: u16 = u16::MAX;
 /// keeps that for the dimensions drawn so far in the current pixel, and draws the same
 /// bits as hashing every word from the start (`tests::kept_keys_draw_what_fresh_hashes_draw`).
 /// So are the shuffled fine-grid offsets of a dimension's columns and rows: `spp` draws
-/// share `m + rows` of them, each two keyed permutations' worth of work to compute.
+/// share `m + rows` of them, each two keyed permutations' worth of work to compute. And
+/// when the caller plans the pixel's samples ([`Sampler::plan_pixel`]), its first
+/// dimensions are drawn for all of them at once and kept (`sampler_table.rs`).
 #[derive(Debug, Clone)]
 pub struct Sampler {
     kind: SamplerKind,
@@ -262,6 +265,9 @@ pub struct Sampler {
     joint: bool,
     /// The first dimensions of the planned samples of `pixel` ([`Sampler::plan_pixel`]).
     table: DrawTable,
+    /// Whether the table's 2-D draws are drawn eight at a time: Cook's pattern on a grid
+    /// of powers of two, on a CPU with AVX-512 (`sampler_avx512.rs`).
+    wide: bool,
 }
 
 impl Sampler {
@@ -296,6 +302,10 @@ impl Sampler {
                 SamplerKind::Independent => false,
             },
             table: DrawTable::default(),
+            wide: kind == SamplerKind::Stratified
+                && cmj.pow2.is_some()
+                && cmj.m * cmj.rows > 1
+                && avx512_available(),
         }
     }
 
@@ -305,8 +315,10 @@ impl Sampler {
     }
 
     /// Says that samples `samples` of `pixel` come next, in any order: their first
-    /// dimensions are then drawn for all of them at once (`sampler_table`). Without a
-    /// plan every draw is computed alone; the values are the same.
+    /// dimensions are then drawn for all of them at once (`sampler_table.rs`), where the
+    /// plan holds 2 to [`MOST_PLANNED`] samples of the pattern. A sample of another
+    /// pixel drops the plan. Without a plan every draw is computed alone; the values are
+    /// the same.
     pub fn plan_pixel(&mut self, pixel: UVec2, samples: std::ops::Range<u32>) {
         self.move_to_pixel(pixel);
         if self.kind == SamplerKind::Independent {
@@ -376,10 +388,14 @@ impl Sampler {
             let h = hash_step(k.from_key, u64::from(self.index));
             return Vec2::new(unit_float(h), unit_float(mix64(h)));
         }
-        let tabled = self.tabled(d, Shape::Two, |s, i| {
-            let v = s.pattern_2d(d, k, i);
-            [v.x, v.y, 0.0, 0.0]
-        });
+        let tabled = if self.wide {
+            self.tabled_with(d, Shape::Two, |s, table| s.fill_2d_wide(d, k, table))
+        } else {
+            self.tabled(d, Shape::Two, |s, i| {
+                let v = s.pattern_2d(d, k, i);
+                [v.x, v.y, 0.0, 0.0]
+            })
+        };
         match tabled {
             Some([x, y, ..]) => Vec2::new(x, y),
             None => self.pattern_2d(d, k, self.index),
@@ -425,13 +441,42 @@ impl Sampler {
         shape: Shape,
         value: impl Fn(&mut Self, u32) -> [f32; 4],
     ) -> Option<[f32; 4]> {
+        self.tabled_with(d, shape, |s, table| table.fill(d, shape, |i| value(s, i)))
+    }
+
+    /// [`Sampler::tabled`] with the dimension's values drawn by `fill`.
+    #[inline]
+    fn tabled_with(
+        &mut self,
+        d: u32,
+        shape: Shape,
+        fill: impl FnOnce(&mut Self, &mut DrawTable),
+    ) -> Option<[f32; 4]> {
         let at = self.table.entry(d, self.index, shape)?;
         if !self.table.is_filled(d) {
             let mut table = std::mem::take(&mut self.table);
-            table.fill(d, shape, |i| value(self, i));
+            fill(self, &mut table);
             self.table = table;
         }
         Some(self.table.get(at))
+    }
+
+    /// Draws the planned samples of the 2-D dimension `d` (keys `k`) eight at a time
+    /// (`sampler_avx512.rs`); only where [`Sampler::wide`] is set.
+    #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+    fn fill_2d_wide(&self, d: u32, k: DimensionKeys, table: &mut DrawTable) {
+        let (first, count) = table.planned();
+        let mut values = [[0f32; 2]; table::MOST_SAMPLES as usize];
+        avx512::fill_2d(&self.cmj, &self.order, k, first, &mut values[..count as usize]);
+        table.fill(d, Shape::Two, |i| {
+            let [x, y] = values[(i - first) as usize];
+            [x, y, 0.0, 0.0]
+        });
+    }
+
+    #[cfg(not(all(target_arch = "x86_64", not(feature = "scalar"))))]
+    fn fill_2d_wide(&self, _: u32, _: DimensionKeys, _: &mut DrawTable) {
+        unreachable!("`wide` is never set without the AVX-512 fill")
     }
 
     /// The fine-grid offsets (of the column, of the row) of `cell` in dimension `d`'s
@@ -534,6 +579,21 @@ use sobol::{nested_order, scrambled, sobol_point, sobol_reversed, SOBOL_BYTES};
 
 #[path = "sampler_table.rs"]
 mod table;
+
+/// The most samples [`Sampler::plan_pixel`] tabulates at once.
+pub const MOST_PLANNED: u32 = table::MOST_SAMPLES;
+
+#[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+#[path = "sampler_avx512.rs"]
+mod avx512;
+#[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+use avx512::available as avx512_available;
+
+/// No AVX-512 fill where glam runs scalar code or off x86-64.
+#[cfg(not(all(target_arch = "x86_64", not(feature = "scalar"))))]
+fn avx512_available() -> bool {
+    false
+}
 use table::{DrawTable, Shape};
 
 #[cfg(test)]
