@@ -426,7 +426,7 @@ fn whitted(path: &std::path::Path, runs: usize) -> Result<ExitCode> {
                     // Planned as `render_batch` plans, so that the two differ by their
                     // integrators only.
                     if i % MOST_PLANNED == 0 {
-                        sampler.plan_pixel(p, i..n.min(i + MOST_PLANNED));
+                        sampler.plan_pixel(p, i..n.min(i.saturating_add(MOST_PLANNED)));
                     }
                     let l = reference.sample(&mut sampler, p, i);
                     for (c, v) in acc.iter_mut().zip([l.x, l.y, l.z]) {

@@ -64,7 +64,7 @@ pub fn render_batch_layers(
             // Runs of as many samples as the sampler's table holds: a farm's second pass
             // renders all but one of a pixel's samples in one batch.
             if (index - samples.start).is_multiple_of(PLANNED) {
-                sampler.plan_pixel(pixel, index..samples.end.min(index + PLANNED));
+                sampler.plan_pixel(pixel, index..samples.end.min(index.saturating_add(PLANNED)));
             }
             if per > 0 {
                 let hit = aov::first_hit(scene, &mut aov_sampler, pixel, index);

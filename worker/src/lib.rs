@@ -1,7 +1,8 @@
 //! Tessera's worker: the distributed ray tracer and the loop that takes batches from a
 //! coordinator and returns per-pixel sample sums.
-// Denied, not forbidden: the one exception is the BVH's AVX2 box test (`render/bvh/avx.rs`),
-// whose target-feature functions can only be called in `unsafe`, after the CPU check.
+// Denied, not forbidden: the exceptions are the BVH's AVX2 box test (`render/bvh/avx.rs`)
+// and the sampler's AVX-512 fill (`render/sampler_avx512.rs`), whose target-feature
+// functions can only be called in `unsafe`, after the CPU check.
 #![deny(unsafe_code)]
 #![deny(missing_docs)]
 // `!(x > 0.0)` is how this crate rejects NaN along with the values out of range.

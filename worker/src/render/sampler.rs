@@ -266,7 +266,7 @@ pub struct Sampler {
     /// The first dimensions of the planned samples of `pixel` ([`Sampler::plan_pixel`]).
     table: DrawTable,
     /// Whether the table's 2-D draws are drawn eight at a time: Cook's pattern on a grid
-    /// of powers of two, on a CPU with AVX-512 (`sampler_avx512.rs`).
+    /// of powers of two whose offsets are kept, on a CPU with AVX-512 (`sampler_avx512.rs`).
     wide: bool,
 }
 
@@ -305,6 +305,7 @@ impl Sampler {
             wide: kind == SamplerKind::Stratified
                 && cmj.pow2.is_some()
                 && cmj.m * cmj.rows > 1
+                && stride > 0
                 && avx512_available(),
         }
     }
@@ -464,10 +465,24 @@ impl Sampler {
     /// Draws the planned samples of the 2-D dimension `d` (keys `k`) eight at a time
     /// (`sampler_avx512.rs`); only where [`Sampler::wide`] is set.
     #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
-    fn fill_2d_wide(&self, d: u32, k: DimensionKeys, table: &mut DrawTable) {
+    fn fill_2d_wide(&mut self, d: u32, k: DimensionKeys, table: &mut DrawTable) {
         let (first, count) = table.planned();
+        // The dimension's fine-grid offsets, through the pixel's kept ones (`wide` asks
+        // that they be kept): a run of a pattern's samples meets most of its columns and
+        // rows.
+        let (m, rows) = (self.cmj.m, self.cmj.rows);
+        let mut offsets = [0u32; KEPT_OFFSETS as usize];
+        for j in 0..m.max(rows) {
+            let (sx, sy) = self.fine_offsets(d, (j.min(m - 1), j.min(rows - 1)), k.pattern);
+            (offsets[j.min(m - 1) as usize], offsets[(m + j.min(rows - 1)) as usize]) = (sx, sy);
+        }
+        let (columns, rows) = offsets[..(m + rows) as usize].split_at(m as usize);
         let mut values = [[0f32; 2]; table::MOST_SAMPLES as usize];
-        avx512::fill_2d(&self.cmj, &self.order, k, first, &mut values[..count as usize]);
+        // SAFETY: `wide` is set only where `avx512::available()`.
+        #[allow(unsafe_code)]
+        unsafe {
+            avx512::fill_2d(&self.cmj, &self.order, k, columns, rows, first, &mut values[..count as usize])
+        };
         table.fill(d, Shape::Two, |i| {
             let [x, y] = values[(i - first) as usize];
             [x, y, 0.0, 0.0]
@@ -475,7 +490,7 @@ impl Sampler {
     }
 
     #[cfg(not(all(target_arch = "x86_64", not(feature = "scalar"))))]
-    fn fill_2d_wide(&self, _: u32, _: DimensionKeys, _: &mut DrawTable) {
+    fn fill_2d_wide(&mut self, _: u32, _: DimensionKeys, _: &mut DrawTable) {
         unreachable!("`wide` is never set without the AVX-512 fill")
     }
 

@@ -131,8 +131,8 @@ mod tests {
         bits
     }
 
-    /// Draws from a planned pixel's table have the bits of draws computed one at a time
-    /// (and the AVX-512 fill's, where this CPU has it, those of the scalar draw): every
+    /// Draws from a planned pixel's table have the bits of draws computed one at a time,
+    /// filled draw by draw and (where this CPU has AVX-512) eight at a time: every
     /// pattern; sample counts of powers of two (grids square and not), others, one whose
     /// fine-grid offsets are not kept (254: 2 × 127), and more than a table holds; plans
     /// that start mid-pattern, run past it, hold one sample, or are walked backwards; and
@@ -140,9 +140,12 @@ mod tests {
     #[test]
     fn tabled_draws_are_the_draws() {
         let kinds = [SamplerKind::Stratified, SamplerKind::Sobol, SamplerKind::Independent];
-        let counts = [1, 12, 16, 64, 128, 254, 256, 300];
-        for (kind, spp) in kinds.into_iter().flat_map(|k| counts.map(|n| (k, n))) {
+        let counts = [1, 2, 12, 16, 64, 128, 254, 256, 300];
+        let cases = kinds.into_iter().flat_map(|k| counts.map(|n| (k, n)));
+        // The AVX-512 fill where this CPU takes it, and the scalar fill everywhere.
+        for ((kind, spp), wide) in cases.flat_map(|c| [(c, true), (c, false)]) {
             let (mut planned, mut alone) = (Sampler::new(kind, 5, spp), Sampler::new(kind, 5, spp));
+            planned.wide &= wide;
             let (a, b) = (UVec2::new(3, 1), UVec2::new(0, 7));
             for (pixel, samples, backwards) in [
                 (a, 0..spp, false),
@@ -161,7 +164,7 @@ mod tests {
                         // Another pixel: the plan's table is not that pixel's.
                         assert_eq!(path(&mut planned, pixel + 1, i), path(&mut alone, pixel + 1, i));
                     }
-                    let where_ = format!("{kind:?} spp {spp} {pixel} sample {i}");
+                    let where_ = format!("{kind:?} spp {spp} {pixel} sample {i} wide {}", planned.wide);
                     assert_eq!(path(&mut planned, pixel, i), path(&mut alone, pixel, i), "{where_}");
                 }
             }

@@ -6,8 +6,9 @@
 //! the wider test on the machines that have it. No fused multiply-add: `avx` does not
 //! enable FMA, and Rust never contracts a multiply and an add on its own.
 //!
-//! The worker's only `unsafe` code is here and at the two calls of the AVX2 traversals in
-//! `wide.rs`: intrinsics and functions compiled for a CPU feature are unsafe to call.
+//! The worker's `unsafe` code is here, at the two calls of the AVX2 traversals in
+//! `wide.rs`, and in the sampler's AVX-512 fill (`sampler_avx512.rs`) and its call:
+//! intrinsics and functions compiled for a CPU feature are unsafe to call.
 //! Measured: with the gather below, 21 % fewer instructions on the torus knot's rays and
 //! 0–10 % more rays per second (docs/speed.md, eleventh part).
 #![allow(unsafe_code)]
