@@ -432,63 +432,7 @@ impl Sampler {
         }
     }
 
-    /// The current sample's draw of dimension `d` in `shape` from the pixel's table, drawn
-    /// for all its planned samples (`value(sampler, index)`) if it is not there yet; `None`
-    /// when the table cannot hold it.
-    #[inline]
-    fn tabled(
-        &mut self,
-        d: u32,
-        shape: Shape,
-        value: impl Fn(&mut Self, u32) -> [f32; 4],
-    ) -> Option<[f32; 4]> {
-        self.tabled_with(d, shape, |s, table| table.fill(d, shape, |i| value(s, i)))
-    }
-
-    /// [`Sampler::tabled`] with the dimension's values drawn by `fill`.
-    #[inline]
-    fn tabled_with(
-        &mut self,
-        d: u32,
-        shape: Shape,
-        fill: impl FnOnce(&mut Self, &mut DrawTable),
-    ) -> Option<[f32; 4]> {
-        let at = self.table.entry(d, self.index, shape)?;
-        if !self.table.is_filled(d) {
-            let mut table = std::mem::take(&mut self.table);
-            fill(self, &mut table);
-            self.table = table;
-        }
-        Some(self.table.get(at))
-    }
-
-    /// Draws the planned samples of the 2-D dimension `d` (keys `k`) eight at a time
-    /// (`sampler_avx512.rs`); only where [`Sampler::wide`] is set.
-    #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
-    fn fill_2d_wide(&mut self, d: u32, k: DimensionKeys, table: &mut DrawTable) {
-        let (first, count) = table.planned();
-        // The dimension's fine-grid offsets, through the pixel's kept ones (`wide` asks
-        // that they be kept): a run of a pattern's samples meets most of its columns and
-        // rows.
-        let (m, rows) = (self.cmj.m, self.cmj.rows);
-        let mut offsets = [0u32; KEPT_OFFSETS as usize];
-        for j in 0..m.max(rows) {
-            let (sx, sy) = self.fine_offsets(d, (j.min(m - 1), j.min(rows - 1)), k.pattern);
-            (offsets[j.min(m - 1) as usize], offsets[(m + j.min(rows - 1)) as usize]) = (sx, sy);
-        }
-        let (columns, rows) = offsets[..(m + rows) as usize].split_at(m as usize);
-        let mut values = [[0f32; 2]; table::MOST_SAMPLES as usize];
-        // SAFETY: `wide` is set only where `avx512::available()`.
-        #[allow(unsafe_code)]
-        unsafe {
-            avx512::fill_2d(&self.cmj, &self.order, k, columns, rows, first, &mut values[..count as usize])
-        };
-        table.fill(d, Shape::Two, |i| {
-            let [x, y] = values[(i - first) as usize];
-            [x, y, 0.0, 0.0]
-        });
-    }
-
+    /// No AVX-512 fill where glam runs scalar code or off x86-64, and `wide` is never set.
     #[cfg(not(all(target_arch = "x86_64", not(feature = "scalar"))))]
     fn fill_2d_wide(&mut self, _: u32, _: DimensionKeys, _: &mut DrawTable) {
         unreachable!("`wide` is never set without the AVX-512 fill")

@@ -14,7 +14,8 @@ use std::arch::x86_64::{
     _mm512_slli_epi64, _mm512_srli_epi64, _mm512_srlv_epi64, _mm512_storeu_si512, _mm512_xor_si512,
 };
 
-use super::{Cmj, DimensionKeys, Permutation, HASH_START, ONE_MINUS_EPSILON};
+use super::table::{DrawTable, Shape, MOST_SAMPLES};
+use super::{Cmj, DimensionKeys, Permutation, Sampler, HASH_START, KEPT_OFFSETS, ONE_MINUS_EPSILON};
 
 /// Whether this CPU runs AVX-512 F and DQ (the standard library caches the answer).
 pub(super) fn available() -> bool {
@@ -24,13 +25,41 @@ pub(super) fn available() -> bool {
 /// Lanes of 64 bits in a register.
 const LANES: usize = 8;
 
+impl Sampler {
+    /// Draws the planned samples of the 2-D dimension `d` (keys `k`) eight at a time;
+    /// only where [`Sampler::wide`] is set.
+    pub(super) fn fill_2d_wide(&mut self, d: u32, k: DimensionKeys, table: &mut DrawTable) {
+        let (first, count) = table.planned();
+        // The dimension's fine-grid offsets, through the pixel's kept ones (`wide` asks
+        // that they be kept): a run of a pattern's samples meets most of its columns and
+        // rows.
+        let (m, rows) = (self.cmj.m, self.cmj.rows);
+        let mut offsets = [0u32; KEPT_OFFSETS as usize];
+        for j in 0..m.max(rows) {
+            let (sx, sy) = self.fine_offsets(d, (j.min(m - 1), j.min(rows - 1)), k.pattern);
+            (offsets[j.min(m - 1) as usize], offsets[(m + j.min(rows - 1)) as usize]) = (sx, sy);
+        }
+        let (columns, rows) = offsets[..(m + rows) as usize].split_at(m as usize);
+        let mut values = [[0f32; 2]; MOST_SAMPLES as usize];
+        // SAFETY: `wide` is set only where `available()`.
+        #[allow(unsafe_code)]
+        unsafe {
+            fill_2d(&self.cmj, &self.order, k, columns, rows, first, &mut values[..count as usize])
+        };
+        table.fill(d, Shape::Two, |i| {
+            let [x, y] = values[(i - first) as usize];
+            [x, y, 0.0, 0.0]
+        });
+    }
+}
+
 /// Draws samples `first..first + out.len()` of the 2-D dimension keyed by `k` of a
 /// pattern whose grid's sides are powers of two (`cmj.pow2`), into `out`; `columns` and
 /// `rows` are the dimension's fine-grid offsets (`Sampler::fine_offsets`).
 ///
 /// # Safety
 /// The CPU must run AVX-512 F and DQ ([`available`]).
-pub(super) unsafe fn fill_2d(
+unsafe fn fill_2d(
     cmj: &Cmj,
     order: &Permutation,
     k: DimensionKeys,

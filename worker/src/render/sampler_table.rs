@@ -10,6 +10,8 @@
 //! samples that never read it; blocks of eight samples, filled as a sample first reaches
 //! them, wasted less and gained less (docs/speed.md, eighteenth part).
 
+use super::Sampler;
+
 /// Dimensions tabulated: a Cook path's first few bounces (film and lens, then a light, a
 /// lobe and a direction at each hit). Later ones are drawn by fewer samples, and a table
 /// would compute values no sample reads.
@@ -96,6 +98,39 @@ impl DrawTable {
             self.values[i as usize * TABLED + d as usize] = value(self.first + i);
         }
         self.shapes[d as usize] = shape;
+    }
+}
+
+/// The sampler's reads of its table.
+impl Sampler {
+    /// The current sample's draw of dimension `d` in `shape` from the pixel's table, drawn
+    /// for all its planned samples (`value(sampler, index)`) if it is not there yet; `None`
+    /// when the table cannot hold it.
+    #[inline]
+    pub(super) fn tabled(
+        &mut self,
+        d: u32,
+        shape: Shape,
+        value: impl Fn(&mut Self, u32) -> [f32; 4],
+    ) -> Option<[f32; 4]> {
+        self.tabled_with(d, shape, |s, table| table.fill(d, shape, |i| value(s, i)))
+    }
+
+    /// [`Sampler::tabled`] with the dimension's values drawn by `fill`.
+    #[inline]
+    pub(super) fn tabled_with(
+        &mut self,
+        d: u32,
+        shape: Shape,
+        fill: impl FnOnce(&mut Self, &mut DrawTable),
+    ) -> Option<[f32; 4]> {
+        let at = self.table.entry(d, self.index, shape)?;
+        if !self.table.is_filled(d) {
+            let mut table = std::mem::take(&mut self.table);
+            fill(self, &mut table);
+            self.table = table;
+        }
+        Some(self.table.get(at))
     }
 }
 
