@@ -22,28 +22,9 @@ find_browser() {
 if find_browser; then
   exit 0
 fi
-if ! command -v apt-get >/dev/null 2>&1; then
-  echo "no chromium on PATH and no apt-get to install Debian's chromium package" >&2
-  exit 2
-fi
-if [ "$(id -u)" != 0 ]; then
-  echo "no chromium on PATH, and installing Debian's chromium package needs root" >&2
-  exit 2
-fi
-log=$(mktemp)
-trap 'rm -f "$log"' EXIT
-install() {
-  DEBIAN_FRONTEND=noninteractive flock /tmp/tessera-apt.lock \
-    apt-get install -y --no-install-recommends chromium fonts-dejavu-core >"$log" 2>&1
-}
-# A machine that has never fetched the package lists knows no chromium yet.
-if ! install; then
-  flock /tmp/tessera-apt.lock apt-get update >>"$log" 2>&1 || true
-  if ! install; then
-    echo "apt-get install chromium failed: $(grep -E '^E:' "$log" | head -1)" >&2
-    exit 2
-  fi
-fi
+# shellcheck source=scripts/apt-install.sh
+. "$(dirname "$0")/apt-install.sh"
+apt_install "no chromium on PATH" chromium fonts-dejavu-core
 if find_browser; then
   exit 0
 fi

@@ -32,29 +32,9 @@ missing() {
 }
 
 if missing; then
-  if ! command -v apt-get >/dev/null 2>&1; then
-    echo "no ${tools[*]} for $target, and no apt-get to install ${packages[*]}" >&2
-    exit 2
-  fi
-  if [ "$(id -u)" != 0 ]; then
-    echo "no ${tools[*]} for $target, and installing ${packages[*]} needs root" >&2
-    exit 2
-  fi
-  log=$(mktemp)
-  trap 'rm -f "$log"' EXIT
-  install() {
-    # dpkg's own lock too: a fresh machine may be running unattended upgrades.
-    DEBIAN_FRONTEND=noninteractive flock /tmp/tessera-apt.lock timeout 900 \
-      apt-get install -y --no-install-recommends -o DPkg::Lock::Timeout=300 "${packages[@]}" >"$log" 2>&1
-  }
-  # A machine that has never fetched the package lists knows none of them yet.
-  if ! install; then
-    flock /tmp/tessera-apt.lock timeout 600 apt-get update >>"$log" 2>&1 || true
-    if ! install; then
-      echo "apt-get install ${packages[*]} failed: $(grep -E '^E:' "$log" | head -1)" >&2
-      exit 2
-    fi
-  fi
+  # shellcheck source=scripts/apt-install.sh
+  . "$(dirname "$0")/apt-install.sh"
+  apt_install "no ${tools[*]} for $target" "${packages[@]}"
   if missing; then
     echo "${packages[*]} installed, but ${tools[*]} are not all on PATH" >&2
     exit 2
@@ -77,7 +57,7 @@ fi
 # its C library and run here (under qemu for aarch64, with the loader where the test
 # points it: Debian's /usr/aarch64-linux-gnu).
 work=$(mktemp -d)
-trap 'rm -rf "$work" "${log:-}"' EXIT
+trap 'rm -rf "$work"' EXIT
 printf '#include <stdio.h>\nint main(void) { puts("ok"); return 0; }\n' >"$work/ok.c"
 case "$target" in
   aarch64-unknown-linux-gnu)
