@@ -59,6 +59,10 @@ pub fn small_scene() -> PathBuf {
 pub struct Proc {
     pub child: Child,
     pub stderr: Arc<Mutex<String>>,
+    /// The thread copying stderr; `wait` lets it drain the pipe, since the process can exit
+    /// before its last line has been read (a test that read stderr right after the exit once
+    /// saw it empty).
+    reader: Option<std::thread::JoinHandle<()>>,
 }
 
 impl Proc {
@@ -76,14 +80,14 @@ impl Proc {
         let stderr = Arc::new(Mutex::new(String::new()));
         let pipe = child.stderr.take().unwrap();
         let sink = stderr.clone();
-        std::thread::spawn(move || {
+        let reader = std::thread::spawn(move || {
             for line in BufReader::new(pipe).lines().map_while(Result::ok) {
                 let mut s = sink.lock().unwrap_or_else(|e| e.into_inner());
                 s.push_str(&line);
                 s.push('\n');
             }
         });
-        Proc { child, stderr }
+        Proc { child, stderr, reader: Some(reader) }
     }
 
     pub fn pid(&self) -> u32 {
@@ -115,12 +119,28 @@ impl Proc {
         let start = Instant::now();
         loop {
             if let Some(s) = self.child.try_wait().unwrap() {
+                self.drain_stderr(Duration::from_secs(10));
                 return s;
             }
             if start.elapsed() > limit {
                 panic!("process did not exit within {limit:?}; stderr:\n{}", self.stderr.lock().unwrap());
             }
             std::thread::sleep(Duration::from_millis(20));
+        }
+    }
+}
+
+impl Proc {
+    /// Lets the stderr thread reach the pipe's end. Bounded: a child the process started
+    /// may still hold the pipe open (`ip netns exec`, a shell), and then what arrived is
+    /// what the test gets.
+    fn drain_stderr(&mut self, limit: Duration) {
+        let start = Instant::now();
+        while self.reader.as_ref().is_some_and(|r| !r.is_finished()) && start.elapsed() < limit {
+            std::thread::sleep(Duration::from_millis(5));
+        }
+        if self.reader.as_ref().is_some_and(|r| r.is_finished()) {
+            let _ = self.reader.take().map(|r| r.join());
         }
     }
 }
