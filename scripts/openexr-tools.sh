@@ -4,7 +4,7 @@
 # `openexr` package and the two libraries it links (`libopenexr-3-1-30`, `libimath-3-1-29`;
 # other releases' names are looked up with apt-cache), downloaded with `apt-get download`
 # and unpacked with `dpkg-deb -x` into target/tools/openexr (nothing is installed into the
-# system), under the lock every helper script takes for apt/dpkg. An `exrheader` already
+# system; `apt_fetch` of scripts/apt-install.sh), under the lock every helper script takes for apt/dpkg. An `exrheader` already
 # on PATH is used as it is.
 # Prints two lines on stdout and exits 0: the directory holding `exrheader`, then the
 # directory to put on LD_LIBRARY_PATH (empty for a system install). Exits 2 with one line
@@ -32,7 +32,7 @@ if found; then
   echo "$lib"
   exit 0
 fi
-for tool in apt-get apt-cache dpkg-deb flock; do
+for tool in apt-cache flock; do
   if ! command -v "$tool" >/dev/null 2>&1; then
     echo "no exrheader on PATH and no $tool to unpack Debian's openexr package" >&2
     exit 2
@@ -40,8 +40,7 @@ for tool in apt-get apt-cache dpkg-deb flock; do
 done
 mkdir -p "$dir"
 log=$(mktemp)
-work=$(mktemp -d)
-trap 'rm -rf "$log" "$work"' EXIT
+trap 'rm -f "$log"' EXIT
 # One lock over the look-ups, the download and the unpacking: apt/dpkg of other helpers
 # wait, and so does a second copy of this script, which then finds the tools unpacked.
 exec 9>/tmp/tessera-apt.lock
@@ -59,24 +58,17 @@ packages() {
 }
 if [ -z "$(packages | sed 1d)" ] && [ "$(id -u)" = 0 ]; then
   # A machine that has never fetched the package lists knows no openexr yet.
-  apt-get update >"$log" 2>&1 || true
+  timeout 600 apt-get update >"$log" 2>&1 || true
 fi
 want=$(packages)
 if [ -z "$(echo "$want" | sed 1d)" ]; then
   echo "apt-cache knows no openexr package with its libraries (no package lists?)" >&2
   exit 2
 fi
+# shellcheck source=scripts/apt-install.sh
+. scripts/apt-install.sh
 # shellcheck disable=SC2086
-if ! (cd "$work" && apt-get download $want >"$log" 2>&1); then
-  echo "apt-get download $(echo $want) failed: $(grep -E '^E:' "$log" | head -1)" >&2
-  exit 2
-fi
-for deb in "$work"/*.deb; do
-  if ! dpkg-deb -x "$deb" "$dir" >"$log" 2>&1; then
-    echo "dpkg-deb -x $deb failed: $(head -1 "$log")" >&2
-    exit 2
-  fi
-done
+apt_fetch "no exrheader on PATH" "$dir" $want
 if found; then
   echo "$bin"
   echo "$lib"

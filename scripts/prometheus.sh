@@ -2,8 +2,8 @@
 # Makes Prometheus and promtool available to the metrics tests (coordinator's
 # `promtool check metrics`, tests/metrics.rs): Debian's `prometheus` package, downloaded
 # with `apt-get download` and unpacked with `dpkg-deb -x` into target/tools/prometheus
-# (nothing is installed into the system), under the lock every helper script takes for
-# apt/dpkg. Binaries already on PATH are used as they are. Prints the directory holding
+# (nothing is installed into the system; `apt_fetch` of scripts/apt-install.sh), under the
+# lock every helper script takes for apt/dpkg. Binaries already on PATH are used as they are. Prints the directory holding
 # `prometheus` and `promtool` on stdout and exits 0; exits 2 with one line on stderr
 # saying why when they cannot be had (the tests then print SKIPPED with that line).
 # Usage: scripts/prometheus.sh
@@ -20,16 +20,10 @@ if [ -x "$bin/promtool" ] && [ -x "$bin/prometheus" ]; then
   echo "$bin"
   exit 0
 fi
-for tool in apt-get dpkg-deb flock; do
-  if ! command -v "$tool" >/dev/null 2>&1; then
-    echo "no promtool on PATH and no $tool to unpack Debian's prometheus package" >&2
-    exit 2
-  fi
-done
-mkdir -p "$dir"
-log=$(mktemp)
-work=$(mktemp -d)
-trap 'rm -rf "$log" "$work"' EXIT
+if ! command -v flock >/dev/null 2>&1; then
+  echo "no promtool on PATH and no flock to fetch Debian's prometheus package under the apt lock" >&2
+  exit 2
+fi
 # One lock over the download and the unpacking: apt/dpkg of other helpers wait, and so
 # does a second copy of this script (two tests may ask at once), which then finds the
 # binaries unpacked.
@@ -39,25 +33,9 @@ if [ -x "$bin/promtool" ] && [ -x "$bin/prometheus" ]; then
   echo "$bin"
   exit 0
 fi
-fetch() {
-  (cd "$work" && apt-get download prometheus >"$log" 2>&1)
-}
-# A machine that has never fetched the package lists knows no prometheus yet (updating
-# them needs root).
-if ! fetch; then
-  if [ "$(id -u)" = 0 ]; then
-    apt-get update >>"$log" 2>&1 || true
-  fi
-  if ! fetch; then
-    echo "apt-get download prometheus failed: $(grep -E '^E:' "$log" | head -1)" >&2
-    exit 2
-  fi
-fi
-deb=$(ls "$work"/prometheus_*.deb | head -1)
-if ! dpkg-deb -x "$deb" "$dir" >"$log" 2>&1; then
-  echo "dpkg-deb -x $deb failed: $(head -1 "$log")" >&2
-  exit 2
-fi
+# shellcheck source=scripts/apt-install.sh
+. scripts/apt-install.sh
+apt_fetch "no promtool on PATH" "$dir" prometheus
 if [ -x "$bin/promtool" ] && [ -x "$bin/prometheus" ]; then
   echo "$bin"
   exit 0
