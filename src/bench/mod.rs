@@ -239,7 +239,12 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             audit::run(trials, audit_fraction)?;
             Ok(ExitCode::SUCCESS)
         }
-        BenchCommand::Rays { dir, mesh, repeats } => rays::run(&dir, mesh.as_deref(), repeats.max(1)),
+        BenchCommand::Rays { dir, mesh, repeats } => {
+            if repeats > 1000 {
+                anyhow::bail!("--repeats {repeats}: at most 1000");
+            }
+            rays::run(&dir, mesh.as_deref(), repeats.max(1))
+        }
         BenchCommand::Load { scene, runs, threads } => load::run(&scene, runs.max(1), threads),
         BenchCommand::Samples { scene, spp, size, threads, runs } => {
             if spp == Some(0) || threads == Some(0) || runs == 0 {

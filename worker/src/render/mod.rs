@@ -113,6 +113,13 @@ pub fn few_emitters(prims: &[Primitive]) -> Option<Vec<u32>> {
     Some(emitters)
 }
 
+/// What a nearest-hit search found: a candidate its completion turns into the hit, or a
+/// hit its primitive made whole (a moving one, or one whose material has an alpha cut-out).
+struct Found {
+    nearest: Option<Candidate>,
+    best: Option<SurfaceHit>,
+}
+
 /// The nearest hit found so far, before it is completed: the primitive, the distance and
 /// the surface coordinates its completion needs.
 #[derive(Debug, Clone, Copy)]
@@ -176,6 +183,27 @@ impl Scene {
         }
     }
 
+    /// The primitive (`u32::MAX` for an infinite plane) and distance of the nearest hit
+    /// before `t_max`: [`Scene::intersect`]'s search, without completing the hit (its
+    /// point, normals and uv), which is what a ray-casting library such as Embree returns.
+    /// `bench rays` measures this beside Embree's closest-hit queries.
+    pub fn nearest_primitive(&self, ray: &Ray, t_max: f32, time: f32, coherent: bool) -> Option<(u32, f32)> {
+        let (found, t_max) = match (self.world.surfaces.any_alpha, coherent) {
+            (false, false) => self.search::<false, false>(ray, t_max, time),
+            (false, true) => self.search::<false, true>(ray, t_max, time),
+            (true, false) => self.search::<true, false>(ray, t_max, time),
+            (true, true) => self.search::<true, true>(ray, t_max, time),
+        };
+        if let Some((hit, _)) = self.nearest_plane(ray, t_max) {
+            return Some((hit.prim, hit.t));
+        }
+        match (found.nearest, found.best) {
+            (Some(Candidate::Triangle(k, t, ..)), _) => Some((self.world.slots[k].index(), t)),
+            (Some(Candidate::Rect(i, t, ..) | Candidate::Sphere(i, t)), _) => Some((i, t)),
+            (None, best) => best.map(|sh| (sh.hit.prim, sh.hit.t)),
+        }
+    }
+
     /// [`Scene::intersect`], with hits on materials with alpha tested when `ALPHA`.
     fn nearest<const ALPHA: bool, const COHERENT: bool>(
         &self,
@@ -183,6 +211,39 @@ impl Scene {
         t_max: f32,
         time: f32,
     ) -> Option<SurfaceHit> {
+        let (found, t_max) = self.search::<ALPHA, COHERENT>(ray, t_max, time);
+        let best = self.complete(ray, found);
+        match self.nearest_plane(ray, t_max) {
+            Some((hit, material)) => Some(SurfaceHit { hit, material, light: None }),
+            None => best,
+        }
+    }
+
+    /// The nearest infinite plane the ray hits before `t_max`, and its material. Planes
+    /// are not in the BVH (they have no bounds) nor in `prims`: no index may point there,
+    /// so the hit's `prim` is `u32::MAX`.
+    #[inline]
+    fn nearest_plane(&self, ray: &Ray, mut t_max: f32) -> Option<(Hit, u32)> {
+        let mut nearest = None;
+        for (plane, material) in &self.world.planes {
+            if let Some(mut hit) = plane.intersect(ray, t_max) {
+                hit.prim = u32::MAX;
+                t_max = hit.t;
+                nearest = Some((hit, *material));
+            }
+        }
+        nearest
+    }
+
+    /// The nearest hit among the BVH's primitives before `t_max`, not yet completed where
+    /// its shape completes it later, and the distance the search ended with.
+    #[inline(always)]
+    fn search<const ALPHA: bool, const COHERENT: bool>(
+        &self,
+        ray: &Ray,
+        t_max: f32,
+        time: f32,
+    ) -> (Found, f32) {
         let w = &*self.world;
         // An inline triangle's, a still parallelogram's or a still sphere's hit is completed
         // (point, normals, uv) only once it is known to be the nearest; it is the same hit
@@ -254,6 +315,14 @@ impl Scene {
             }
             bvh::nearest_in_leaf(first, count, t_max, |k, t_max| slot(k, t_max, None))
         });
+        (Found { nearest, best }, t_max)
+    }
+
+    /// The hit `found` names, completed (point, normals, uv).
+    #[inline(always)]
+    fn complete(&self, ray: &Ray, found: Found) -> Option<SurfaceHit> {
+        let w = &*self.world;
+        let Found { nearest, mut best } = found;
         let complete = |i: u32, hit: Option<Hit>| {
             let prim = &w.prims[i as usize];
             hit.map(|mut hit| {
@@ -286,15 +355,6 @@ impl Scene {
                 }
             }
             None => {}
-        }
-        let mut t_max = t_max;
-        for (plane, material) in &w.planes {
-            if let Some(mut hit) = plane.intersect(ray, t_max) {
-                // Planes are not in `prims`: no index may point there.
-                hit.prim = u32::MAX;
-                t_max = hit.t;
-                best = Some(SurfaceHit { hit, material: *material, light: None });
-            }
         }
         best
     }
