@@ -184,6 +184,7 @@ impl Light {
     }
 
     /// Samples light arriving at `p`.
+    #[inline]
     pub fn sample(&self, p: Vec3, u: Vec2) -> Option<LightSample> {
         match self {
             Light::Point { position, intensity } => {
@@ -249,6 +250,7 @@ impl Light {
     /// The solid-angle density with which `sample` picks direction `wi` from `p`, given
     /// that the ray hits this light at distance `dist` where its geometric normal is `n`
     /// (for MIS).
+    #[inline]
     pub fn pdf(&self, p: Vec3, wi: Vec3, dist: f32, n: Vec3) -> f32 {
         match self {
             Light::Mesh(m) => {

@@ -166,6 +166,7 @@ impl Material {
 
 impl Material {
     /// The BSDF at a point, for the physically based materials.
+    #[inline]
     pub fn bsdf(&self, textures: &[Texture], p: Vec3, uv: Vec2) -> Option<Bsdf> {
         Some(match self {
             Material::Classic(_) => return None,

@@ -125,6 +125,11 @@ impl Bsdf {
     }
 
     /// f(wo, wi) · |cos θi| for the non-Dirac lobes.
+    // This and the other dispatchers on a bounce's path (`pdf`, `split`, `sample`,
+    // `Material::bsdf`, `Light::sample` and `pdf`) are hinted inline: the profile-guided
+    // build inlines them into the integrator's loop, and the hint gets a plain release
+    // build a little of that (docs/speed.md, twentieth part).
+    #[inline]
     pub fn eval(&self, wo: Vec3, wi: Vec3) -> Vec3 {
         match *self {
             Bsdf::Lambert { albedo } => lambert::eval(wo, wi, albedo),
@@ -137,6 +142,7 @@ impl Bsdf {
     }
 
     /// Density of `sample` returning `wi` (non-Dirac lobes only).
+    #[inline]
     pub fn pdf(&self, wo: Vec3, wi: Vec3) -> f32 {
         match *self {
             Bsdf::Lambert { .. } => lambert::pdf(wo, wi),
@@ -164,6 +170,7 @@ impl Bsdf {
     /// Both lobes of a smooth dielectric, to be followed both (Whitted's two rays) where
     /// [`Bsdf::sample`] would pick one; `None` for every other BSDF, and on total
     /// internal reflection.
+    #[inline]
     pub fn split(&self, wo: Vec3) -> Option<[BsdfSample; 2]> {
         match *self {
             Bsdf::Dielectric { eta } => dielectric::split(wo, eta),
@@ -173,6 +180,7 @@ impl Bsdf {
 
     /// Samples an incident direction given `wo`, with a lobe choice `u_lobe` and a 2-D
     /// sample `u`.
+    #[inline]
     pub fn sample(&self, wo: Vec3, u_lobe: f32, u: Vec2) -> Option<BsdfSample> {
         match *self {
             Bsdf::Lambert { albedo } => lambert::sample(wo, u, albedo),
