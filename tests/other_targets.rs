@@ -110,29 +110,17 @@ impl Target {
     }
 }
 
-/// The checksum `tessera bench samples` prints for `scene` (the renderer in-process: a
-/// `render` would start a worker process, which the emulator does not follow into).
-fn checksum(mut cmd: Command, scene: &Path) -> String {
-    let args = ["bench", "samples", "--threads", "1", "--runs", "1", "--size", SIZE, "--spp", SPP];
-    // Emulated, a scene takes a second or two.
-    let out = output_within(cmd.args(args).arg(scene), Duration::from_secs(300));
-    let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
-    assert!(out.status.success(), "bench samples {}: {text}", scene.display());
-    let found = text.lines().find_map(|l| l.split("image checksum ").nth(1)).map(str::trim);
-    found.unwrap_or_else(|| panic!("no checksum from bench samples {}: {text}", scene.display())).to_string()
-}
-
 /// Every scene renders to the fixed-point sums of this run's build on aarch64 and with musl
 /// (the checksum of every pixel's sums, which decide the image's bytes).
 #[test]
 fn other_targets_render_every_scene_to_the_same_sums() {
     let scenes = scene_files();
-    let ours: Vec<String> = scenes.iter().map(|s| checksum(tessera(), s)).collect();
+    let ours: Vec<String> = scenes.iter().map(|s| checksum(tessera(), s, SIZE, SPP)).collect();
     for target in Target::ALL {
         let Some(bin) = target.build() else { continue };
         let mut failures = Vec::new();
         for (scene, want) in scenes.iter().zip(&ours) {
-            let got = checksum(target.command(bin), scene);
+            let got = checksum(target.command(bin), scene, SIZE, SPP);
             if &got != want {
                 failures.push(format!("{}: {got} against {want}", scene.display()));
             }

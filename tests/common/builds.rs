@@ -19,6 +19,13 @@ pub fn nested_cargo(args: &[&str]) -> Command {
     if this_profile_is_release() {
         cmd.arg("--release");
     }
+    without_cargos_env(&mut cmd);
+    cmd
+}
+
+/// Takes out of `cmd`'s environment what cargo set for this test process, for a command
+/// that runs cargo itself (see `nested_cargo`), and gives it stdin from nowhere.
+pub fn without_cargos_env(cmd: &mut Command) {
     for (key, _) in std::env::vars_os() {
         let k = key.to_string_lossy();
         let set_by_cargo = ["CARGO_PKG_", "CARGO_MANIFEST_", "CARGO_CFG_", "CARGO_BIN_", "CARGO_CRATE_"]
@@ -30,7 +37,6 @@ pub fn nested_cargo(args: &[&str]) -> Command {
         }
     }
     cmd.stdin(Stdio::null());
-    cmd
 }
 
 /// Runs `cmd` to completion, its output captured; panics, with what it printed, if it
@@ -72,6 +78,20 @@ pub fn output_within(cmd: &mut Command, limit: Duration) -> Output {
 fn this_profile_is_release() -> bool {
     let bin = PathBuf::from(env!("CARGO_BIN_EXE_tessera"));
     bin.parent().and_then(Path::file_name).is_some_and(|p| p == "release")
+}
+
+/// The checksum of the fixed-point sums `tessera bench samples` prints for `scene` at
+/// `size` and `spp` on one thread: equal checksums, the same image bits. In-process, so it
+/// also serves binaries run under an emulator (a `render` would start a worker process,
+/// which the emulator does not follow into).
+pub fn checksum(mut cmd: Command, scene: &Path, size: &str, spp: &str) -> String {
+    let args = ["bench", "samples", "--threads", "1", "--runs", "1", "--size", size, "--spp", spp];
+    // Emulated, a scene takes a second or two.
+    let out = output_within(cmd.args(args).arg(scene), Duration::from_secs(300));
+    let text = String::from_utf8_lossy(&out.stdout).to_string() + &String::from_utf8_lossy(&out.stderr);
+    assert!(out.status.success(), "bench samples {}: {text}", scene.display());
+    let found = text.lines().find_map(|l| l.split("image checksum ").nth(1)).map(str::trim);
+    found.unwrap_or_else(|| panic!("no checksum from bench samples {}: {text}", scene.display())).to_string()
 }
 
 /// Every scene file under `scenes/` whose assets are all there (the terrain's mesh is
