@@ -306,11 +306,12 @@ impl Scene {
             if !ALPHA && w.slots.any_inline() {
                 // The leaf's triangles tested at once, then taken in slot order with the
                 // other slots, each against the `t_max` the ones before it left.
-                for (k, tri) in w.slots.leaf(first, count, &r4).in_order() {
+                w.slots.leaf(first, count, &r4, |k, tri| {
                     if let Some(t) = slot(k, t_max, tri) {
                         t_max = t_max.min(t);
                     }
-                }
+                    true
+                });
                 return t_max;
             }
             bvh::nearest_in_leaf(first, count, t_max, |k, t_max| slot(k, t_max, None))
@@ -455,11 +456,7 @@ impl Scene {
             if !ALPHA && w.slots.any_inline() {
                 // The leaf's triangles tested at once; those crossed are taken in slot
                 // order with the other slots.
-                return w
-                    .slots
-                    .leaf(first, count, &r4)
-                    .in_order()
-                    .all(|(k, tri)| cross(k, tri.filter(|h| h.0 < dist)));
+                return w.slots.leaf(first, count, &r4, |k, tri| cross(k, tri.filter(|h| h.0 < dist)));
             }
             (first..first + count).all(|k| {
                 let hit = match w.slots[k].kind() {

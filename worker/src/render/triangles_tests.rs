@@ -243,32 +243,45 @@ fn leaf_tests_give_each_slot_s_bits() {
             }
             let Some(dir) = dir.try_normalize() else { continue };
             let ray = Ray::new(origin, dir);
-            let got = slots.leaf(first, count, &Ray4::new(&ray));
-            assert_eq!(got.base, first / 4 * 4, "{name}: ray {k}");
-            for i in 0..12 {
-                let slot = got.base + i;
-                let (hit, gen) = (got.mask >> i & 1 == 1, got.generic >> i & 1 == 1);
+            let mut got = Vec::new();
+            assert!(slots.leaf(first, count, &Ray4::new(&ray), |slot, hit| {
+                got.push((slot, hit));
+                true
+            }));
+            assert!(got.windows(2).all(|w| w[0].0 < w[1].0), "{name}: ray {k}: not in slot order");
+            let bits = |h: Option<(f32, f32, f32)>| h.map(|(t, u, v)| [t, u, v].map(f32::to_bits));
+            for slot in first / 4 * 4..(first + count).next_multiple_of(4) {
+                let seen = got.iter().find(|g| g.0 == slot).map(|g| g.1);
                 if !(first..first + count).contains(&slot) {
-                    assert!(!hit && !gen, "{name}: ray {k}: slot {slot} outside the leaf");
+                    assert!(seen.is_none(), "{name}: ray {k}: slot {slot} outside the leaf");
                     continue;
                 }
                 match slots[slot].kind() {
                     // The padding between leaves is in none (runs here may take it in).
-                    _ if indices[slot] == PADDING => assert!(!hit && !gen, "{name}: ray {k}: slot {slot}"),
+                    _ if indices[slot] == PADDING => assert!(seen.is_none(), "{name}: ray {k}: slot {slot}"),
                     SlotKind::Generic(_) => {
-                        assert!(gen && !hit, "{name}: ray {k}: slot {slot}");
+                        assert_eq!(seen, Some(None), "{name}: ray {k}: slot {slot}");
                         generic += 1;
                     }
                     SlotKind::Triangle(_) => {
                         let want = slots.hit(slot, &ray, f32::INFINITY);
-                        let lane = hit.then(|| (got.t[i], got.b1[i], got.b2[i]));
-                        let bits =
-                            |h: Option<(f32, f32, f32)>| h.map(|(t, u, v)| [t, u, v].map(f32::to_bits));
-                        assert!(!gen, "{name}: ray {k}: slot {slot}");
-                        assert_eq!(bits(lane), bits(want), "{name}: ray {k}: slot {slot}");
-                        hits += usize::from(hit);
+                        assert_eq!(
+                            seen.map(bits),
+                            want.map(|w| bits(Some(w))),
+                            "{name}: ray {k}: slot {slot}"
+                        );
+                        hits += usize::from(want.is_some());
                     }
                 }
+            }
+            // The walk stops where the callback says so.
+            if got.len() > 1 {
+                let mut calls = 0;
+                assert!(!slots.leaf(first, count, &Ray4::new(&ray), |_, _| {
+                    calls += 1;
+                    calls < 2
+                }));
+                assert_eq!(calls, 2, "{name}: ray {k}");
             }
         }
     }
