@@ -132,14 +132,17 @@ fn workers_frozen_killed_and_joining_leave_the_image_unchanged() {
     submit(&coord.url);
     let frozen = coord.worker(1);
     coord.wait_until(1, Duration::from_secs(60), "progress", |s| s.fraction() > 0.05);
+    // Frozen while it is the only worker, so that it holds leases (a worker keeps credit
+    // for more than one batch) and nothing else can finish them first: frozen beside the
+    // others, near the end of a job that takes two seconds on a fast machine, its batches
+    // were duplicated as a straggler's and done before the silence was noticed.
+    frozen.signal(19); // SIGSTOP
+    coord.proc.wait_for("worker silent; its batches go to others", Duration::from_secs(30));
+    let frozen_at = coord.job(1).unwrap().samples_done;
     let mut killed = coord.worker(1);
     let _joined = coord.worker(1);
     let at_join = coord.job(1).unwrap();
     assert!(at_join.fraction() < 0.6, "finished too fast to test: {at_join:?}");
-
-    frozen.signal(19); // SIGSTOP
-    coord.proc.wait_for("worker silent; its batches go to others", Duration::from_secs(30));
-    let frozen_at = coord.job(1).unwrap().samples_done;
     coord.wait_until(1, Duration::from_secs(60), "progress without the frozen worker", |s| {
         s.samples_done > frozen_at
     });
