@@ -163,6 +163,11 @@ impl Job {
         true
     }
 
+    /// When its first batch was leased (this run of the coordinator; `None` before).
+    pub fn started(&self) -> Option<Instant> {
+        self.started
+    }
+
     /// Whether every pixel has its pass-one sample.
     pub fn pass_one_complete(&self) -> bool {
         let fb = &self.framebuffer;

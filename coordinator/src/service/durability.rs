@@ -204,8 +204,9 @@ impl CoordinatorService {
     }
 
     /// Writes a checkpoint of every job that has new samples and is due: its interval has
-    /// passed, it finished pass one, or it ended; with `all`, of every job with anything
-    /// new (at shutdown). Returns how many were written.
+    /// passed (since its last checkpoint, or since it started), it finished pass one, or it
+    /// ended; with `all`, of every job with anything new (at shutdown). Returns how many
+    /// were written.
     pub async fn checkpoint(&self, all: bool) -> Result<usize, StoreError> {
         let Some(durable) = self.durable.clone() else { return Ok(0) };
         let now = Instant::now();
@@ -219,10 +220,21 @@ impl CoordinatorService {
                     let ended = j.is_over() && last.is_none_or(|s| s.state != j.state);
                     let due = all
                         || ended
-                        || last.is_none_or(|s| {
-                            now.saturating_duration_since(s.at) >= durable.interval
-                                || (j.pass_one_complete() && !s.pass_one_complete)
-                        });
+                        || match last {
+                            Some(s) => {
+                                now.saturating_duration_since(s.at) >= durable.interval
+                                    || (j.pass_one_complete() && !s.pass_one_complete)
+                            }
+                            // The first one an interval into the job, not at the first
+                            // tick: on a large image that tick caught pass one a quarter
+                            // second in and wrote its whole framebuffer (232 MB at 4K) for
+                            // that quarter second's work (docs/speed.md, twenty-second part).
+                            None => {
+                                j.pass_one_complete()
+                                    || j.started()
+                                        .is_none_or(|t| now.saturating_duration_since(t) >= durable.interval)
+                            }
+                        };
                     (changed || ended) && due
                 })
                 .map(|j| j.id)
@@ -429,6 +441,52 @@ mod tests {
         );
         assert_eq!(recovery.resumed[0].samples_kept, a.batch.sample_count());
         assert_eq!(again.progress(id).unwrap().samples_done, a.batch.sample_count());
+    }
+
+    /// A job's first checkpoint comes an interval after it started or when pass one is
+    /// complete, whichever is first, not at the checkpointer's first tick; then one each
+    /// interval, and one when it ends.
+    #[tokio::test]
+    async fn the_first_checkpoint_waits_an_interval_or_the_end_of_pass_one() {
+        let run = |interval: Duration| async move {
+            let store = Arc::new(Mutex::new(MemoryStore::new()));
+            let (service, _) = CoordinatorService::with_store(
+                Timing::default(),
+                Box::new(SharedStore(store.clone())),
+                vec![],
+                interval,
+                Recovery::default(),
+            );
+            let id = service.submit(bundle(), JobSettings::sized(Some(2), Some((8, 8))), 0).await.unwrap();
+            let w = service.farm().add_worker("w".into(), 1, Instant::now());
+            let step = move |service: &CoordinatorService| {
+                let a = service.farm().assign(w, Instant::now()).unwrap();
+                let sums = vec![0; a.batch.quads.len() * 3];
+                service.farm().complete(w, &a.answer(&sums, None), Instant::now()).unwrap();
+            };
+            step(&service);
+            (service, id, store, step)
+        };
+
+        // A long interval: nothing in pass one, one at its end, one at the job's end.
+        let (service, id, store, step) = run(Duration::from_secs(3600)).await;
+        assert_eq!(service.checkpoint(false).await.unwrap(), 0, "a first batch in is not due");
+        while !service.farm().job(id).unwrap().pass_one_complete() {
+            step(&service);
+        }
+        assert_eq!(service.checkpoint(false).await.unwrap(), 1, "pass one complete");
+        assert_eq!(service.checkpoint(false).await.unwrap(), 0, "nothing new");
+        while !service.farm().job(id).unwrap().is_over() {
+            step(&service);
+        }
+        assert_eq!(service.checkpoint(false).await.unwrap(), 1, "the job ended");
+        assert_eq!(lock(&store).load().jobs.len(), 1);
+
+        // A short one: due once an interval has passed since the job started.
+        let (service, _, _, _) = run(Duration::from_millis(50)).await;
+        assert_eq!(service.checkpoint(false).await.unwrap(), 0, "within the interval");
+        tokio::time::sleep(Duration::from_millis(60)).await;
+        assert_eq!(service.checkpoint(false).await.unwrap(), 1, "an interval in");
     }
 
     /// A store shared by the services of a test, as a database file would be.
