@@ -482,9 +482,10 @@ mod tests {
         assert_eq!(service.checkpoint(false).await.unwrap(), 1, "the job ended");
         assert_eq!(lock(&store).load().jobs.len(), 1);
 
-        // A short one: due once an interval has passed since the job started.
+        // A short one: due once an interval has passed since the job started (that it is
+        // not due before is the long interval's first check, which a loaded machine
+        // cannot make late).
         let (service, _, _, _) = run(Duration::from_millis(50)).await;
-        assert_eq!(service.checkpoint(false).await.unwrap(), 0, "within the interval");
         tokio::time::sleep(Duration::from_millis(60)).await;
         assert_eq!(service.checkpoint(false).await.unwrap(), 1, "an interval in");
     }
