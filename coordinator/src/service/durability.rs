@@ -218,23 +218,16 @@ impl CoordinatorService {
                     let last = saved.get(&j.id);
                     let changed = last.is_none_or(|s| s.version != j.framebuffer().version());
                     let ended = j.is_over() && last.is_none_or(|s| s.state != j.state);
+                    // An interval after the last checkpoint, or after the job started: a
+                    // first one at the checkpointer's first tick wrote a 4K image's whole
+                    // framebuffer (232 MB) for a quarter second's work (docs/speed.md,
+                    // twenty-second part).
+                    let since = last.map(|s| s.at).or(j.started());
+                    let pass_one_new = j.pass_one_complete() && !last.is_some_and(|s| s.pass_one_complete);
                     let due = all
                         || ended
-                        || match last {
-                            Some(s) => {
-                                now.saturating_duration_since(s.at) >= durable.interval
-                                    || (j.pass_one_complete() && !s.pass_one_complete)
-                            }
-                            // The first one an interval into the job, not at the first
-                            // tick: on a large image that tick caught pass one a quarter
-                            // second in and wrote its whole framebuffer (232 MB at 4K) for
-                            // that quarter second's work (docs/speed.md, twenty-second part).
-                            None => {
-                                j.pass_one_complete()
-                                    || j.started()
-                                        .is_none_or(|t| now.saturating_duration_since(t) >= durable.interval)
-                            }
-                        };
+                        || pass_one_new
+                        || since.is_none_or(|t| now.saturating_duration_since(t) >= durable.interval);
                     (changed || ended) && due
                 })
                 .map(|j| j.id)
