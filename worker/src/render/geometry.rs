@@ -57,35 +57,40 @@ pub const fn gamma(n: i32) -> f32 {
 /// where rays are offset; it scales with the scene instead of using a fixed epsilon.
 pub fn offset_ray_origin(p: Vec3, p_error: Vec3, n: Vec3, w: Vec3) -> Vec3 {
     let d = n.abs().dot(p_error);
-    let mut offset = n * d;
-    if w.dot(n) < 0.0 {
-        offset = -offset;
-    }
-    let mut po = p + offset;
+    // Selects, not branches: which side a ray leaves to, and the sign of each component
+    // of the offset, follow the normals and are a coin toss to the branch predictor
+    // (this function was 5 % of a `spheres` profile with them; without, `spheres` traces
+    // about 1 % faster, docs/speed.md, twenty-third part).
+    let side = if w.dot(n) < 0.0 { -1.0 } else { 1.0 };
+    let offset = n * d * side;
+    let po = p + offset;
     // Round away from p, so that the rounding of the addition cannot undo the offset.
-    for i in 0..3 {
-        if offset[i] > 0.0 {
-            po[i] = next_up(po[i]);
-        } else if offset[i] < 0.0 {
-            po[i] = next_down(po[i]);
-        }
-    }
-    po
+    Vec3::new(nudge(po.x, offset.x), nudge(po.y, offset.y), nudge(po.z, offset.z))
 }
 
-/// The next float above `v`.
-pub fn next_up(v: f32) -> f32 {
-    if v.is_infinite() && v > 0.0 {
-        return v;
-    }
-    let v = if v == -0.0 { 0.0 } else { v };
+/// `v` moved to the next float in the direction of `toward`'s sign: [`f32::next_up`]
+/// where `toward` is positive, [`f32::next_down`] where it is negative, `v` where it is
+/// zero or NaN. The same floats for every `v` but a NaN (whose payload may differ; a NaN
+/// origin hits nothing either way), computed on the bits without a branch.
+#[inline]
+fn nudge(v: f32, toward: f32) -> f32 {
+    const SIGN: u32 = 0x8000_0000;
+    // Masks and integer arithmetic: written with `if`, LLVM made this three branches a
+    // component again.
     let bits = v.to_bits();
-    f32::from_bits(if v >= 0.0 { bits + 1 } else { bits - 1 })
-}
-
-/// The next float below `v`.
-pub fn next_down(v: f32) -> f32 {
-    -next_up(-v)
+    let magnitude = bits & !SIGN;
+    let down = u32::from(toward < 0.0).wrapping_neg();
+    let moved = u32::from(toward.abs() > 0.0).wrapping_neg();
+    let direction = down & SIGN;
+    // From ±0 the step starts at the zero of the direction's sign.
+    let zero = u32::from(magnitude == 0).wrapping_neg() & moved;
+    let base = (direction & zero) | (bits & !zero);
+    // The magnitude grows when `base` has the direction's sign (but an infinity stays)
+    // and shrinks when it has the other.
+    let outwards = 1 - ((base ^ direction) >> 31);
+    let infinite = u32::from(magnitude == f32::INFINITY.to_bits());
+    let delta = (outwards * (2 - infinite)).wrapping_sub(1) & moved;
+    f32::from_bits(base.wrapping_add(delta))
 }
 
 /// A sphere.
@@ -211,6 +216,35 @@ impl Plane {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The branchless nudge steps to the same float as `f32::next_up` / `next_down` for
+    /// every non-NaN value: the specials, and bit patterns across the range.
+    #[test]
+    fn nudge_steps_as_next_up_and_next_down() {
+        let mut values = vec![0.0f32, -0.0, 1.0, -1.0, f32::INFINITY, f32::NEG_INFINITY, f32::MAX, f32::MIN];
+        values.extend([
+            f32::MIN_POSITIVE,
+            -f32::MIN_POSITIVE,
+            f32::from_bits(1),
+            f32::from_bits(0x8000_0001),
+        ]);
+        let mut x = 0x9e37_79b9u32;
+        for _ in 0..100_000 {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            values.push(f32::from_bits(x));
+        }
+        for v in values.into_iter().filter(|v| !v.is_nan()) {
+            let same = |a: f32, b: f32| a.to_bits() == b.to_bits();
+            assert!(same(nudge(v, 1e-30), v.next_up()), "{v:e} up");
+            assert!(same(nudge(v, -3.0), v.next_down()), "{v:e} down");
+            assert!(
+                same(nudge(v, 0.0), v) && same(nudge(v, -0.0), v) && same(nudge(v, f32::NAN), v),
+                "{v:e}"
+            );
+        }
+    }
 
     #[test]
     fn sphere_hit_from_outside_and_inside() {
