@@ -228,13 +228,9 @@ mod tests {
             f32::from_bits(1),
             f32::from_bits(0x8000_0001),
         ]);
-        let mut x = 0x9e37_79b9u32;
-        for _ in 0..100_000 {
-            x ^= x << 13;
-            x ^= x >> 17;
-            x ^= x << 5;
-            values.push(f32::from_bits(x));
-        }
+        let hashed =
+            (0..100_000u64).map(|k| f32::from_bits(crate::render::sampler::hash_words(&[k, 11]) as u32));
+        values.extend(hashed);
         for v in values.into_iter().filter(|v| !v.is_nan()) {
             let same = |a: f32, b: f32| a.to_bits() == b.to_bits();
             assert!(same(nudge(v, 1e-30), v.next_up()), "{v:e} up");
