@@ -151,7 +151,7 @@ fn trace(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32,
         let wo = frame.to_local(wo_world);
         if depth + 1 < scene.max_depth && !bsdf.is_delta() {
             let w = &*scene.world;
-            w.light_choice.for_each(&w.lights, sampler, |light, pick, sampler| {
+            w.light_choice.for_each(&w.lights, sampler, |i, light, pick, sampler| {
                 let u = if light.is_delta() { Vec2::ZERO } else { sampler.get_2d() };
                 let Some(ls) = light.sample(hit.p, u) else { return };
                 let f = bsdf.eval(wo, frame.to_local(ls.wi));
@@ -159,7 +159,7 @@ fn trace(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32,
                     return;
                 }
                 let origin = offset_ray_origin(hit.p, hit.p_error, hit.n, ls.wi);
-                let tr = scene.transmittance(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time);
+                let tr = scene.shadow(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time, i, light);
                 if tr == Vec3::ZERO {
                     return;
                 }
@@ -249,7 +249,7 @@ fn classic(
 
     let mut l = scene.ambient * m.ambient * color;
     let world = &*scene.world;
-    world.light_choice.for_each(&world.lights, sampler, |light, pick, sampler| {
+    world.light_choice.for_each(&world.lights, sampler, |i, light, pick, sampler| {
         let u = if light.is_delta() { Vec2::ZERO } else { sampler.get_2d() };
         let Some(ls) = light.sample(hit.p, u) else { return };
         let cos = ns.dot(ls.wi);
@@ -257,7 +257,7 @@ fn classic(
             return;
         }
         let origin = offset_ray_origin(hit.p, hit.p_error, n, ls.wi);
-        let tr = scene.transmittance(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time);
+        let tr = scene.shadow(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time, i, light);
         if tr == Vec3::ZERO {
             return;
         }

@@ -150,6 +150,13 @@ impl Light {
         matches!(self, Light::Point { .. } | Light::Directional { .. } | Light::Spot { .. })
     }
 
+    /// Whether the light is one convex primitive of the scene (a sphere or a
+    /// parallelogram): a shadow ray to a point sampled on it cannot cross its own surface
+    /// first, so the shadow test may pass that primitive over.
+    pub fn is_one_convex_primitive(&self) -> bool {
+        matches!(self, Light::Sphere { .. } | Light::Rect { .. })
+    }
+
     /// A spot light from its cones' half-angles in radians (inner < outer).
     pub fn spot(position: Vec3, direction: Vec3, intensity: Vec3, inner_cone: f32, outer_cone: f32) -> Light {
         let (ci, co) = (math::cos(inner_cone), math::cos(outer_cone));
@@ -325,22 +332,22 @@ impl LightChoice {
         self.by_power.as_ref().map_or(1.0, |d| d.pmf(i))
     }
 
-    /// Calls `each(light, probability, sampler)` for the lights a shading point samples:
+    /// Calls `each(index, light, probability, sampler)` for the lights a shading point samples:
     /// all of them with probability 1 (no sample drawn), or one drawn with the sampler's
     /// next 1-D number.
     pub fn for_each(
         &self,
         lights: &[Light],
         sampler: &mut Sampler,
-        mut each: impl FnMut(&Light, f32, &mut Sampler),
+        mut each: impl FnMut(u32, &Light, f32, &mut Sampler),
     ) {
         match &self.by_power {
-            None => lights.iter().for_each(|l| each(l, 1.0, sampler)),
+            None => lights.iter().enumerate().for_each(|(i, l)| each(i as u32, l, 1.0, sampler)),
             Some(d) => {
                 let pick = d.sample(sampler.get_1d());
                 let pmf = d.pmf(pick.index);
                 if pmf > 0.0 {
-                    each(&lights[pick.index], pmf, sampler);
+                    each(pick.index as u32, &lights[pick.index], pmf, sampler);
                 }
             }
         }

@@ -84,7 +84,7 @@ fn many_lights_are_chosen_by_power_without_bias() {
     let mut sum = 0.0f64;
     for s in 0..spp {
         sampler.start_pixel_sample(UVec2::ZERO, s);
-        choice.for_each(&lights, &mut sampler, |l, pick, _| {
+        choice.for_each(&lights, &mut sampler, |_, l, pick, _| {
             sum += f64::from(l.sample(p, Vec2::ZERO).unwrap().weighted.x / pick);
         });
     }
@@ -93,8 +93,9 @@ fn many_lights_are_chosen_by_power_without_bias() {
     // A handful: every light, each with probability 1.
     let few = LightChoice::new(&lights[..ALL_LIGHTS_UP_TO], 5.0);
     let mut calls = 0;
-    few.for_each(&lights[..ALL_LIGHTS_UP_TO], &mut sampler, |_, pick, _| {
+    few.for_each(&lights[..ALL_LIGHTS_UP_TO], &mut sampler, |i, _, pick, _| {
         assert_eq!(pick, 1.0);
+        assert_eq!(i as usize, calls);
         calls += 1;
     });
     assert_eq!(calls, ALL_LIGHTS_UP_TO);
@@ -220,4 +221,113 @@ material = "floor"
         );
         assert!(ra.x > 0.05, "{ra}");
     }
+}
+
+#[test]
+fn a_shadow_ray_passes_over_its_own_convex_light_and_nothing_else() {
+    // A sphere light, a parallelogram light, an emitting mesh of two triangles folded so
+    // that one can block the other, and an opaque ball in the middle of it all.
+    let text = r#"
+[render]
+width = 1
+height = 1
+spp = 1
+
+[camera]
+position = [0, 0, 8]
+look_at = [0, 0, 0]
+fov = 40
+
+[materials.m]
+type = "lambert"
+albedo = 0.5
+
+[[sphere]]
+center = [0, 0, 0]
+radius = 0.6
+material = "m"
+
+[[sphere]]
+center = [1.5, 1.8, 0]
+radius = 0.5
+emission = 3
+
+[[rectangle]]
+center = [-1.5, 1.8, 0.5]
+u = [0.4, 0, 0]
+v = [0, 0.3, 0.4]
+emission = 2
+
+[[mesh]]
+file = "fold.obj"
+emission = 1
+"#;
+    let fold =
+        b"v 0 -2 -1\nv 1 -2 -1\nv 0 -1 -2\nv 1 -1 -2\nv 0 -1 -1.2\nv 1 -1 -1.2\nf 1 2 4 3\nf 3 4 6 5\n";
+    let s = parse_scene_with_assets("t.toml", text, &One("fold.obj", fold.to_vec())).unwrap();
+    let lights = &s.world.lights;
+    assert!(matches!(lights[0], Light::Sphere { .. }) && matches!(lights[1], Light::Rect { .. }));
+    assert!(lights[0].is_one_convex_primitive() && lights[1].is_one_convex_primitive());
+    assert!(matches!(lights[2], Light::Mesh(_)) && !lights[2].is_one_convex_primitive());
+    let h = |k: u32, i: u64| {
+        (crate::render::sampler::hash_words(&[u64::from(k), i]) >> 40) as f32 / (1u64 << 24) as f32
+    };
+    // Every primitive's crossings but `skip`'s, one by one: opaque and emitting surfaces
+    // both block, so the answer is all or nothing.
+    let w = &*s.world;
+    let brute = |ray: &crate::render::geometry::Ray, dist: f32, skip: Option<usize>| {
+        let crossed = (w.prims.iter().enumerate())
+            .filter(|&(i, _)| Some(i) != skip)
+            .any(|(_, prim)| prim.crossings(ray, dist, 0.0, &w.meshes, &w.motions) > 0);
+        if crossed {
+            Vec3::ZERO
+        } else {
+            Vec3::ONE
+        }
+    };
+    let own = |i: usize| w.prims.iter().position(|p| p.light == Some(i as u32));
+    let (mut blocked, mut open, mut by_itself) = (0, 0, 0);
+    for k in 0..20_000u32 {
+        // Points around the scene, some close to the lights, and light samples up to the
+        // edges of their cones and parallelograms (grazing rays).
+        let p = Vec3::new(h(k, 0) - 0.5, h(k, 1) - 0.5, h(k, 2) - 0.5) * 6.0;
+        let mut u = Vec2::new(h(k, 3), h(k, 4));
+        if k % 4 == 0 {
+            u.x = 1.0 - u.x * 1e-6;
+        }
+        for (i, light) in lights.iter().enumerate() {
+            let Some(ls) = light.sample(p, u) else { continue };
+            let ray = crate::render::geometry::Ray::new(p, ls.wi);
+            let dist = ls.dist * (1.0 - 1e-4);
+            let tr = s.transmittance(&ray, dist, 0.0);
+            assert_eq!(tr, brute(&ray, dist, None), "point {k}, light {i}");
+            let skip = if light.is_one_convex_primitive() { own(i) } else { None };
+            let shadow = s.shadow(&ray, dist, 0.0, i as u32, light);
+            assert_eq!(shadow, brute(&ray, dist, skip), "point {k}, light {i}");
+            if shadow != tr {
+                // Only grazing rays meet their own light short of its sampled point, by
+                // rounding: a light's own surface does not shadow it.
+                assert!(ls.pdf > 1e3, "point {k}, light {i}: {ls:?}");
+                by_itself += 1;
+            }
+            if shadow == Vec3::ZERO {
+                blocked += 1;
+            } else {
+                open += 1;
+            }
+        }
+    }
+    assert!(by_itself < 100, "{by_itself} rays blocked by their own light");
+    assert!(blocked > 1000 && open > 1000, "{blocked} blocked, {open} open");
+    // A ray through the sphere light: its own surface is passed over, no other light's is.
+    let through = crate::render::geometry::Ray::new(Vec3::new(1.5, 1.8, 3.0), -Vec3::Z);
+    assert_eq!(s.transmittance(&through, 6.0, 0.0), Vec3::ZERO);
+    assert_eq!(s.shadow(&through, 6.0, 0.0, 0, &lights[0]), Vec3::ONE);
+    assert_eq!(s.shadow(&through, 6.0, 0.0, 1, &lights[1]), Vec3::ZERO);
+    // Through the parallelogram light likewise; the mesh light's triangles always count.
+    let across = crate::render::geometry::Ray::new(Vec3::new(-1.5, 1.8, 3.0), -Vec3::Z);
+    assert_eq!(s.shadow(&across, 6.0, 0.0, 1, &lights[1]), Vec3::ONE);
+    assert_eq!(s.shadow(&across, 6.0, 0.0, 0, &lights[0]), Vec3::ZERO);
+    let folded = crate::render::geometry::Ray::new(Vec3::new(0.5, -1.5, 0.0), -Vec3::Z);
+    assert_eq!(s.shadow(&folded, 6.0, 0.0, 2, &lights[2]), Vec3::ZERO);
 }

@@ -389,16 +389,36 @@ impl Scene {
     /// zero if an opaque surface is in the way, else the product of the transmissions of
     /// the classic-model surfaces crossed (coloured shadows).
     pub fn transmittance(&self, ray: &Ray, dist: f32, time: f32) -> Vec3 {
+        self.transmittance_past(ray, dist, time, None)
+    }
+
+    /// [`Scene::transmittance`] of a shadow ray towards a point sampled on light `index`
+    /// (`light`). A light that is one convex primitive cannot block a ray to a point on
+    /// itself, so its primitive is passed over. Testing it cost every such ray a test at
+    /// the end of its walk (for a sphere light, the f64 roots), and by rounding a grazing
+    /// ray now and then met the light's own surface short of the sampled point.
+    pub fn shadow(&self, ray: &Ray, dist: f32, time: f32, index: u32, light: &Light) -> Vec3 {
+        self.transmittance_past(ray, dist, time, light.is_one_convex_primitive().then_some(index))
+    }
+
+    fn transmittance_past(&self, ray: &Ray, dist: f32, time: f32, own: Option<u32>) -> Vec3 {
         if self.world.surfaces.any_alpha {
-            self.transmittance_with::<true>(ray, dist, time)
+            self.transmittance_with::<true>(ray, dist, time, own)
         } else {
-            self.transmittance_with::<false>(ray, dist, time)
+            self.transmittance_with::<false>(ray, dist, time, own)
         }
     }
 
     /// [`Scene::transmittance`], with crossings of materials with alpha tested when
-    /// `ALPHA` (a cut-out crossing is no crossing).
-    fn transmittance_with<const ALPHA: bool>(&self, ray: &Ray, dist: f32, time: f32) -> Vec3 {
+    /// `ALPHA` (a cut-out crossing is no crossing), and the primitive of light `own`, if
+    /// any, passed over.
+    fn transmittance_with<const ALPHA: bool>(
+        &self,
+        ray: &Ray,
+        dist: f32,
+        time: f32,
+        own: Option<u32>,
+    ) -> Vec3 {
         let mut tr = Vec3::ONE;
         let mut pass = |material: u32, emitter: bool| {
             // An emitter's own surface does not shadow the light it sends.
@@ -433,6 +453,9 @@ impl Scene {
                 }
                 triangles::SlotKind::Generic(i) => {
                     let prim = &w.prims[i as usize];
+                    if own.is_some() && prim.light == own && prim.motion.is_none() {
+                        return true;
+                    }
                     if ALPHA && w.surfaces.alpha[prim.material as usize] {
                         // A triangle, crossed at most once.
                         let hit = prim.intersect(ray, dist, time, &w.meshes, &w.motions);
