@@ -12,6 +12,7 @@ use tessera_description::math;
 
 use super::bsdf::{Frame, Lobe};
 use super::geometry::{offset_ray_origin, Hit, Ray};
+use super::light::ALL_LIGHTS_UP_TO;
 use super::material::{Classic, Material};
 use super::{Sampler, Scene};
 
@@ -149,44 +150,61 @@ fn trace(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32,
             (bsdf, Frame::new(ns))
         };
         let wo = frame.to_local(wo_world);
+        let split = if splits > 0 && depth + 1 < scene.max_depth { bsdf.split(wo) } else { None };
+        // The light samples first, then the BSDF's sample, then the shadow rays: the draws
+        // in the order they always had, but the BSDF's sample is worked out while the
+        // lights' samples (a chain of divisions and square roots) are still in flight,
+        // instead of after the shadow walks that wait on them.
+        let w = &*scene.world;
+        let mut pending = [None; ALL_LIGHTS_UP_TO];
+        let mut taken = 0;
         if depth + 1 < scene.max_depth && !bsdf.is_delta() {
-            let w = &*scene.world;
             w.light_choice.for_each(&w.lights, sampler, |i, light, pick, sampler| {
                 let u = if light.is_delta() { Vec2::ZERO } else { sampler.get_2d() };
-                let Some(ls) = light.sample(hit.p, u) else { return };
-                let f = bsdf.eval(wo, frame.to_local(ls.wi));
-                if f == Vec3::ZERO {
-                    return;
+                if let Some(ls) = light.sample(hit.p, u) {
+                    pending[taken] = Some((i, pick, ls));
+                    taken += 1;
                 }
-                let origin = offset_ray_origin(hit.p, hit.p_error, hit.n, ls.wi);
-                let tr = scene.shadow(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time, i, light);
-                if tr == Vec3::ZERO {
-                    return;
-                }
-                let w = if light.is_delta() {
-                    1.0
-                } else {
-                    power_heuristic(pick * ls.pdf, bsdf.pdf(wo, frame.to_local(ls.wi)))
-                };
-                l += beta * f * ls.weighted * tr * (w / pick);
             });
         }
-        let split = if splits > 0 && depth + 1 < scene.max_depth { bsdf.split(wo) } else { None };
-        let s = if let Some([reflected, refracted]) = split {
+        let sampled = if split.is_some() {
             // The draws a pick reads are passed over, so the dimensions after them keep
             // their numbers whichever way the path went.
             sampler.skip();
             sampler.skip();
+            None
+        } else {
+            let (reads_lobe, reads_u) = bsdf.draws();
+            let u_lobe = if reads_lobe { sampler.get_1d() } else { sampler.skip() };
+            let u = if reads_u { sampler.get_2d() } else { Vec2::splat(sampler.skip()) };
+            bsdf.sample(wo, u_lobe, u)
+        };
+        for &(i, pick, ls) in pending[..taken].iter().flatten() {
+            let light = &w.lights[i as usize];
+            let f = bsdf.eval(wo, frame.to_local(ls.wi));
+            if f == Vec3::ZERO {
+                continue;
+            }
+            let origin = offset_ray_origin(hit.p, hit.p_error, hit.n, ls.wi);
+            let tr = scene.shadow(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time, i, light);
+            if tr == Vec3::ZERO {
+                continue;
+            }
+            let w = if light.is_delta() {
+                1.0
+            } else {
+                power_heuristic(pick * ls.pdf, bsdf.pdf(wo, frame.to_local(ls.wi)))
+            };
+            l += beta * f * ls.weighted * tr * (w / pick);
+        }
+        let s = if let Some([reflected, refracted]) = split {
             splits -= 1;
             let wi = frame.to_world(reflected.wi).normalize();
             let ray = Ray::new(offset_ray_origin(hit.p, hit.p_error, hit.n, wi), wi);
             l += beta * reflected.weight * trace(scene, sampler, &ray, depth + 1, time, splits);
             refracted
         } else {
-            let (reads_lobe, reads_u) = bsdf.draws();
-            let u_lobe = if reads_lobe { sampler.get_1d() } else { sampler.skip() };
-            let u = if reads_u { sampler.get_2d() } else { Vec2::splat(sampler.skip()) };
-            let Some(s) = bsdf.sample(wo, u_lobe, u) else { break };
+            let Some(s) = sampled else { break };
             s
         };
         beta *= s.weight;
