@@ -453,6 +453,8 @@ impl Scene {
                 }
                 triangles::SlotKind::Generic(i) => {
                     let prim = &w.prims[i as usize];
+                    // Validation keeps lights still; were one to move, its samples would
+                    // not lie on the primitive, so only a still one is passed over.
                     if own.is_some() && prim.light == own && prim.motion.is_none() {
                         return true;
                     }
