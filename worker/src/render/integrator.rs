@@ -156,6 +156,7 @@ fn trace(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32,
         // lights' samples (a chain of divisions and square roots) are still in flight,
         // instead of after the shadow walks that wait on them.
         let w = &*scene.world;
+        // `for_each` visits every light up to ALL_LIGHTS_UP_TO of them, else one.
         let mut pending = [None; ALL_LIGHTS_UP_TO];
         let mut taken = 0;
         if depth + 1 < scene.max_depth && !bsdf.is_delta() {
