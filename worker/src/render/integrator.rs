@@ -48,7 +48,7 @@ fn power_heuristic(a: f32, b: f32) -> f32 {
 
 /// Shortens a shadow ray so that the light's own surface at its end does not count as a
 /// blocker: relative, so it holds at every scale.
-const SHADOW_SHORTEN: f32 = 1.0 - 1e-4;
+pub(crate) const SHADOW_SHORTEN: f32 = 1.0 - 1e-4;
 
 /// What a ray leaving the scene along `dir` sees: the environment, weighted against its
 /// light sample by MIS unless the ray was sampled from a Dirac lobe (density `prev_pdf`
@@ -187,7 +187,7 @@ fn trace(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32,
                 continue;
             }
             let origin = offset_ray_origin(hit.p, hit.p_error, hit.n, ls.wi);
-            let tr = scene.shadow(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time, i, light);
+            let tr = scene.shadow(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time, i);
             if tr == Vec3::ZERO {
                 continue;
             }
@@ -276,7 +276,7 @@ fn classic(
             return;
         }
         let origin = offset_ray_origin(hit.p, hit.p_error, n, ls.wi);
-        let tr = scene.shadow(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time, i, light);
+        let tr = scene.shadow(&Ray::new(origin, ls.wi), ls.dist * SHADOW_SHORTEN, time, i);
         if tr == Vec3::ZERO {
             return;
         }

@@ -6,6 +6,9 @@ use glam::{UVec2, Vec2, Vec3};
 
 use super::*;
 use crate::build::{parse_scene, parse_scene_with_assets};
+use crate::render::geometry::Ray;
+use crate::render::integrator::SHADOW_SHORTEN;
+use crate::render::sampler::{hash_words, unit_float};
 use crate::render::{SamplerKind, Scene};
 use tessera_description::bundle::Assets;
 
@@ -269,13 +272,11 @@ emission = 1
     assert!(matches!(lights[0], Light::Sphere { .. }) && matches!(lights[1], Light::Rect { .. }));
     assert!(lights[0].is_one_convex_primitive() && lights[1].is_one_convex_primitive());
     assert!(matches!(lights[2], Light::Mesh(_)) && !lights[2].is_one_convex_primitive());
-    let h = |k: u32, i: u64| {
-        (crate::render::sampler::hash_words(&[u64::from(k), i]) >> 40) as f32 / (1u64 << 24) as f32
-    };
+    let h = |k: u32, i: u64| unit_float(hash_words(&[u64::from(k), i]));
     // Every primitive's crossings but `skip`'s, one by one: opaque and emitting surfaces
     // both block, so the answer is all or nothing.
     let w = &*s.world;
-    let brute = |ray: &crate::render::geometry::Ray, dist: f32, skip: Option<usize>| {
+    let brute = |ray: &Ray, dist: f32, skip: Option<usize>| {
         let crossed = (w.prims.iter().enumerate())
             .filter(|&(i, _)| Some(i) != skip)
             .any(|(_, prim)| prim.crossings(ray, dist, 0.0, &w.meshes, &w.motions) > 0);
@@ -297,12 +298,12 @@ emission = 1
         }
         for (i, light) in lights.iter().enumerate() {
             let Some(ls) = light.sample(p, u) else { continue };
-            let ray = crate::render::geometry::Ray::new(p, ls.wi);
-            let dist = ls.dist * (1.0 - 1e-4);
+            let ray = Ray::new(p, ls.wi);
+            let dist = ls.dist * SHADOW_SHORTEN;
             let tr = s.transmittance(&ray, dist, 0.0);
             assert_eq!(tr, brute(&ray, dist, None), "point {k}, light {i}");
             let skip = if light.is_one_convex_primitive() { own(i) } else { None };
-            let shadow = s.shadow(&ray, dist, 0.0, i as u32, light);
+            let shadow = s.shadow(&ray, dist, 0.0, i as u32);
             assert_eq!(shadow, brute(&ray, dist, skip), "point {k}, light {i}");
             if shadow != tr {
                 // Only grazing rays meet their own light short of its sampled point, by
@@ -320,14 +321,14 @@ emission = 1
     assert!(by_itself < 100, "{by_itself} rays blocked by their own light");
     assert!(blocked > 1000 && open > 1000, "{blocked} blocked, {open} open");
     // A ray through the sphere light: its own surface is passed over, no other light's is.
-    let through = crate::render::geometry::Ray::new(Vec3::new(1.5, 1.8, 3.0), -Vec3::Z);
+    let through = Ray::new(Vec3::new(1.5, 1.8, 3.0), -Vec3::Z);
     assert_eq!(s.transmittance(&through, 6.0, 0.0), Vec3::ZERO);
-    assert_eq!(s.shadow(&through, 6.0, 0.0, 0, &lights[0]), Vec3::ONE);
-    assert_eq!(s.shadow(&through, 6.0, 0.0, 1, &lights[1]), Vec3::ZERO);
+    assert_eq!(s.shadow(&through, 6.0, 0.0, 0), Vec3::ONE);
+    assert_eq!(s.shadow(&through, 6.0, 0.0, 1), Vec3::ZERO);
     // Through the parallelogram light likewise; the mesh light's triangles always count.
-    let across = crate::render::geometry::Ray::new(Vec3::new(-1.5, 1.8, 3.0), -Vec3::Z);
-    assert_eq!(s.shadow(&across, 6.0, 0.0, 1, &lights[1]), Vec3::ONE);
-    assert_eq!(s.shadow(&across, 6.0, 0.0, 0, &lights[0]), Vec3::ZERO);
-    let folded = crate::render::geometry::Ray::new(Vec3::new(0.5, -1.5, 0.0), -Vec3::Z);
-    assert_eq!(s.shadow(&folded, 6.0, 0.0, 2, &lights[2]), Vec3::ZERO);
+    let across = Ray::new(Vec3::new(-1.5, 1.8, 3.0), -Vec3::Z);
+    assert_eq!(s.shadow(&across, 6.0, 0.0, 1), Vec3::ONE);
+    assert_eq!(s.shadow(&across, 6.0, 0.0, 0), Vec3::ZERO);
+    let folded = Ray::new(Vec3::new(0.5, -1.5, 0.0), -Vec3::Z);
+    assert_eq!(s.shadow(&folded, 6.0, 0.0, 2), Vec3::ZERO);
 }

@@ -392,13 +392,14 @@ impl Scene {
         self.transmittance_past(ray, dist, time, None)
     }
 
-    /// [`Scene::transmittance`] of a shadow ray towards a point sampled on light `index`
-    /// (`light`). A light that is one convex primitive cannot block a ray to a point on
-    /// itself, so its primitive is passed over. Testing it cost every such ray a test at
-    /// the end of its walk (for a sphere light, the f64 roots), and by rounding a grazing
-    /// ray now and then met the light's own surface short of the sampled point.
-    pub fn shadow(&self, ray: &Ray, dist: f32, time: f32, index: u32, light: &Light) -> Vec3 {
-        self.transmittance_past(ray, dist, time, light.is_one_convex_primitive().then_some(index))
+    /// [`Scene::transmittance`] of a shadow ray towards a point sampled on light `light`.
+    /// A light that is one convex primitive cannot block a ray to a point on itself, so
+    /// its primitive is passed over. Testing it cost every such ray a test at the end of
+    /// its walk (for a sphere light, the f64 roots), and by rounding a grazing ray now and
+    /// then met the light's own surface short of the sampled point.
+    pub fn shadow(&self, ray: &Ray, dist: f32, time: f32, light: u32) -> Vec3 {
+        let own = self.world.lights[light as usize].is_one_convex_primitive().then_some(light);
+        self.transmittance_past(ray, dist, time, own)
     }
 
     fn transmittance_past(&self, ray: &Ray, dist: f32, time: f32, own: Option<u32>) -> Vec3 {

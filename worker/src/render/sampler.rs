@@ -42,7 +42,7 @@ fn mix64(mut z: u64) -> u64 {
 
 /// A uniform float in [0, 1) from 24 bits of a hash.
 #[inline]
-fn unit_float(h: u64) -> f32 {
+pub(crate) fn unit_float(h: u64) -> f32 {
     (h >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
 }
 
