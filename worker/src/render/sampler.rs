@@ -268,6 +268,9 @@ pub struct Sampler {
     /// Whether the table's 2-D draws are drawn eight at a time: Cook's pattern on a grid
     /// of powers of two whose offsets are kept, on a CPU with AVX-512 (`sampler_avx512.rs`).
     wide: bool,
+    /// Whether the table's 4-D draws are drawn eight at a time: Cook's pattern of a
+    /// power-of-two count above 1, on a CPU with AVX2 (`sampler_avx2.rs`).
+    wide_4d: bool,
 }
 
 impl Sampler {
@@ -307,6 +310,7 @@ impl Sampler {
                 && cmj.m * cmj.rows > 1
                 && stride > 0
                 && avx512_available(),
+            wide_4d: kind == SamplerKind::Stratified && spp.is_power_of_two() && spp > 1 && avx2_available(),
         }
     }
 
@@ -438,6 +442,12 @@ impl Sampler {
         unreachable!("`wide` is never set without the AVX-512 fill")
     }
 
+    /// No AVX2 fill where glam runs scalar code or off x86-64, and `wide_4d` is never set.
+    #[cfg(not(all(target_arch = "x86_64", not(feature = "scalar"))))]
+    fn fill_4d_wide(&self, _: u32, _: DimensionKeys, _: DimensionKeys, _: &mut DrawTable) {
+        unreachable!("`wide_4d` is never set without the AVX2 fill")
+    }
+
     /// The fine-grid offsets (of the column, of the row) of `cell` in dimension `d`'s
     /// pattern, keyed by `key`: kept for the pixel's later samples where they can be.
     #[inline]
@@ -484,9 +494,12 @@ impl Sampler {
         }
         let d = self.dimension;
         let (film, lens) = (self.next_dimension(), self.next_dimension());
-        let [a, b, c, e] = self
-            .tabled(d, Shape::Four, |s, i| s.pattern_4d(film, lens, i))
-            .unwrap_or_else(|| self.pattern_4d(film, lens, self.index));
+        let tabled = if self.wide_4d {
+            self.tabled_with(d, Shape::Four, |s, table| s.fill_4d_wide(d, film, lens, table))
+        } else {
+            self.tabled(d, Shape::Four, |s, i| s.pattern_4d(film, lens, i))
+        };
+        let [a, b, c, e] = tabled.unwrap_or_else(|| self.pattern_4d(film, lens, self.index));
         (Vec2::new(a, b), Vec2::new(c, e))
     }
 
@@ -551,6 +564,18 @@ use avx512::available as avx512_available;
 /// No AVX-512 fill where glam runs scalar code or off x86-64.
 #[cfg(not(all(target_arch = "x86_64", not(feature = "scalar"))))]
 fn avx512_available() -> bool {
+    false
+}
+
+#[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+#[path = "sampler_avx2.rs"]
+mod avx2;
+#[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
+use avx2::available as avx2_available;
+
+/// No AVX2 fill where glam runs scalar code or off x86-64.
+#[cfg(not(all(target_arch = "x86_64", not(feature = "scalar"))))]
+fn avx2_available() -> bool {
     false
 }
 use table::{DrawTable, Shape};
