@@ -57,20 +57,27 @@ pub fn render_batch_layers(
     let mut evens = Vec::with_capacity(if even { pixels.len() } else { 0 });
     let mut layers = vec![0u64; pixels.len() * per];
     let mut nonfinite = 0;
+    let mut rays = Vec::with_capacity(PLANNED.min(samples.len() as u32) as usize);
+    let (mut run_start, mut camera_dimensions) = (0, 0);
     for (k, &pixel) in pixels.iter().enumerate() {
         let mut acc = [0u64; 3];
         let mut acc_even = 0u64;
         for index in samples.clone() {
             // Runs of as many samples as the sampler's table holds: a farm's second pass
-            // renders all but one of a pixel's samples in one batch.
+            // renders all but one of a pixel's samples in one batch. The run's camera
+            // rays are made first (`Scene::camera_rays`).
             if (index - samples.start).is_multiple_of(PLANNED) {
-                sampler.plan_pixel(pixel, index..samples.end.min(index.saturating_add(PLANNED)));
+                let run = index..samples.end.min(index.saturating_add(PLANNED));
+                sampler.plan_pixel(pixel, run.clone());
+                run_start = index;
+                camera_dimensions = scene.camera_rays(&mut sampler, pixel, run, &mut rays);
             }
             if per > 0 {
                 let hit = aov::first_hit(scene, &mut aov_sampler, pixel, index);
                 layout.accumulate(&mut layers[k * per..(k + 1) * per], hit.as_ref(), background);
             }
-            let l = scene.render_sample(&mut sampler, pixel, index);
+            let camera = rays[(index - run_start) as usize];
+            let l = scene.render_from(&mut sampler, pixel, index, camera, camera_dimensions);
             match (fixed::to_fixed(l.x), fixed::to_fixed(l.y), fixed::to_fixed(l.z)) {
                 (Some(r), Some(g), Some(b)) => {
                     acc[0] += r;
@@ -89,4 +96,42 @@ pub fn render_batch_layers(
         }
     }
     BatchSums { sums, nonfinite, even: evens, aov: layers }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use tessera_description::bundle::Bundle;
+
+    /// A batch traces camera rays made a run ahead (`Scene::camera_rays`), and its sums
+    /// are the bits of rendering each sample alone (`Scene::render_sample`, the sampler
+    /// positioned afresh at each), with a lens, with motion blur's time dimension, and in
+    /// runs that start inside a pixel's pattern and cross the table's limit.
+    #[test]
+    fn camera_rays_made_ahead_give_each_sample_s_bits() {
+        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+        for (name, spp, samples) in
+            [("spheres.toml", 512, 3..300), ("motion_blur.toml", 16, 0..16), ("cornell.toml", 4, 1..3)]
+        {
+            let mut scene = crate::build::parse_bundle(&Bundle::read(&root.join(name)).unwrap()).unwrap();
+            scene.apply(Some(spp), Some((8, 6)));
+            let pixels: Vec<UVec2> = (0..6).map(|i| UVec2::new(i + 1, i % 6)).collect();
+            let batch = render_batch(&scene, &pixels, samples.clone(), Sums::Radiance);
+            let mut sampler = scene.sampler();
+            let alone: Vec<u64> = pixels
+                .iter()
+                .flat_map(|&pixel| {
+                    let mut acc = [0u64; 3];
+                    for index in samples.clone() {
+                        let l = scene.render_sample(&mut sampler, pixel, index);
+                        for (a, v) in acc.iter_mut().zip([l.x, l.y, l.z]) {
+                            *a += fixed::to_fixed(v).unwrap_or(0);
+                        }
+                    }
+                    acc
+                })
+                .collect();
+            assert_eq!(batch.sums, alone, "{name}");
+        }
+    }
 }

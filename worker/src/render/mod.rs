@@ -511,6 +511,38 @@ impl Scene {
         integrator::radiance(self, sampler, &ray, 0, time)
     }
 
+    /// The camera rays and shutter times of samples `run` of `pixel`, into `out`, for
+    /// [`Scene::render_from`] to trace: a sample's camera draws and ray are a chain of
+    /// dependent steps (a lens point's sine and cosine, a normalisation) that its trace
+    /// waits on, and computed for a run of samples in one loop they overlap, as the
+    /// sampler's table overlaps the draws. Returns the dimensions a camera ray draws.
+    pub fn camera_rays(
+        &self,
+        sampler: &mut Sampler,
+        pixel: UVec2,
+        run: std::ops::Range<u32>,
+        out: &mut Vec<(Ray, f32)>,
+    ) -> u32 {
+        out.clear();
+        out.extend(run.map(|index| self.camera_ray(sampler, pixel, index)));
+        sampler.dimensions_used()
+    }
+
+    /// [`Scene::render_sample`] from its camera ray and time, as [`Scene::camera_rays`]
+    /// made them having drawn `camera_dimensions`: the sampler goes on where
+    /// `render_sample`'s camera left it, so the radiance is the same bits.
+    pub fn render_from(
+        &self,
+        sampler: &mut Sampler,
+        pixel: UVec2,
+        index: u32,
+        (ray, time): (Ray, f32),
+        camera_dimensions: u32,
+    ) -> Vec3 {
+        sampler.resume_pixel_sample(pixel, index, camera_dimensions);
+        integrator::radiance(self, sampler, &ray, 0, time)
+    }
+
     /// Sample `index` of `pixel`'s camera ray and shutter time: its film, lens and time
     /// dimensions, the first ones the sample draws (the AOV layers trace the same ray with
     /// a sampler of their own).

@@ -349,6 +349,15 @@ impl Sampler {
         self.dimension = 0;
     }
 
+    /// Positions the sampler at sample `index` of `pixel` with its first `dimension`
+    /// dimensions drawn, as `start_pixel_sample` and those draws leave it (the draws
+    /// after them give the same values: a draw depends on the pixel, the index and its
+    /// dimension only).
+    pub fn resume_pixel_sample(&mut self, pixel: UVec2, index: u32, dimension: u32) {
+        self.start_pixel_sample(pixel, index);
+        self.dimension = dimension;
+    }
+
     /// The keys of the next dimension (`hash_words(&[seed, pixel, dimension])` and what
     /// follows from it), kept or computed.
     #[inline]
