@@ -185,8 +185,8 @@ impl Texture {
 }
 
 /// `x.floor() as i64`. Written out because `f32::floor` on baseline x86-64 (SSE2, no
-/// rounding instruction) is a call: it was 0.9 % of a `spheres` profile, whose checker
-/// floor asks for it at every hit. Truncation rounds towards zero, one too high below
+/// rounding instruction) is a call: it was 0.9 % of a `spheres` profile, whose
+/// checkerboard ground calls it at every hit. Truncation rounds towards zero, one too high below
 /// zero where `x` is not whole; the casts saturate (and take NaN to 0) as `floor`'s does.
 #[inline]
 fn floor_i64(x: f32) -> i64 {
@@ -229,6 +229,8 @@ impl Tex {
 
 #[cfg(test)]
 mod tests {
+    use super::*;
+
     /// `floor_i64` against `floor` and the cast: values around the sixteenths from −256
     /// to 256, around powers of two up to past i64's range, the specials, and a million
     /// bit patterns.
@@ -256,8 +258,6 @@ mod tests {
             check(f32::from_bits(crate::render::sampler::hash_words(&[k, 13]) as u32));
         }
     }
-
-    use super::*;
 
     #[test]
     fn checker_alternates_in_world_xz() {
