@@ -8,6 +8,9 @@
 //!   scenes sent to workers are recorded where they happen, into the instruments of
 //!   `Metrics`.
 //!
+//! A scrape is not a transaction: it takes the census, then reads the timings, so a
+//! scrape taken as a result merges can show the merge's timing without its samples.
+//!
 //! The text is the Prometheus exposition format 0.0.4 (`CONTENT_TYPE`), which every
 //! Prometheus and `promtool check metrics` read.
 

@@ -41,7 +41,13 @@ async fn stream_events_show_in_the_metrics() {
     let mut w = FakeWorker::connect(&h.channel(), "answers", 2).await.unwrap();
     let batch = w.next_batch().await.unwrap();
     w.answer(&batch).await.unwrap();
-    let t = until(&h, "a merge", |t| sample(t, "tessera_merge_seconds_count") == Some(1.0)).await;
+    // A scrape takes the census, then reads the timings: one taken as a merge lands can
+    // show the merge's timing and not yet its samples, so wait for both.
+    let t = until(&h, "a merge", |t| {
+        sample(t, "tessera_merge_seconds_count") == Some(1.0)
+            && sample(t, "tessera_samples_merged_total").is_some_and(|n| n > 0.0)
+    })
+    .await;
     let merged = u64::from(batch.sample_end - batch.sample_start) * (batch.pixels.len() as u64 / 2);
     assert_eq!(sample(&t, "tessera_samples_merged_total"), Some(merged as f64), "{t}");
 
