@@ -432,9 +432,17 @@ impl Scene {
         };
         let mut open = true;
         let w = &*self.world;
+        let opaque = w.surfaces.opaque;
         // Slot k's crossings, given its triangle's hit when it holds one; false ends the
         // walk (the light is blocked).
         let mut cross = |k: usize, tri_hit: Option<(f32, f32, f32)>| {
+            if !ALPHA && opaque && tri_hit.is_some() {
+                // A triangle crossed, in a scene where every surface stops light: blocked,
+                // without reading the slot (on a million triangles, a load that misses the
+                // cache for most of the rays that end here).
+                open = false;
+                return false;
+            }
             let (i, crossings) = match w.slots[k].kind() {
                 triangles::SlotKind::Triangle(i) => {
                     let hit = match tri_hit {

@@ -36,6 +36,10 @@ pub struct Surfaces {
     pub alpha: Vec<bool>,
     /// Whether any material has alpha: otherwise intersection takes its plain path.
     pub any_alpha: bool,
+    /// Whether every material stops light entirely (`Material::shadow_transmission` is
+    /// zero): a shadow ray is then blocked by the first surface it crosses, whatever that
+    /// surface is.
+    pub opaque: bool,
 }
 
 impl Surfaces {
@@ -43,7 +47,8 @@ impl Surfaces {
     pub fn new(materials: &[Material], extras: HashMap<u32, Extras>) -> Surfaces {
         let alpha: Vec<bool> = materials.iter().map(Material::has_alpha).collect();
         let any_alpha = alpha.iter().any(|&a| a);
-        Surfaces { extras, alpha, any_alpha }
+        let opaque = materials.iter().all(|m| m.shadow_transmission() == Vec3::ZERO);
+        Surfaces { extras, alpha, any_alpha, opaque }
     }
 }
 

@@ -108,11 +108,15 @@ fn bits(h: &Hit) -> Vec<u32> {
 /// test, and the same shadows, on random rays into the mesh, motion, shadow and emitting
 /// scenes: inline triangles with and without normals and texture coordinates, plain ones
 /// completed from their slots, emitting ones, moving ones, and leaves that do not start
-/// on a pack (`lone_scene`).
+/// on a pack (`lone_scene`). Shadows in a scene whose every material is opaque take the
+/// short way (a crossed inline triangle blocks before its slot is read): `lone_scene` and
+/// the opaque scenes here check it against the crossings one by one.
 #[test]
 fn slots_hit_what_the_primitives_hit_bit_for_bit() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
-    let mut plain = 0;
+    let (mut plain, mut opaque_blocked) = (0, 0);
+    assert!(!plain_scene(&root).world.surfaces.opaque, "a classic material that transmits");
+    assert!(lone_scene().world.surfaces.opaque);
     let names = [
         "mesh.toml",
         "motion_blur.toml",
@@ -185,6 +189,11 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
             }
             let tr = scene.transmittance(&ray, dist, time);
             assert_eq!(tr.to_array().map(f32::to_bits), want.to_array().map(f32::to_bits), "{name}: ray {k}");
+            let inline_crossed =
+                crossed.iter().any(|&i| super::inline(&w.prims[i as usize], &w.meshes).is_some());
+            if w.surfaces.opaque && inline_crossed {
+                opaque_blocked += 1;
+            }
         }
         assert!(
             hits > 1000 && crossings > 100,
@@ -192,6 +201,7 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
         );
     }
     assert!(plain > 0, "no plain triangle slot was tested");
+    assert!(opaque_blocked > 100, "{opaque_blocked} shadow rays blocked by triangles of an opaque scene");
     // The lone triangles spent the tree's padding allowance (all but less than a block of
     // it), so some leaves begin inside a pack: the case the leaf test takes across three
     // packs.
