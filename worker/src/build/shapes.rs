@@ -63,7 +63,7 @@ impl Shapes {
     ) -> Result<(), SceneError> {
         let trs = o.transform;
         let motion = o.motion.map(|end| {
-            self.motions.push(Motion { start: trs, end });
+            self.motions.push(Motion::new(trs, end));
             self.motions.len() as u32 - 1
         });
         match &o.shape {

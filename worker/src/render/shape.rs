@@ -245,7 +245,7 @@ impl Primitive {
         // radius change linearly with translation and scale, so the hull of the spheres
         // at both ends holds every position in between.
         let (c, r) = (b.centroid(), (b.max - b.min).length() * 0.5);
-        [m.start, m.end].iter().fold(Aabb::EMPTY, |acc, trs| {
+        m.ends().iter().fold(Aabb::EMPTY, |acc, trs| {
             let cw = trs.matrix().transform_point3(c);
             let rw = r * trs.scale.abs().max_element() * (1.0 + 1e-4);
             acc.union(Aabb { min: cw - Vec3::splat(rw), max: cw + Vec3::splat(rw) })
@@ -264,8 +264,7 @@ impl Primitive {
         match self.motion {
             None => self.intersect_local(ray, t_max, meshes),
             Some(m) => {
-                let world_from_object = motions[m as usize].at(time);
-                let object_from_world = world_from_object.inverse();
+                let (world_from_object, object_from_world) = motions[m as usize].frames(time);
                 // Keep the ray parameter: the object-space direction is not normalised, so
                 // that t means the same distance in both spaces.
                 let local = Ray {

@@ -177,7 +177,7 @@ impl World {
         let p = self.prims.get(prim as usize)?;
         let Shape::Triangle { mesh, tri } = p.shape else { return None };
         let local = match p.motion {
-            Some(m) => self.motions[m as usize].at(time).inverse().transform_point3(p_world),
+            Some(m) => self.motions[m as usize].frames(time).1.transform_point3(p_world),
             None => p_world,
         };
         Some((barycentrics(self.meshes[mesh as usize].corners(tri), local), (mesh, tri)))
@@ -233,7 +233,7 @@ impl Scene {
         let ns = sh.hit.ns;
         let (mut t, sign) = tangent(mesh_ref, w.surfaces.extras.get(&mesh), tri, b, ns)?;
         if let Some(m) = w.prims[sh.hit.prim as usize].motion {
-            t = w.motions[m as usize].at(time).transform_vector3(t);
+            t = w.motions[m as usize].frames(time).0.transform_vector3(t);
         }
         perturb(ns, t, sign, nt)
     }
