@@ -41,7 +41,11 @@ mod tests;
 /// The renderer's build: what, with a description, fixes an image's bits. Workers and
 /// coordinators refuse each other when it differs, since images are only bit-identical
 /// when every worker runs the same renderer. The crate's version stays put while images
-/// change, so a suffix counts the renderer changes that changed them: `images.5` lets a
+/// change, so a suffix counts the renderer changes that changed them: `images.6` bounds a
+/// moving primitive by its path over the whole shutter, not by its two ends, which a
+/// turning mesh's triangles strayed out of mid-shutter (docs/speed.md, twenty-seventh part:
+/// 25 pixels of `showcase` at 480×270×64 changed; the tiny golden renders did not),
+/// `images.5` lets a
 /// shadow ray towards a sphere or parallelogram light pass over that light's own surface,
 /// which rounding made block a grazing ray now and then (docs/speed.md, twenty-fourth
 /// part: three pixels of `mesh` and `showcase` at 320×240×16 changed, by 0.4 % at most;
@@ -55,7 +59,7 @@ mod tests;
 /// every build before them is `images.1` in effect, though it said only `0.1.0`.
 /// `worker/tests/golden.rs` fails when the tiny renders of every scene change and this
 /// does not, so two builds that render differently cannot join one farm.
-pub const RENDERER_VERSION: &str = concat!(env!("CARGO_PKG_VERSION"), "+images.5");
+pub const RENDERER_VERSION: &str = concat!(env!("CARGO_PKG_VERSION"), "+images.6");
 
 pub use bundle::{AssetRefusal, Assets, Bundle, NoAssets};
 pub use error::SceneError;

@@ -240,16 +240,8 @@ impl Primitive {
     pub fn bounds(&self, meshes: &[Mesh], motions: &[Motion]) -> Aabb {
         let b = self.object_bounds(meshes);
         let Some(m) = self.motion else { return b };
-        let m = &motions[m as usize];
-        // Any rotation keeps the shape inside its bounding sphere; the sphere's centre and
-        // radius change linearly with translation and scale, so the hull of the spheres
-        // at both ends holds every position in between.
-        let (c, r) = (b.centroid(), (b.max - b.min).length() * 0.5);
-        m.ends().iter().fold(Aabb::EMPTY, |acc, trs| {
-            let cw = trs.matrix().transform_point3(c);
-            let rw = r * trs.scale.abs().max_element() * (1.0 + 1e-4);
-            acc.union(Aabb { min: cw - Vec3::splat(rw), max: cw + Vec3::splat(rw) })
-        })
+        // Any rotation keeps the shape inside its bounding ball.
+        motions[m as usize].swept_ball(b.centroid(), (b.max - b.min).length() * 0.5)
     }
 
     /// The hit in (0, t_max) at shutter fraction `time`.
