@@ -19,6 +19,11 @@ pub struct Motion {
     /// Names these two transforms for this thread's memo of frames (`Motion::frames`):
     /// unique to each `Motion::new`, and a clone has the same transforms.
     id: u64,
+    /// `world_from_object` and the scale at each step of `Motion::swept_ball`, and the
+    /// turn between two steps: the same for every primitive of the object, so made once
+    /// (each a slerp) rather than once per triangle of a moving mesh.
+    steps: Box<[(Affine3A, Vec3)]>,
+    step_turn: f32,
 }
 
 /// Motions are equal when their transforms are: the id only names them for the memo.
@@ -34,7 +39,18 @@ static NEXT_ID: AtomicU64 = AtomicU64::new(0);
 impl Motion {
     /// The motion from `start` (shutter open) to `end` (shutter close).
     pub fn new(start: Trs, end: Trs) -> Motion {
-        Motion { start, end, id: NEXT_ID.fetch_add(1, Ordering::Relaxed) }
+        // φ = 2 asin(sin(φ/2)), and sin(φ/2) is the length of the relative rotation's
+        // vector part; 2 asin(x) ≤ π x on [0, 1], which needs no arcsine.
+        let cos_half = math::quat_dot(start.rotate, end.rotate).abs().min(1.0);
+        let phi = std::f32::consts::PI * (1.0 - cos_half * cos_half).max(0.0).sqrt();
+        let n = if phi > 0.0 { SWEEP_STEPS } else { 1 };
+        let steps = (0..=n)
+            .map(|k| {
+                let trs = start.lerp(&end, k as f32 / n as f32);
+                (trs.matrix(), trs.scale)
+            })
+            .collect();
+        Motion { start, end, id: NEXT_ID.fetch_add(1, Ordering::Relaxed), steps, step_turn: phi / n as f32 }
     }
 
     /// The transforms at shutter open and close.
@@ -62,20 +78,14 @@ impl Motion {
     pub fn swept_ball(&self, center: Vec3, radius: f32) -> Aabb {
         let largest = |s: Vec3| s.abs().max_element();
         let r = radius * largest(self.start.scale).max(largest(self.end.scale));
-        // φ = 2 asin(sin(φ/2)), and sin(φ/2) is the length of the relative rotation's
-        // vector part; 2 asin(x) ≤ π x on [0, 1], which needs no arcsine.
-        let cos_half = math::quat_dot(self.start.rotate, self.end.rotate).abs().min(1.0);
-        let phi = std::f32::consts::PI * (1.0 - cos_half * cos_half).max(0.0).sqrt();
-        let steps = if phi > 0.0 { SWEEP_STEPS } else { 1 };
-        let delta = phi / steps as f32;
-        let at = |k: u32| {
-            let trs = self.start.lerp(&self.end, k as f32 / steps as f32);
-            (trs.matrix().transform_point3(center), trs.scale * center)
+        let delta = self.step_turn;
+        let at = |(world_from_object, scale): &(Affine3A, Vec3)| {
+            (world_from_object.transform_point3(center), *scale * center)
         };
-        let (mut pa, mut va) = at(0);
+        let (mut pa, mut va) = at(&self.steps[0]);
         let mut out = Aabb::EMPTY;
-        for k in 1..=steps {
-            let (pb, vb) = at(k);
+        for step in &self.steps[1..] {
+            let (pb, vb) = at(step);
             let v = va.length().max(vb.length());
             let stray =
                 v * (delta * delta / 8.0 + delta * delta * delta / 24.0) + delta * (vb - va).length() / 4.0;
