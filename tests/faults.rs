@@ -7,9 +7,10 @@ use common::*;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-/// Heavy enough per sample that pass one (1 sample per pixel) lasts over a second on one
-/// render thread, so a kill lands inside it; small enough that the test stays quick.
-const SIZE: &str = "640x480";
+/// Large enough that pass one (1 sample per pixel) lasts about a second on one render
+/// thread, so a kill lands inside it (at 640×480 it took 0.5 s once motion blur got
+/// faster); small enough that the test stays quick.
+const SIZE: &str = "960x720";
 const SPP: &str = "4";
 const INTERVAL: f64 = 0.5;
 /// Seconds of work redone beyond the checkpoint interval that a loaded machine may add.
@@ -85,7 +86,7 @@ fn coordinator_killed_three_times_resumes_to_the_same_bytes() {
     let coord = Coordinator::start_at(&addr, &args, &[]);
     submit(&coord.url);
     let _w1 = coord.worker(1);
-    let pixels = 640 * 480;
+    let pixels = 960 * 720;
 
     // 1. In pass one, after at least one checkpoint interval of work.
     let before = coord.wait_until(1, Duration::from_secs(60), "pass one under way", |s| {
