@@ -83,7 +83,9 @@ fn workers_on_other_hosts_survive_a_cut_link() {
     let (c, a, b) = (&hosts.0[0], &hosts.0[1], &hosts.0[2]);
     let dir = tempfile::tempdir().unwrap();
     let scene = root().join("scenes/showcase.toml");
-    let settings = ["--size", "320x240", "--spp", "24"];
+    // Long enough to cut a link mid-render on a fast machine (the showcase's motion blur
+    // got 78 % faster, two local 1-thread workers rendered 24 spp in 1.5 s).
+    let settings = ["--size", "320x240", "--spp", "64"];
     let reference = dir.path().join("reference.png");
     render_local(&scene, &reference, 2, &settings);
 
