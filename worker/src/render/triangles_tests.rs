@@ -298,6 +298,14 @@ fn leaf_tests_give_each_slot_s_bits() {
     assert!(hits > 100 && generic > 100, "{hits} hits and {generic} generic slots tested");
 }
 
+/// The scenes with moving primitives: the showcase's turning knot and sphere, and
+/// `motion_blur`'s moving box and sphere.
+fn moving_scenes() -> [(&'static str, Scene); 2] {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    ["showcase.toml", "motion_blur.toml"]
+        .map(|name| (name, crate::build::parse_bundle(&Bundle::read(&root.join(name)).unwrap()).unwrap()))
+}
+
 /// A moving primitive's box in the BVH holds it at every moment of the shutter: the
 /// showcase's spinning knot (whose triangles lie far from the pivot they turn about, and
 /// strayed out of their boxes mid-shutter by up to 0.035 before `Motion::swept_ball`) and
@@ -305,9 +313,7 @@ fn leaf_tests_give_each_slot_s_bits() {
 #[test]
 fn moving_primitives_stay_in_their_boxes_all_shutter_long() {
     use crate::render::shape::Shape;
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
-    for name in ["showcase.toml", "motion_blur.toml"] {
-        let scene = crate::build::parse_bundle(&Bundle::read(&root.join(name)).unwrap()).unwrap();
+    for (name, scene) in moving_scenes() {
         let w = &scene.world;
         let mut checked = 0;
         for (i, p) in w.prims.iter().enumerate() {
@@ -347,9 +353,7 @@ fn moving_primitives_stay_in_their_boxes_all_shutter_long() {
 #[test]
 fn moving_primitives_are_found_at_every_moment() {
     use crate::render::shape::Shape;
-    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
-    for name in ["showcase.toml", "motion_blur.toml"] {
-        let scene = crate::build::parse_bundle(&Bundle::read(&root.join(name)).unwrap()).unwrap();
+    for (name, scene) in moving_scenes() {
         let w = &scene.world;
         let moving: Vec<u32> =
             (0..w.prims.len() as u32).filter(|&i| w.prims[i as usize].motion.is_some()).collect();
