@@ -53,11 +53,6 @@ impl Motion {
         Motion { start, end, id: NEXT_ID.fetch_add(1, Ordering::Relaxed), steps, step_turn: phi / n as f32 }
     }
 
-    /// The transforms at shutter open and close.
-    pub fn ends(&self) -> [Trs; 2] {
-        [self.start, self.end]
-    }
-
     /// `world_from_object` at shutter fraction `t`.
     pub fn at(&self, t: f32) -> Affine3A {
         self.start.lerp(&self.end, t).matrix()
