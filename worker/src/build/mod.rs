@@ -16,8 +16,9 @@ use tessera_description::model::{Description, Location};
 use tessera_description::obj::{parse_obj_scanned, ParsedObj};
 use tessera_description::{Bundle, SceneError};
 
-use crate::render::bvh::{Bvh, LeafPolicy};
+use crate::render::bvh::{Aabb, Bvh, LeafPolicy};
 use crate::render::camera::Camera;
+use crate::render::instance;
 use crate::render::light::{Light, LightChoice};
 use crate::render::{Scene, World};
 
@@ -103,28 +104,51 @@ fn build_observed(
         }
         None => None,
     };
-    let bounds: Vec<_> = {
+    let materials: Vec<_> = desc.materials.iter().map(materials::material).collect();
+    let surfaces = crate::render::surface::Surfaces::new(&materials, std::mem::take(&mut shapes.extras));
+    let mut bounds: Vec<_> = {
         use rayon::prelude::*;
         mark(Phase::Rest);
         let bounds = shapes.prims.par_iter().map(|p| p.bounds(&shapes.meshes, &shapes.motions)).collect();
         mark(Phase::Primitives);
         bounds
     };
+    // The light choice weighs lights against the scene's size: every primitive's box,
+    // the moving meshes' triangles one by one (as before they were instances).
+    let radius = scene_radius(bounds.iter().fold(Aabb::EMPTY, |b, p| b.union(*p)));
+    let runs = instance::moving_meshes(&shapes.prims, &shapes.meshes, &surfaces.alpha);
+    let instances: Vec<_> =
+        runs.iter().map(|r| instance::Instance::new(r, &shapes.meshes, &shapes.motions)).collect();
+    // The tree's items: the primitives of no moving mesh (`free[k]` is item k's), then the
+    // instances.
+    let free: Option<Vec<u32>> = (!runs.is_empty()).then(|| {
+        let mut moving = vec![false; shapes.prims.len()];
+        for r in &runs {
+            moving[r.first as usize..(r.first + r.count) as usize].fill(true);
+        }
+        let free: Vec<u32> = (0..shapes.prims.len() as u32).filter(|&i| !moving[i as usize]).collect();
+        bounds = free.iter().map(|&i| bounds[i as usize]).collect();
+        bounds.extend(instances.iter().map(|inst| inst.bounds(&shapes.motions)));
+        free
+    });
     let inline_triangles = {
         use rayon::prelude::*;
         let meshes = &shapes.meshes;
         shapes.prims.par_iter().filter(|p| crate::render::triangles::inline(p, meshes).is_some()).count()
     };
-    let policy = LeafPolicy::for_scene(inline_triangles, shapes.prims.len() - inline_triangles);
-    let bvh = Bvh::build_with(&bounds, policy);
+    let policy = LeafPolicy::for_scene(inline_triangles, bounds.len() - inline_triangles);
+    let mut bvh = Bvh::build_with(&bounds, policy);
     drop(bounds);
+    if let Some(free) = free {
+        // Item k names its primitive, or instance i as `prims.len() + i` (`triangles::slots`).
+        let prims = shapes.prims.len() as u32;
+        bvh.rename(|k| free.get(k as usize).copied().unwrap_or(prims + k - free.len() as u32));
+    }
     mark(Phase::Bvh);
-    let light_choice = LightChoice::new(&lights, scene_radius(&bvh));
+    let light_choice = LightChoice::new(&lights, radius);
     mark(Phase::Rest);
     let slots = crate::render::triangles::slots(&bvh, &shapes.prims, &shapes.meshes);
     mark(Phase::Slots);
-    let materials: Vec<_> = desc.materials.iter().map(materials::material).collect();
-    let surfaces = crate::render::surface::Surfaces::new(&materials, std::mem::take(&mut shapes.extras));
     let emitters = crate::render::few_emitters(&shapes.prims);
     let world = World {
         emitters,
@@ -132,6 +156,7 @@ fn build_observed(
         textures,
         prims: shapes.prims,
         bvh,
+        instances,
         slots,
         planes,
         meshes: shapes.meshes,
@@ -160,8 +185,7 @@ fn build_observed(
 
 /// Half the diagonal of the bounded objects' box (1 without any): the disc through which
 /// directional light and the environment reach the scene, for weighing lights by power.
-fn scene_radius(bvh: &Bvh) -> f32 {
-    let b = bvh.bounds();
+fn scene_radius(b: Aabb) -> f32 {
     let r = 0.5 * (b.max - b.min).length();
     if b.is_empty() || !(r.is_finite() && r > 0.0) {
         1.0

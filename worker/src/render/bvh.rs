@@ -233,6 +233,14 @@ impl Bvh {
         &self.indices
     }
 
+    /// Renames the primitives: slot k then holds `name(indices()[k])` (padding stays
+    /// padding). For a tree built over a list of some primitives and other objects.
+    pub fn rename(&mut self, name: impl Fn(u32) -> u32) {
+        for i in self.indices.iter_mut().filter(|i| **i != PADDING) {
+            *i = name(*i);
+        }
+    }
+
     /// Visits the primitives whose boxes the ray enters before `t_max`, nearest subtree
     /// first. `hit(primitive, t_max)` returns the distance of a hit closer than `t_max`,
     /// which then shortens the search. Returns the final `t_max`.

@@ -8,6 +8,7 @@ pub mod camera;
 pub mod distribution;
 pub mod environment;
 pub mod geometry;
+pub mod instance;
 pub mod integrator;
 pub mod light;
 pub mod material;
@@ -71,8 +72,10 @@ pub struct World {
     pub textures: Vec<Texture>,
     /// Bounded primitives, in the BVH.
     pub prims: Vec<Primitive>,
-    /// The BVH over `prims`.
+    /// The BVH over `prims` but the moving meshes', and over `instances`.
     pub bvh: Bvh,
+    /// The moving meshes, each with a tree of its own (`instance.rs`).
+    pub instances: Vec<instance::Instance>,
     /// The BVH's slots in leaf order: its static triangles inline (`triangles::slots`).
     pub slots: triangles::Slots,
     /// Infinite planes with their material (not in the BVH: they have no bounds).
@@ -272,6 +275,13 @@ impl Scene {
                     best = None;
                     Some(t)
                 }
+                triangles::SlotKind::Instance(j) => {
+                    let inst = &w.instances[j as usize];
+                    let hit = inst.intersect(ray, t_max, time, &w.meshes, &w.motions)?;
+                    nearest = None;
+                    best = Some(SurfaceHit { hit, material: inst.material, light: None });
+                    Some(hit.t)
+                }
                 triangles::SlotKind::Generic(i) => {
                     let prim = &w.prims[i as usize];
                     let alpha = ALPHA && w.surfaces.alpha[prim.material as usize];
@@ -460,6 +470,13 @@ impl Scene {
                     }
                     (i, 1)
                 }
+                triangles::SlotKind::Instance(j) => {
+                    let inst = &w.instances[j as usize];
+                    let material = &w.materials[inst.material as usize];
+                    // Past an opaque surface's first crossing the rest change nothing.
+                    let enough = if material.shadow_transmission() == Vec3::ZERO { 1 } else { u32::MAX };
+                    (inst.first, inst.crossings(ray, dist, time, enough, &w.meshes, &w.motions))
+                }
                 triangles::SlotKind::Generic(i) => {
                     let prim = &w.prims[i as usize];
                     // Validation keeps lights still; were one to move, its samples would
@@ -495,7 +512,7 @@ impl Scene {
             (first..first + count).all(|k| {
                 let hit = match w.slots[k].kind() {
                     triangles::SlotKind::Triangle(_) => w.slots.hit(k, ray, dist),
-                    triangles::SlotKind::Generic(_) => None,
+                    triangles::SlotKind::Generic(_) | triangles::SlotKind::Instance(_) => None,
                 };
                 cross(k, hit)
             })

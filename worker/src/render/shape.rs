@@ -304,7 +304,7 @@ impl Primitive {
     }
 }
 
-fn to_world(hit: &Hit, m: &Affine3A) -> Hit {
+pub(crate) fn to_world(hit: &Hit, m: &Affine3A) -> Hit {
     let normal_matrix = m.matrix3.inverse().transpose();
     let p = m.transform_point3(hit.p);
     let a = m.matrix3;

@@ -19,7 +19,8 @@ use super::shape::{moller_trumbore, normal, plain_hit, Mesh, Primitive, Shape};
 
 /// Marks a slot that is not an inline triangle: intersect its primitive.
 const GENERIC: u32 = 1 << 31;
-/// Marks an inline triangle whose hit the slot completes (see the module's comment).
+/// Marks an inline triangle whose hit the slot completes (see the module's comment);
+/// with [`GENERIC`], a moving mesh's instance.
 const PLAIN: u32 = 1 << 30;
 /// The primitive's index.
 const INDEX: u32 = PLAIN - 1;
@@ -40,6 +41,8 @@ pub enum SlotKind {
     Triangle(u32),
     /// Primitive `.0`, to intersect through [`Primitive::intersect`].
     Generic(u32),
+    /// Moving mesh `.0` (`World::instances`), to intersect through its own tree.
+    Instance(u32),
 }
 
 impl Slot {
@@ -48,12 +51,14 @@ impl Slot {
     pub fn kind(&self) -> SlotKind {
         if self.prim & GENERIC == 0 {
             SlotKind::Triangle(self.prim & INDEX)
-        } else {
+        } else if self.prim & PLAIN == 0 {
             SlotKind::Generic(self.prim & INDEX)
+        } else {
+            SlotKind::Instance(self.prim & INDEX)
         }
     }
 
-    /// The primitive's index.
+    /// The primitive's index (the instance's, for [`SlotKind::Instance`]).
     #[inline(always)]
     pub fn index(&self) -> u32 {
         self.prim & INDEX
@@ -267,7 +272,8 @@ impl Slots {
 }
 
 /// The slots of a BVH built over `prims`, in its leaf order (slot k holds primitive
-/// `bvh.indices()[k]`, or nothing where that is `bvh::PADDING`).
+/// `bvh.indices()[k]`, or nothing where that is `bvh::PADDING`, or instance i where it is
+/// `prims.len() + i`).
 pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Slots {
     use rayon::prelude::*;
     assert!(prims.len() <= INDEX as usize, "more primitives than slots can index");
@@ -281,7 +287,19 @@ pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Slots {
             // Padding (`bvh::PADDING`), and lanes past the last slot: never visited.
             let mut slots = [Slot { prim: INDEX | GENERIC, material: 0 }; 4];
             for (l, &i) in four.iter().enumerate() {
-                let Some(prim) = prims.get(i as usize) else { continue };
+                let Some(prim) = prims.get(i as usize) else {
+                    if i != super::bvh::PADDING {
+                        // An instance: its slot is generic (NaN corners, as the pack's
+                        // default for the lanes below is not).
+                        slots[l] = Slot { prim: (i - prims.len() as u32) | GENERIC | PLAIN, material: 0 };
+                        for c in 0..3 {
+                            for a in 0..3 {
+                                pack.p[c][a][l] = f32::NAN;
+                            }
+                        }
+                    }
+                    continue;
+                };
                 let corners = inline(prim, meshes);
                 slots[l] = match corners {
                     Some(_) if plain(prim, meshes) => Slot { prim: i | PLAIN, material: prim.material },

@@ -9,17 +9,35 @@ use crate::render::geometry::{Hit, Ray};
 use crate::render::sampler::hash_words;
 use crate::render::{Scene, SurfaceHit};
 
+/// The primitives an item of the scene's tree stands for: itself, or a moving mesh's
+/// triangles in order.
+fn primitives_of(s: &Scene, item: u32) -> std::ops::Range<u32> {
+    let w = &s.world;
+    match (item as usize).checked_sub(w.prims.len()) {
+        None => item..item + 1,
+        Some(j) => {
+            let inst = &w.instances[j];
+            inst.first..inst.first + w.meshes[inst.mesh as usize].tris.len() as u32
+        }
+    }
+}
+
 /// The nearest hit as it was found before the slots: every primitive through
-/// `Primitive::intersect`, by BVH index.
+/// `Primitive::intersect`, by BVH index (a moving mesh's triangles in order).
 fn old_intersect(s: &Scene, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceHit> {
     let w = &s.world;
     let mut best = None;
-    let mut t_max = w.bvh.traverse(ray, t_max, |i, t_max| {
-        let prim = &w.prims[i as usize];
-        let mut hit = prim.intersect(ray, t_max, time, &w.meshes, &w.motions)?;
-        hit.prim = i;
-        best = Some(SurfaceHit { hit, material: prim.material, light: prim.light });
-        Some(hit.t)
+    let mut t_max = w.bvh.traverse(ray, t_max, |item, mut t_max| {
+        let mut found = None;
+        for i in primitives_of(s, item) {
+            let prim = &w.prims[i as usize];
+            let Some(mut hit) = prim.intersect(ray, t_max, time, &w.meshes, &w.motions) else { continue };
+            hit.prim = i;
+            t_max = hit.t;
+            found = Some(hit.t);
+            best = Some(SurfaceHit { hit, material: prim.material, light: prim.light });
+        }
+        found
     });
     for (plane, material) in &w.planes {
         if let Some(mut hit) = plane.intersect(ray, t_max) {
@@ -35,9 +53,11 @@ fn old_intersect(s: &Scene, ray: &Ray, t_max: f32, time: f32) -> Option<SurfaceH
 fn old_blocked(s: &Scene, ray: &Ray, dist: f32, time: f32) -> Vec<u32> {
     let w = &s.world;
     let mut crossed = Vec::new();
-    w.bvh.visit(ray, dist, |i| {
-        for _ in 0..w.prims[i as usize].crossings(ray, dist, time, &w.meshes, &w.motions) {
-            crossed.push(i);
+    w.bvh.visit(ray, dist, |item| {
+        for i in primitives_of(s, item) {
+            for _ in 0..w.prims[i as usize].crossings(ray, dist, time, &w.meshes, &w.motions) {
+                crossed.push(i);
+            }
         }
         true
     });
@@ -269,7 +289,7 @@ fn leaf_tests_give_each_slot_s_bits() {
                 match slots[slot].kind() {
                     // The padding between leaves is in none (runs here may take it in).
                     _ if indices[slot] == PADDING => assert!(seen.is_none(), "{name}: ray {k}: slot {slot}"),
-                    SlotKind::Generic(_) => {
+                    SlotKind::Generic(_) | SlotKind::Instance(_) => {
                         assert_eq!(seen, Some(None), "{name}: ray {k}: slot {slot}");
                         generic += 1;
                     }
