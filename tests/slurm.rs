@@ -25,8 +25,9 @@ use std::time::{Duration, Instant};
 /// The scene, its settings, and how far the job must be when one worker is cancelled.
 const SCENE: &str = "scenes/showcase.toml";
 /// Long enough to cancel a worker mid-render on a fast machine (at 48 spp, once the
-/// showcase's motion blur got 78 % faster, two local 1-thread workers rendered it in 0.7 s).
-const SETTINGS: [&str; 4] = ["--size", "160x120", "--spp", "192"];
+/// showcase's motion blur got 78 % faster, two local 1-thread workers rendered it in 0.7 s;
+/// its knot as one instance then halved the time again).
+const SETTINGS: [&str; 4] = ["--size", "160x120", "--spp", "384"];
 /// The coordinator's silence timeout: far longer than the test waits for the leave, so the
 /// batches cannot have come back by expiry.
 const WORKER_TIMEOUT_S: u64 = 60;
