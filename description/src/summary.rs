@@ -31,8 +31,8 @@ pub const UV_BYTES: u64 = 8;
 pub const TEXEL_BYTES: u64 = 4 + 12 + 12;
 /// Bytes per environment-map texel, bounding the peak of building from above: the decoded
 /// float image, the linear floats, the radiance kept, the luminance weights and the
-/// sampling distribution's pdf and CDF entries.
-pub const ENVIRONMENT_TEXEL_BYTES: u64 = 16 + 12 + 12 + 4 + 8;
+/// sampling distribution's pdf, CDF and guide-table entries.
+pub const ENVIRONMENT_TEXEL_BYTES: u64 = 16 + 12 + 12 + 4 + 8 + 4;
 /// Bytes per pixel of the coordinator's framebuffer: sums of three channels in fixed
 /// point, a sample count and the version that last changed it, and a share of its tile's
 /// (`Framebuffer::bytes_for` is the exact figure; a coordinator test checks that they

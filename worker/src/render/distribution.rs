@@ -3,8 +3,11 @@
 //! over the unit square (an environment map's texels, as a marginal distribution over
 //! rows and a conditional one over each row's columns).
 //!
-//! Sampling inverts the cumulative distribution by binary search. A distribution whose
-//! weights are all zero falls back to uniform, so that a sample is always defined.
+//! Sampling inverts the cumulative distribution: a guide table (Chen and Asau's
+//! cut-points) names, for each of `n` equal slices of [0, 1), bins at or before and at or
+//! after every answer in it, and a binary search between them finds the bin the search over
+//! the whole table finds. A distribution whose weights are all zero falls back to uniform,
+//! so that a sample is always defined.
 
 use glam::Vec2;
 
@@ -18,7 +21,13 @@ pub struct Distribution1D {
     cdf: Vec<f32>,
     /// The integral of the step function over [0, 1]: the mean weight.
     integral: f32,
+    /// `guide[k]`: the bin of `k / slices` ([`Distribution1D::search`]), k in 0..=slices.
+    guide: Vec<u32>,
 }
+
+/// The most slices a guide table has: below 2^22 a slice's float bounds are within a
+/// slice of their exact values (`Distribution1D::sample` relies on it).
+const MAX_SLICES: usize = 1 << 22;
 
 /// A sample of a [`Distribution1D`].
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -53,7 +62,16 @@ impl Distribution1D {
         } else {
             (0..=n).map(|i| i as f32 / n as f32).collect()
         };
-        Distribution1D { func, cdf, integral: (total / n as f64) as f32 }
+        let mut d = Distribution1D { func, cdf, integral: (total / n as f64) as f32, guide: Vec::new() };
+        let slices = n.min(MAX_SLICES);
+        d.guide = (0..=slices).map(|k| d.search(k as f32 / slices as f32) as u32).collect();
+        d
+    }
+
+    /// The bin whose cdf interval holds `u`: the last edge at or below `u`, skipping empty
+    /// bins (which have equal edges), by binary search over the whole table.
+    fn search(&self, u: f32) -> usize {
+        self.cdf.partition_point(|&c| c <= u).saturating_sub(1).min(self.func.len() - 1)
     }
 
     /// Number of bins.
@@ -74,8 +92,19 @@ impl Distribution1D {
     /// Draws with the uniform number `u` in [0, 1).
     pub fn sample(&self, u: f32) -> Sample1D {
         let n = self.func.len();
-        // The last edge whose cdf is <= u, skipping empty bins (which have equal edges).
-        let index = self.cdf.partition_point(|&c| c <= u).saturating_sub(1).min(n - 1);
+        let index = if (0.0..1.0).contains(&u) {
+            // u * slices rounds to slice k only for u within a slice of [k, k + 1) / slices
+            // (fewer than 2^22 slices), and the guide's bounds k / slices round by less
+            // than one: the bins of slices k - 1 and k + 2 bound the answer, and
+            // `search`'s answer is `lo` plus the edges past it at or below `u`.
+            let slices = self.guide.len() - 1;
+            let k = ((u * slices as f32) as usize).min(slices - 1);
+            let (lo, hi) =
+                (self.guide[k.saturating_sub(1)] as usize, self.guide[(k + 2).min(slices)] as usize);
+            lo + self.cdf[lo + 1..=hi].partition_point(|&c| c <= u)
+        } else {
+            self.search(u)
+        };
         let (lo, hi) = (self.cdf[index], self.cdf[index + 1]);
         let remapped =
             if hi > lo { ((u - lo) / (hi - lo)).clamp(0.0, 1.0 - f32::EPSILON / 2.0) } else { 0.5 };
@@ -153,6 +182,46 @@ mod tests {
             counts[d.sample((i as f32 + 0.5) / n as f32).index] += 1;
         }
         assert_eq!(counts, [2500, 0, 7500]);
+    }
+
+    /// The guided search finds the bin the search over the whole table finds (and so the
+    /// same `x` and `remapped`), on distributions with runs of empty bins, spikes a
+    /// billion times their neighbours, single bins and equal ones, at every cdf edge, every slice's
+    /// bounds and their neighbouring floats, and outside [0, 1).
+    #[test]
+    fn the_guide_finds_what_the_whole_search_finds() {
+        use crate::render::sampler::hash_words;
+        let unit = |w: &[u64]| (hash_words(w) >> 40) as f32 / (1u64 << 24) as f32;
+        let mut checked = 0;
+        for seed in 0..60u64 {
+            let n = 1 + (hash_words(&[seed, 1]) % 700) as usize;
+            // Every third distribution uniform: its cdf edges are the slices' bounds, where
+            // a number just below an edge may still round into the slice above it.
+            let uniform = seed % 3 == 0;
+            let func: Vec<f32> = (0..n as u64)
+                .map(|i| match hash_words(&[seed, i, 2]) % 6 {
+                    _ if uniform => 1.0,
+                    0 | 1 => 0.0,
+                    2 => 1e9 * unit(&[seed, i, 3]),
+                    _ => unit(&[seed, i, 4]),
+                })
+                .collect();
+            let d = Distribution1D::new(&func);
+            let slices = d.guide.len() - 1;
+            let mut us: Vec<f32> = d.cdf.clone();
+            us.extend((0..=slices).map(|k| k as f32 / slices as f32));
+            us.extend((0..400u64).map(|j| unit(&[seed, j, 5])));
+            let near: Vec<f32> = us.iter().flat_map(|&u| [u.next_down(), u, u.next_up()]).collect();
+            for u in
+                near.into_iter().chain([-0.0, -1.0, 1.0, 2.0, f32::NAN, f32::INFINITY, 1.0f32.next_down()])
+            {
+                let want = d.search(u);
+                let got = d.sample(u);
+                assert_eq!(got.index, want, "seed {seed}, n {n}, u {u}");
+                checked += 1;
+            }
+        }
+        assert!(checked > 100_000, "{checked}");
     }
 
     #[test]
