@@ -15,7 +15,7 @@
 
 use super::bvh::{Aabb, Bvh, LeafPolicy};
 use super::geometry::{Hit, Ray};
-use super::shape::{moller_trumbore, to_world, Mesh, Primitive, Shape};
+use super::shape::{moller_trumbore, to_object, to_world, Mesh, Primitive, Shape};
 use super::transform::Motion;
 use super::triangles::{self, Ray4, SlotKind, Slots};
 
@@ -64,15 +64,11 @@ impl Instance {
         motions[self.motion as usize].swept_ball(b.centroid(), (b.max - b.min).length() * 0.5)
     }
 
-    /// The ray in object space at shutter fraction `time` (its direction not normalised,
-    /// so that t is the same distance in both spaces), as `Primitive::intersect` moves it.
+    /// The ray in object space at shutter fraction `time`, as `Primitive::intersect`
+    /// moves it.
     #[inline]
     fn local(&self, ray: &Ray, time: f32, motions: &[Motion]) -> Ray {
-        let (_, object_from_world) = motions[self.motion as usize].frames(time);
-        Ray {
-            origin: object_from_world.transform_point3(ray.origin),
-            dir: object_from_world.transform_vector3(ray.dir),
-        }
+        to_object(ray, &motions[self.motion as usize].frames(time).1)
     }
 
     /// The nearest hit in (0, t_max) at shutter fraction `time`, in world space, and the

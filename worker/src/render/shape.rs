@@ -257,12 +257,7 @@ impl Primitive {
             None => self.intersect_local(ray, t_max, meshes),
             Some(m) => {
                 let (world_from_object, object_from_world) = motions[m as usize].frames(time);
-                // Keep the ray parameter: the object-space direction is not normalised, so
-                // that t means the same distance in both spaces.
-                let local = Ray {
-                    origin: object_from_world.transform_point3(ray.origin),
-                    dir: object_from_world.transform_vector3(ray.dir),
-                };
+                let local = to_object(ray, &object_from_world);
                 let hit = self.intersect_local(&local, t_max, meshes)?;
                 Some(to_world(&hit, &world_from_object))
             }
@@ -301,6 +296,16 @@ impl Primitive {
             Shape::Rect(r) => r.intersect(ray, t_max),
             Shape::Triangle { mesh, tri } => meshes[*mesh as usize].intersect(*tri, ray, t_max),
         }
+    }
+}
+
+/// The ray in object space with its parameter kept: the object-space direction is not
+/// normalised, so that t means the same distance in both spaces.
+#[inline]
+pub(crate) fn to_object(ray: &Ray, object_from_world: &Affine3A) -> Ray {
+    Ray {
+        origin: object_from_world.transform_point3(ray.origin),
+        dir: object_from_world.transform_vector3(ray.dir),
     }
 }
 
