@@ -8,8 +8,9 @@
 //! (docs/speed.md, sixteenth part). A plain triangle (no normals or texture coordinates in
 //! its mesh, no emission) also completes its hit from its slot, which holds its material:
 //! on a million triangles those three dependent loads were a quarter of a random ray's time
-//! (docs/speed.md, "Seventh part"). Everything else (spheres, parallelograms, moving or
-//! degenerate triangles) points back to its primitive.
+//! (docs/speed.md, "Seventh part"). A moving mesh is one slot, its instance
+//! (`instance.rs`). Everything else (spheres, parallelograms, degenerate triangles, the
+//! triangles of a moving mesh that cannot be an instance) points back to its primitive.
 
 use glam::{Vec3, Vec4};
 
@@ -289,8 +290,8 @@ pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Slots {
             for (l, &i) in four.iter().enumerate() {
                 let Some(prim) = prims.get(i as usize) else {
                     if i != super::bvh::PADDING {
-                        // An instance: its slot is generic (NaN corners, as the pack's
-                        // default for the lanes below is not).
+                        // An instance: NaN corners mark its lane for the leaf's walk as
+                        // a slot that is not an inline triangle (padding keeps zeros).
                         slots[l] = Slot { prim: (i - prims.len() as u32) | GENERIC | PLAIN, material: 0 };
                         for c in 0..3 {
                             for a in 0..3 {
