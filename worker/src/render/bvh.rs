@@ -185,7 +185,8 @@ impl LeafPolicy {
     pub const SHAPES: LeafPolicy = LeafPolicy { traversal_cost: 0.25, always_leaf: 1, block: 1 };
 
     /// The policy for a scene whose primitives are `inline_triangles` triangles tested
-    /// from the BVH's slots (`triangles::inline`) and `others` other primitives.
+    /// from the BVH's slots (`triangles::inline`) and `others` other items (primitives, or
+    /// moving meshes' instances).
     pub fn for_scene(inline_triangles: usize, others: usize) -> LeafPolicy {
         if others > inline_triangles {
             LeafPolicy::SHAPES

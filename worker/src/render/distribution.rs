@@ -4,8 +4,8 @@
 //! rows and a conditional one over each row's columns).
 //!
 //! Sampling inverts the cumulative distribution: a guide table (Chen and Asau's
-//! cut-points) names, for each of `n` equal slices of [0, 1), bins at or before and at or
-//! after every answer in it, and a binary search between them finds the bin the search over
+//! cut-points) names, for each of `n` equal slices of [0, 1) (at most 2^22), bins at or
+//! before and at or after every answer in it, and a binary search between them finds the bin the search over
 //! the whole table finds. A distribution whose weights are all zero falls back to uniform,
 //! so that a sample is always defined.
 

@@ -10,8 +10,11 @@
 //! a third of the render (docs/speed.md, twenty-eighth part). A triangle's test and the
 //! hit it makes are the same operations on the same values as before (the ray moved by
 //! the same frames, Möller–Trumbore on the same corners, the hit taken back to world
-//! space by [`to_world`]); only the order of the tests differs, which chooses among hits
-//! at exactly one distance.
+//! space by [`to_world`]); the order of the tests differs, which chooses among hits at
+//! exactly one distance, and so do the boxes that decide which triangles are tested: each
+//! triangle's own box in object space, as a still mesh's, where before a box around its
+//! whole arc let its test run. A ray that grazes an edge by less than the test's rounding,
+//! which the test may still accept, can pass outside the tight box, as with a still mesh.
 
 use super::bvh::{Aabb, Bvh, LeafPolicy};
 use super::geometry::{Hit, Ray};
@@ -172,9 +175,17 @@ pub struct Run {
     pub material: u32,
 }
 
+/// The fewest triangles a moving mesh needs to be an instance. An instance's tree, slots
+/// and record take about half a kilobyte whatever its size, which the memory estimate
+/// (`tessera_description::summary`, per primitive) does not count: a scene of many moving
+/// `[[triangle]]`s, each a mesh of one, would outgrow its estimate, and a tree over a few
+/// triangles spares nothing.
+pub const MIN_TRIANGLES: u32 = 64;
+
 /// The moving meshes among `prims` that can be instances: runs of one mesh's triangles
-/// 0..n in order with one motion, emitting nothing, of a material that `alpha` does not
-/// say cuts out hits (a cut-out is decided triangle by triangle, through its primitive).
+/// 0..n in order (at least [`MIN_TRIANGLES`]) with one motion, emitting nothing, of a
+/// material that `alpha` does not say cuts out hits (a cut-out is decided triangle by
+/// triangle, through its primitive).
 pub fn moving_meshes(prims: &[Primitive], meshes: &[Mesh], alpha: &[bool]) -> Vec<Run> {
     let mut runs = Vec::new();
     let mut i = 0;
@@ -200,7 +211,7 @@ pub fn moving_meshes(prims: &[Primitive], meshes: &[Mesh], alpha: &[bool]) -> Ve
             })
         });
         match whole {
-            Some(r) if r.count > 0 => {
+            Some(r) if r.count >= MIN_TRIANGLES => {
                 runs.push(r);
                 i += r.count as usize;
             }
@@ -222,46 +233,56 @@ mod tests {
         Primitive { shape: Shape::Triangle { mesh, tri }, material, light: None, motion }
     }
 
-    /// Only whole moving meshes become instances: all their triangles in order, one motion,
-    /// one material, no light, no cut-out.
+    /// Only whole moving meshes of [`MIN_TRIANGLES`] or more become instances: all their
+    /// triangles in order, one motion, one material, no light, no cut-out.
     #[test]
     fn moving_meshes_are_whole_meshes_that_need_nothing_triangle_by_triangle() {
-        let two = Mesh {
+        let n = MIN_TRIANGLES;
+        let mesh = |n: u32| Mesh {
             p: vec![Vec3::ZERO, Vec3::X, Vec3::Y],
-            tris: vec![[[0, u32::MAX, u32::MAX], [1, u32::MAX, u32::MAX], [2, u32::MAX, u32::MAX]]; 2],
+            tris: vec![
+                [[0, u32::MAX, u32::MAX], [1, u32::MAX, u32::MAX], [2, u32::MAX, u32::MAX]];
+                n as usize
+            ],
             ..Mesh::default()
         };
-        let meshes = vec![two.clone(); 6];
+        let mut meshes = vec![mesh(n); 6];
+        meshes.push(mesh(n - 1));
         let alpha = [false, true];
-        let mut prims = vec![
-            tri(0, 0, 0, Some(0)),
-            tri(0, 1, 0, Some(0)),
+        let whole = |m: u32, material: u32, motion: Option<u32>| {
+            (0..meshes[m as usize].tris.len() as u32).map(move |t| tri(m, t, material, motion))
+        };
+        let sphere = Primitive {
+            shape: Shape::Sphere(crate::render::geometry::Sphere::new(Vec3::ZERO, 1.0)),
+            material: 0,
+            light: None,
+            motion: Some(4),
+        };
+        let mut prims: Vec<Primitive> = whole(0, 0, Some(0))
             // Cut out: triangle by triangle.
-            tri(1, 0, 1, Some(1)),
-            tri(1, 1, 1, Some(1)),
+            .chain(whole(1, 1, Some(1)))
             // Still.
-            tri(2, 0, 0, None),
-            tri(2, 1, 0, None),
+            .chain(whole(2, 0, None))
             // Two motions in one mesh.
-            tri(3, 0, 0, Some(2)),
-            tri(3, 1, 0, Some(3)),
-            Primitive {
-                shape: Shape::Sphere(crate::render::geometry::Sphere::new(Vec3::ZERO, 1.0)),
-                material: 0,
-                light: None,
-                motion: Some(4),
-            },
+            .chain(whole(3, 0, Some(2)).enumerate().map(|(t, mut p)| {
+                p.motion = Some(2 + u32::from(t == 5));
+                p
+            }))
+            .chain([sphere])
             // Cut short.
-            tri(4, 0, 0, Some(5)),
-            tri(5, 0, 0, Some(6)),
-            tri(5, 1, 0, Some(6)),
-        ];
+            .chain(whole(4, 0, Some(5)).take(3))
+            .chain(whole(5, 0, Some(6)))
+            // Too small.
+            .chain(whole(6, 0, Some(7)))
+            .collect();
+        let second = 4 * n + 4;
+        assert!(matches!(prims[second as usize].shape, Shape::Triangle { mesh: 5, tri: 0 }));
         let runs = moving_meshes(&prims, &meshes, &alpha);
-        let run = |first, mesh, motion| Run { first, count: 2, mesh, motion, material: 0 };
-        assert_eq!(runs, [run(0, 0, 0), run(10, 5, 6)]);
+        let run = |first, mesh, motion| Run { first, count: n, mesh, motion, material: 0 };
+        assert_eq!(runs, [run(0, 0, 0), run(second, 5, 6)]);
         // An emitting mesh stays as it is (validation keeps lights still; this is the
         // second line of defence).
-        prims[10].light = Some(0);
+        prims[second as usize + 7].light = Some(0);
         assert_eq!(moving_meshes(&prims, &meshes, &alpha), [run(0, 0, 0)]);
     }
 

@@ -70,7 +70,7 @@ pub struct World {
     pub materials: Vec<Material>,
     /// Textures, referenced by index.
     pub textures: Vec<Texture>,
-    /// Bounded primitives, in the BVH.
+    /// Bounded primitives: in the BVH, or in an instance's (a moving mesh's triangles).
     pub prims: Vec<Primitive>,
     /// The BVH over `prims` but the moving meshes', and over `instances`.
     pub bvh: Bvh,
@@ -117,7 +117,8 @@ pub fn few_emitters(prims: &[Primitive]) -> Option<Vec<u32>> {
 }
 
 /// What a nearest-hit search found: a candidate its completion turns into the hit, or a
-/// hit its primitive made whole (a moving one, or one whose material has an alpha cut-out).
+/// hit its primitive or instance made whole (a moving one, or one whose material has an
+/// alpha cut-out).
 struct Found {
     nearest: Option<Candidate>,
     best: Option<SurfaceHit>,

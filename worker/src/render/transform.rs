@@ -97,10 +97,11 @@ impl Motion {
     /// `world_from_object` and `object_from_world` at shutter fraction `t`: [`Motion::at`]
     /// and its inverse, the same bits, from this thread's memo when they were made last.
     ///
-    /// A moving mesh's every triangle is a primitive with this motion, and a ray's time is
-    /// the same at each of them (and at its sample's shadow rays): worked out per triangle,
+    /// A ray's time is the same at every primitive with this motion (and at its sample's
+    /// shadow rays): worked out per triangle of a moving mesh, when each was a primitive,
     /// the interpolation (a slerp, with its sines) and the inverse were a third of the
-    /// showcase's profile. The memo is keyed by the motion's id and the time's bits, and an
+    /// showcase's profile; a moving mesh is now one instance that asks once a visit, and
+    /// the memo still spares a sample's shadow rays and other moving objects the work. The memo is keyed by the motion's id and the time's bits, and an
     /// id is never given twice, so another scene's motion can never be taken for this one.
     pub fn frames(&self, t: f32) -> (Affine3A, Affine3A) {
         let key = (self.id, t.to_bits());

@@ -30,7 +30,7 @@ const INDEX: u32 = PLAIN - 1;
 #[derive(Debug, Clone, Copy)]
 pub struct Slot {
     /// The primitive's index, with [`GENERIC`] set unless the slot is an inline triangle
-    /// and [`PLAIN`] set if it is a plain one.
+    /// and [`PLAIN`] set if it is a plain one; both set: an instance's index.
     prim: u32,
     /// The primitive's material, read only for a plain triangle.
     material: u32,
