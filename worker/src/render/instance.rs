@@ -139,11 +139,8 @@ impl Instance {
             self.slots.leaf(first, count, &r4, |k, tri| {
                 let hit = match (self.slots[k].kind(), tri) {
                     (SlotKind::Triangle(_), Some((d, ..))) => d < dist,
-                    (SlotKind::Generic(t), _) => {
-                        let [p0, p1, p2] = mesh.corners(t);
-                        moller_trumbore(p0, p1 - p0, p2 - p0, &local, dist)
-                            .is_some_and(|(d, b1, b2)| mesh.hit_at(t, d, b1, b2).is_some())
-                    }
+                    // A degenerate triangle, by its own test (`Mesh::intersect`).
+                    (SlotKind::Generic(t), _) => mesh.intersect(t, &local, dist).is_some(),
                     _ => false,
                 };
                 crossed += u32::from(hit);
