@@ -8,6 +8,10 @@ pub const MAX_PIXELS: u64 = 1 << 28;
 pub const MAX_SPP: u32 = 1 << 20;
 /// The most path segments / classic recursion depth.
 pub const MAX_DEPTH: u32 = 64;
+/// The most rays a diffuse lobe sends a sample ([`crate::model::RenderSettings`]): each
+/// is a ray and a sampler dimension per sample, so a sample costs at most this many times
+/// Cook's.
+pub const MAX_DIFFUSE_RAYS: u32 = 256;
 /// The most triangles in a scene.
 pub const MAX_TRIANGLES: usize = 1 << 26;
 /// The largest scene file, in bytes (16 MiB): scene text is small; meshes and images are

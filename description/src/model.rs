@@ -61,6 +61,9 @@ pub struct RenderSettings {
     pub sampler: SamplerKind,
     /// Most path segments and depth of the classic ray tree.
     pub max_depth: u32,
+    /// Rays a diffuse lobe sends, where a path picks it, to look for light (the sky, an
+    /// environment, emitters): 1 is Cook's one ray a sample.
+    pub diffuse_rays: u32,
     /// Radiance of rays that escape.
     pub background: Vec3,
     /// Ambient light of the classic model.

@@ -38,9 +38,28 @@ fn err(text: &str) -> SceneError {
 fn minimal_scene_parses_with_defaults() {
     let s = parse_scene("t.toml", MINIMAL).unwrap();
     let r = s.render;
-    assert_eq!((r.width, r.height, r.spp, r.max_depth), (8, 6, 16, 8));
+    assert_eq!((r.width, r.height, r.spp, r.max_depth, r.diffuse_rays), (8, 6, 16, 8, 1));
     assert_eq!(s.objects.len(), 1);
     assert!(s.camera.lens_radius == 0.0 && s.objects[0].motion.is_none());
+}
+
+/// `diffuse_rays` is a count from 1 to its limit; anything else is refused where it is.
+#[test]
+fn diffuse_rays_are_counted_within_their_limit() {
+    let with = |v: &str| MINIMAL.replace("height = 6", &format!("height = 6\ndiffuse_rays = {v}"));
+    assert_eq!(parse_scene("t.toml", &with("8")).unwrap().render.diffuse_rays, 8);
+    let most = crate::limits::MAX_DIFFUSE_RAYS;
+    assert_eq!(parse_scene("t.toml", &with(&most.to_string())).unwrap().render.diffuse_rays, most);
+    for bad in ["0".to_string(), (most + 1).to_string()] {
+        let e = err(&with(&bad));
+        assert_eq!(e.line, 2, "{e}");
+        assert!(e.message.contains(&format!("diffuse_rays must be 1..={most}, got {bad}")), "{e}");
+    }
+    for bad in ["-1", "2.5", "\"four\""] {
+        let e = err(&with(bad));
+        assert_eq!(e.line, 5, "{e}");
+        assert!(e.message.contains("diffuse_rays") || e.message.contains("invalid"), "{bad}: {e}");
+    }
 }
 
 #[test]

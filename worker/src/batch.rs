@@ -106,15 +106,21 @@ mod tests {
     /// A batch traces camera rays made a run ahead (`Scene::camera_rays`), and its sums
     /// are the bits of rendering each sample alone (`Scene::render_sample`, the sampler
     /// positioned afresh at each), with a lens, with motion blur's time dimension, and in
-    /// runs that start inside a pixel's pattern and cross the table's limit.
+    /// runs that start inside a pixel's pattern and cross the table's limit, and with several
+    /// diffuse rays a sample.
     #[test]
     fn camera_rays_made_ahead_give_each_sample_s_bits() {
         let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
-        for (name, spp, samples) in
-            [("spheres.toml", 512, 3..300), ("motion_blur.toml", 16, 0..16), ("cornell.toml", 4, 1..3)]
-        {
+        for (name, spp, samples, rays) in [
+            ("spheres.toml", 512, 3..300, 1),
+            ("motion_blur.toml", 16, 0..16, 1),
+            ("cornell.toml", 4, 1..3, 1),
+            // Several diffuse rays, each set drawn from the sample's own place in the pattern.
+            ("environment.toml", 16, 2..16, 4),
+        ] {
             let mut scene = crate::build::parse_bundle(&Bundle::read(&root.join(name)).unwrap()).unwrap();
             scene.apply(Some(spp), Some((8, 6)));
+            scene.diffuse_rays = rays;
             let pixels: Vec<UVec2> = (0..6).map(|i| UVec2::new(i + 1, i % 6)).collect();
             let batch = render_batch(&scene, &pixels, samples.clone(), Sums::Radiance);
             let mut sampler = scene.sampler();

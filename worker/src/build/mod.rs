@@ -174,6 +174,7 @@ fn build_observed(
         sampler: r.sampler,
         progressive: false,
         max_depth: r.max_depth,
+        diffuse_rays: r.diffuse_rays,
         background: r.background,
         ambient: r.ambient,
         camera,

@@ -10,7 +10,7 @@
 use glam::{Vec2, Vec3};
 use tessera_description::math;
 
-use super::bsdf::{Frame, Lobe};
+use super::bsdf::{Bsdf, BsdfSample, Frame, Lobe};
 use super::geometry::{offset_ray_origin, Hit, Ray};
 use super::light::ALL_LIGHTS_UP_TO;
 use super::material::{Classic, Material};
@@ -86,12 +86,7 @@ fn trace(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32,
     let mut from_dirac = true;
     let mut prev_pdf = 0.0f32;
     let mut prev_p = ray.origin;
-    let mut last = false;
     for depth in depth..scene.max_depth {
-        // The last ray only looks for light: where it can find none, its hit is not needed.
-        if last && !scene.may_find_light(&ray, time) {
-            break;
-        }
         // A camera ray is traced right after its pixel's previous sample's: coherent.
         let found = if depth == 0 {
             scene.intersect_coherent(&ray, f32::INFINITY, time)
@@ -118,9 +113,6 @@ fn trace(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32,
                 l += beta * le * w;
             }
             // Light surfaces reflect nothing.
-            break;
-        }
-        if last {
             break;
         }
         let material = &scene.world.materials[sh.material as usize];
@@ -168,17 +160,17 @@ fn trace(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32,
                 }
             });
         }
-        let sampled = if split.is_some() {
+        let (sampled, u_lobe) = if split.is_some() {
             // The draws a pick reads are passed over, so the dimensions after them keep
             // their numbers whichever way the path went.
             sampler.skip();
             sampler.skip();
-            None
+            (None, 0.0)
         } else {
             let (reads_lobe, reads_u) = bsdf.draws();
             let u_lobe = if reads_lobe { sampler.get_1d() } else { sampler.skip() };
             let u = if reads_u { sampler.get_2d() } else { Vec2::splat(sampler.skip()) };
-            bsdf.sample(wo, u_lobe, u)
+            (bsdf.sample(wo, u_lobe, u), u_lobe)
         };
         for &(i, pick, ls) in pending[..taken].iter().flatten() {
             let light = &w.lights[i as usize];
@@ -208,6 +200,14 @@ fn trace(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32,
             let Some(s) = sampled else { break };
             s
         };
+        if s.lobe == Lobe::Diffuse {
+            // A diffuse lobe ends the path: its rays only look for light.
+            if depth + 1 < scene.max_depth {
+                let diffuse = Diffuse { bsdf: &bsdf, frame: &frame, wo, hit: &hit, u_lobe };
+                l += diffuse.light(scene, sampler, s, beta, time);
+            }
+            break;
+        }
         beta *= s.weight;
         if beta == Vec3::ZERO || !beta.is_finite() {
             break;
@@ -216,11 +216,82 @@ fn trace(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32,
         prev_p = hit.p;
         prev_pdf = s.pdf;
         from_dirac = s.lobe == Lobe::Specular;
-        // A diffuse lobe ends the path: its ray only looks for a light (for MIS).
-        last = s.lobe == Lobe::Diffuse;
         ray = Ray::new(offset_ray_origin(hit.p, hit.p_error, hit.n, wi), wi);
     }
     l
+}
+
+/// Where a path picked a diffuse lobe: what its rays need to weigh the light they find.
+/// Cook's transport ends the path there (no diffuse interreflection), so a ray from it
+/// only looks for light, and the lobe may send several (`[render] diffuse_rays`): the
+/// lobe's share of the sample is then the mean of that many directions drawn from it, an
+/// estimate of the same expectation with a fraction of the variance. Where the sky or an
+/// environment lights a scene, that variance is most of the image's, and a ray that only
+/// looks for light costs a fraction of a sample (docs/speed.md, twenty-ninth part).
+struct Diffuse<'a> {
+    bsdf: &'a Bsdf,
+    frame: &'a Frame,
+    wo: Vec3,
+    hit: &'a Hit,
+    /// The lobe choice that picked the diffuse lobe: every direction is drawn with it.
+    u_lobe: f32,
+}
+
+impl Diffuse<'_> {
+    /// The light the lobe's rays find on a path of throughput `beta`: with one ray, that of
+    /// `first` (the path's own sample), the bits the path's next segment gave when it was
+    /// a turn of the integrator's loop.
+    #[inline]
+    fn light(&self, scene: &Scene, sampler: &mut Sampler, first: BsdfSample, beta: Vec3, time: f32) -> Vec3 {
+        let count = scene.diffuse_rays;
+        if count == 1 {
+            return self.light_found(scene, first, beta, time);
+        }
+        // The rays' directions from one set (`Sampler::each_2d_of_set`), stratified among
+        // themselves; the path's own draw is not one of them. The lobe is the same for
+        // each: its choice reads only `u_lobe` (`Bsdf::sample`), so every ray is drawn
+        // from the distribution the first was, given the lobe.
+        let share = beta / count as f32;
+        let mut l = Vec3::ZERO;
+        sampler.each_2d_of_set(count, |u| {
+            if let Some(s) = self.bsdf.sample(self.wo, self.u_lobe, u) {
+                l += self.light_found(scene, s, share, time);
+            }
+        });
+        l
+    }
+
+    /// The light that sample `s`'s ray finds, weighted by `share` and the sample's
+    /// weight: emission it hits, weighed by MIS against the light samples, or the sky
+    /// where it escapes.
+    #[inline]
+    fn light_found(&self, scene: &Scene, s: BsdfSample, share: Vec3, time: f32) -> Vec3 {
+        let beta = share * s.weight;
+        if beta == Vec3::ZERO || !beta.is_finite() {
+            return Vec3::ZERO;
+        }
+        let hit = self.hit;
+        let wi = self.frame.to_world(s.wi).normalize();
+        let ray = Ray::new(offset_ray_origin(hit.p, hit.p_error, hit.n, wi), wi);
+        // Where the ray can find no light, its hit is not needed.
+        if !scene.may_find_light(&ray, time) {
+            return Vec3::ZERO;
+        }
+        let Some(sh) = scene.intersect(&ray, f32::INFINITY, time) else {
+            return beta * escaped(scene, ray.dir, false, s.pdf);
+        };
+        let Some(li) = sh.light else { return Vec3::ZERO };
+        let light = &scene.world.lights[li as usize];
+        let mut le = light.emitted(sh.hit.n, ray.dir);
+        if le != Vec3::ZERO && matches!(scene.world.materials[sh.material as usize], Material::Pbr(_)) {
+            le *= scene.emission_scale(&sh, time);
+        }
+        if le == Vec3::ZERO {
+            return Vec3::ZERO;
+        }
+        let pick = scene.world.light_choice.pmf(li as usize);
+        beta * le * power_heuristic(s.pdf, pick * light.pdf(hit.p, ray.dir, sh.hit.t, sh.hit.n))
+    }
 }
 
 /// Perturbs the unit direction `w` around itself by a GGX-distributed normal of roughness
@@ -317,139 +388,5 @@ fn classic(
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::batch::{render_batch, Sums};
-    use crate::render::sampler::hash_words;
-    use glam::UVec2;
-    use tessera_description::bundle::Bundle;
-
-    fn scene(name: &str) -> Scene {
-        let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
-        crate::build::parse_bundle(&Bundle::read(&root.join(name)).unwrap()).unwrap()
-    }
-
-    /// A path's last ray skipped where it can find no light: never where its nearest hit
-    /// is an emitter (random rays), often where it is not, and the images' sums are the
-    /// bits of tracing every such ray.
-    #[test]
-    fn last_rays_skipped_only_where_they_find_no_light() {
-        for name in ["cornell.toml", "spheres.toml"] {
-            let mut scene = scene(name);
-            assert!(scene.world.emitters.is_some(), "{name}: its emitters are few");
-            let b = scene.world.bvh.bounds();
-            let (c, r) = (b.centroid(), (b.max - b.min).length());
-            let (mut lit, mut skipped) = (0, 0);
-            for k in 0..20_000u64 {
-                let h = |j: u64| (hash_words(&[k, j, 7]) >> 40) as f32 / (1u64 << 24) as f32 - 0.5;
-                let Some(dir) = Vec3::new(h(3), h(4), h(5)).try_normalize() else { continue };
-                let ray = Ray::new(c + Vec3::new(h(0), h(1), h(2)) * r * 0.5, dir);
-                let may = scene.may_find_light(&ray, 0.0);
-                if scene.intersect(&ray, f32::INFINITY, 0.0).is_some_and(|sh| sh.light.is_some()) {
-                    assert!(may, "{name}: ray {k} finds a light");
-                    lit += 1;
-                }
-                skipped += usize::from(!may);
-            }
-            assert!(lit > 10 && skipped > 10_000, "{name}: {lit} rays lit, {skipped} skipped");
-
-            let pixels: Vec<_> =
-                (0..24).flat_map(|y| (0..32).map(move |x| UVec2::new(x * 5, y * 6))).collect();
-            scene.apply(Some(4), Some((160, 144)));
-            let skipping = render_batch(&scene, &pixels, 0..4, Sums::Radiance);
-            std::sync::Arc::get_mut(&mut scene.world).unwrap().emitters = None;
-            let tracing = render_batch(&scene, &pixels, 0..4, Sums::Radiance);
-            assert_eq!(skipping, tracing, "{name}");
-        }
-        // An emissive mesh has too many emitters to test one by one.
-        assert!(scene("emissive_mesh.toml").world.emitters.is_none());
-        // Escaping rays that see a background or an environment find light: nothing is
-        // skipped (the ray points at the floor, away from the light).
-        let away = Ray::new(Vec3::ZERO, Vec3::NEG_Y);
-        let mut lit = scene("cornell.toml");
-        assert!(!lit.may_find_light(&away, 0.0));
-        lit.background = Vec3::splat(0.1);
-        assert!(lit.may_find_light(&away, 0.0));
-        let sky = scene("environment.toml");
-        assert!(sky.world.environment.is_some() && sky.background == Vec3::ZERO);
-        let b = sky.world.bvh.bounds();
-        assert!(sky.may_find_light(&Ray::new(b.max + Vec3::ONE, Vec3::ONE.normalize()), 0.0));
-    }
-
-    /// Following both lobes of glass estimates what picking one does, with less noise: a
-    /// glass ball before a black sky, lit by a wide light behind the camera that only its
-    /// reflections see. Picking, a sample sees the light with probability F (4 % head on);
-    /// split, every sample sees F of it. The two images agree within their noise, the
-    /// split's samples vary far less, and pixels that miss the ball are the same bits.
-    #[test]
-    fn splitting_glass_keeps_the_mean_and_lowers_the_variance() {
-        let scene = crate::build::parse_scene(
-            "glass.toml",
-            r#"
-[render]
-width = 12
-height = 12
-spp = 256
-[camera]
-position = [0, 0, 4]
-look_at = [0, 0, 0]
-fov = 40
-[materials.glass]
-type = "dielectric"
-ior = 1.5
-[[sphere]]
-radius = 1
-material = "glass"
-[[rectangle]]
-center = [0, 0, 6]
-u = [16, 0, 0]
-v = [0, -16, 0]
-emission = 5
-"#,
-        )
-        .unwrap();
-        let mut sampler = scene.sampler();
-        let (n, mut glass, mut same) = (256.0, 0, 0);
-        let (mut picked_var, mut split_var, mut diff) = (0.0, 0.0, 0.0);
-        for p in 0..144u32 {
-            let pixel = UVec2::new(p % 12, p / 12);
-            // Per budget: the sum and the sum of squares of a sample's green channel.
-            let mut st = [[0f64; 2]; 2];
-            for (budget, st) in [0, SPLITS].into_iter().zip(st.iter_mut()) {
-                for index in 0..256 {
-                    let (ray, time) = scene.camera_ray(&mut sampler, pixel, index);
-                    let y = f64::from(trace(&scene, &mut sampler, &ray, 0, time, budget).y);
-                    st[0] += y;
-                    st[1] += y * y;
-                }
-            }
-            if st[0] == st[1] {
-                same += 1;
-                continue;
-            }
-            glass += 1;
-            let var = |s: [f64; 2]| (s[1] / n - (s[0] / n) * (s[0] / n)).max(0.0);
-            picked_var += var(st[0]);
-            split_var += var(st[1]);
-            diff += (st[1][0] - st[0][0]) / n;
-        }
-        assert!(glass > 40 && same > 20, "{glass} pixels see the ball, {same} do not");
-        // The difference of the images' sums over the ball against its standard deviation
-        // (a fifth more of either lobe's light shows at five or more).
-        let z = diff / ((picked_var + split_var) / n).sqrt();
-        assert!(z.abs() < 3.5, "the means differ by {z:.2} standard deviations");
-        assert!(split_var < 0.2 * picked_var, "sample variance {split_var} split, {picked_var} picked");
-    }
-
-    #[test]
-    fn snell_and_total_internal_reflection() {
-        let n = Vec3::Y;
-        let wi = Vec3::new(0.5f32.sqrt(), 0.5f32.sqrt(), 0.0);
-        let wt = refract(wi, n, 1.5).unwrap();
-        // sin θt = sin θi / η
-        assert!((wt.x.abs() - 0.5f32.sqrt() / 1.5).abs() < 1e-6 && wt.y < 0.0);
-        assert!(refract(wi, n, 1.0 / 1.5).is_none());
-        // Index 1: the ray goes straight on.
-        assert!((refract(wi, n, 1.0).unwrap() + wi).length() < 1e-6);
-    }
-}
+#[path = "integrator_tests.rs"]
+mod tests;

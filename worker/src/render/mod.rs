@@ -53,6 +53,8 @@ pub struct Scene {
     pub progressive: bool,
     /// Most path segments (camera ray included) and depth of the classic ray tree.
     pub max_depth: u32,
+    /// Rays a diffuse lobe sends to look for light where a path picks it (1: Cook's).
+    pub diffuse_rays: u32,
     /// Radiance of rays that escape.
     pub background: Vec3,
     /// Ambient light of the classic model.

@@ -131,3 +131,36 @@ pub(super) fn scrambled(reversed: u32, key: u64) -> f32 {
 pub(super) fn fixed_to_unit(x: u32) -> f32 {
     ((x >> 8) as f32 * (1.0 / (1u32 << 24) as f32)).min(ONE_MINUS_EPSILON)
 }
+
+impl super::Sampler {
+    /// `count` points of the next 2-D dimension for the current sample, passed to `f` in
+    /// order: points `s · count .. (s + 1) · count` of one Owen-scrambled Sobol sequence
+    /// per pixel and dimension, `s` being where the dimension's order puts the sample.
+    /// Where `count` is a power of two a sample's points are a net (one in each of
+    /// `count` elementary intervals of every shape), and the pixel's `spp · count` points
+    /// are the start of one sequence, stratified together: several directions drawn at
+    /// one hit then cover its lobe as evenly as the pixel's samples cover the pixel,
+    /// where as many separate dimensions would leave them independent of one another.
+    /// Beyond the pattern, and for independent samples, the points are independent.
+    pub fn each_2d_of_set(&mut self, count: u32, mut f: impl FnMut(glam::Vec2)) {
+        use super::{hash_step, mix64, unit_float, SamplerKind};
+        let k = self.next_dimension();
+        if self.index >= self.spp || self.kind == SamplerKind::Independent {
+            let from = hash_step(k.from_key, u64::from(self.index));
+            for j in 0..count {
+                let h = hash_step(from, u64::from(j));
+                f(glam::Vec2::new(unit_float(h), unit_float(mix64(h))));
+            }
+            return;
+        }
+        // Below 2^20 samples (`limits::MAX_SPP`) times 256 (`MAX_DIFFUSE_RAYS`): no wrap.
+        let first = self.shuffle(k.key, self.index).wrapping_mul(count);
+        for j in 0..count {
+            let n = first.wrapping_add(j);
+            f(glam::Vec2::new(
+                scrambled(n, k.pattern),
+                scrambled(sobol_reversed(n, &SOBOL_BYTES[0]), k.pattern >> 32),
+            ));
+        }
+    }
+}

@@ -473,3 +473,66 @@ fn film_and_lens_are_one_net_in_four_dimensions() {
         }
     }
 }
+
+/// Whether `pts` (2^k of them) are a (0, k, 2)-net: one in each elementary interval of
+/// every shape of area 2^-k.
+fn is_net(pts: &[Vec2]) -> bool {
+    let k = pts.len().trailing_zeros();
+    assert_eq!(pts.len(), 1 << k);
+    (0..=k).all(|a| {
+        let (nx, ny) = (1u32 << a, 1u32 << (k - a));
+        let mut cells = std::collections::HashSet::new();
+        pts.iter().all(|p| {
+            (0.0..1.0).contains(&p.x)
+                && (0.0..1.0).contains(&p.y)
+                && cells.insert(((p.x * nx as f32) as u32, (p.y * ny as f32) as u32))
+        })
+    })
+}
+
+/// A set drawn at one sample (`each_2d_of_set`: a diffuse lobe's several rays) is a net
+/// of its own at a power-of-two count, and a pixel's sets are together a net of `spp ·
+/// count` points, for Cook's pattern and Sobol's; a set takes one dimension, so the
+/// draws after it keep their numbers, and it is a pure function of (pixel, sample), as
+/// every draw is. Beyond the pattern and for independent samples the points are plain
+/// random numbers, still the same at every call. Four rays drawn from four dimensions of
+/// Cook's pattern instead (the first version) were a net at none of 16 samples: each
+/// dimension is stratified over the pixel's samples, not among one sample's rays.
+#[test]
+fn a_sample_s_set_is_a_net_and_a_pixel_s_sets_are_one() {
+    let pixel = UVec2::new(7, 3);
+    for kind in [SamplerKind::Stratified, SamplerKind::Sobol] {
+        for (spp, count) in [(16u32, 4u32), (64, 8), (4, 64), (1, 16)] {
+            let mut sampler = Sampler::new(kind, 5, spp);
+            let mut all = Vec::new();
+            for index in (0..spp).rev() {
+                sampler.start_pixel_sample(pixel, index);
+                sampler.get_2d();
+                let mut set = Vec::new();
+                sampler.each_2d_of_set(count, |u| set.push(u));
+                assert!(is_net(&set), "{kind:?} spp {spp}: sample {index}'s {count} points");
+                assert_eq!(sampler.dimensions_used(), 2);
+                let after = sampler.get_2d();
+                sampler.start_pixel_sample(pixel, index);
+                sampler.get_2d();
+                sampler.each_2d_of_set(count, |_| {});
+                assert_eq!(sampler.get_2d(), after, "the draw after a set");
+                all.extend(set);
+            }
+            assert!(is_net(&all), "{kind:?} spp {spp}: the pixel's {} points", all.len());
+        }
+    }
+    for (kind, index) in [(SamplerKind::Independent, 0), (SamplerKind::Stratified, 16)] {
+        let mut sampler = Sampler::new(kind, 5, 16);
+        let draw = |sampler: &mut Sampler| {
+            sampler.start_pixel_sample(pixel, index);
+            let mut set = Vec::new();
+            sampler.each_2d_of_set(8, |u| set.push(u));
+            set
+        };
+        let set = draw(&mut sampler);
+        assert_eq!(draw(&mut sampler), set);
+        assert!(set.iter().all(|p| (0.0..1.0).contains(&p.x) && (0.0..1.0).contains(&p.y)));
+        assert_eq!(set.iter().map(|p| p.x.to_bits()).collect::<std::collections::HashSet<_>>().len(), 8);
+    }
+}
