@@ -241,7 +241,7 @@ impl Diffuse<'_> {
     /// The light the lobe's rays find on a path of throughput `beta`: with one ray, that of
     /// `first` (the path's own sample), the bits the path's next segment gave when it was
     /// a turn of the integrator's loop.
-    #[inline]
+    #[inline(always)]
     fn light(&self, scene: &Scene, sampler: &mut Sampler, first: BsdfSample, beta: Vec3, time: f32) -> Vec3 {
         let count = scene.diffuse_rays;
         if count == 1 {
@@ -264,7 +264,7 @@ impl Diffuse<'_> {
     /// The light that sample `s`'s ray finds, weighted by `share` and the sample's
     /// weight: emission it hits, weighed by MIS against the light samples, or the sky
     /// where it escapes.
-    #[inline]
+    #[inline(always)]
     fn light_found(&self, scene: &Scene, s: BsdfSample, share: Vec3, time: f32) -> Vec3 {
         let beta = share * s.weight;
         if beta == Vec3::ZERO || !beta.is_finite() {

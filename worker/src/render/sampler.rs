@@ -48,7 +48,8 @@ pub(crate) fn unit_float(h: u64) -> f32 {
 
 /// A keyed bijection of `0..len`, evaluated at `i` without storing the permutation: a
 /// keyed invertible mix on the smallest power-of-two domain that holds `len`, repeated
-/// (cycle walking) until it lands inside `0..len`.
+/// (cycle walking) until it lands inside `0..len`, then turned by a keyed amount where
+/// `len` is not a power of two, so that over keys every `i` goes anywhere as often.
 pub fn permute(i: u32, len: u32, key: u64) -> u32 {
     debug_assert!(i < len);
     Permutation::new(len).apply(i, key)
@@ -64,16 +65,19 @@ struct Permutation {
     /// The two xor-shifts that depend on the domain's bit count.
     shift_half: u32,
     shift_third: u32,
+    /// `len` is not a power of two: the mix's result is walked into `0..len`, and turned.
+    walks: bool,
 }
 
 impl Permutation {
     fn new(len: u32) -> Permutation {
         if len <= 1 {
-            return Permutation { len, mask: 0, shift_half: 1, shift_third: 1 };
+            return Permutation { len, mask: 0, shift_half: 1, shift_third: 1, walks: false };
         }
         let mask = u32::MAX >> (len - 1).leading_zeros();
         let bits = 32 - mask.leading_zeros();
-        Permutation { len, mask, shift_half: (bits / 2).max(1), shift_third: (bits / 3).max(1) }
+        let walks = !len.is_power_of_two();
+        Permutation { len, mask, shift_half: (bits / 2).max(1), shift_third: (bits / 3).max(1), walks }
     }
 
     #[inline]
@@ -96,8 +100,23 @@ impl Permutation {
             x = x.wrapping_mul(0x1b87_3593 | 1) & mask;
             x ^= x >> 1;
             if x < self.len {
-                return x;
+                break;
             }
+        }
+        if !self.walks {
+            // The first xor alone sends `i` anywhere in the domain as often.
+            return x;
+        }
+        // The walk's ends are not spread evenly: an element of 0..3 went to 2 in half of
+        // all keys (`every_element_goes_anywhere_as_often`). A turn by an amount of its
+        // own, uniform over `0..len` whatever the mix did, spreads them; the turn keeps
+        // the map a bijection.
+        let turn = ((mix64(key ^ 0x7e57_7e57) >> 32) * u64::from(self.len) >> 32) as u32;
+        let y = x + turn;
+        if y >= self.len {
+            y - self.len
+        } else {
+            y
         }
     }
 }
@@ -149,16 +168,21 @@ impl Cmj {
     }
 
     /// The fine-grid offset of column `col` in the pattern keyed by `key`. Offsets are
-    /// shuffled per pattern, so that columns and rows of the coarse grid do not line up.
+    /// shuffled per pattern, so that columns and rows of the coarse grid do not line up;
+    /// the columns' and the rows' shuffles must be independent, which keys that differ in
+    /// a few low bits are not: a small domain's permutation reads few of the key's bits,
+    /// and with keys `key ^ 0x51` and `key ^ 0xa3` the columns and rows of a 2 × 2 grid
+    /// were always shuffled alike, every point in its cell's lower-left or upper-right
+    /// quarter (`a_point_is_anywhere_in_its_cell`). Hence a hash of each.
     #[inline]
     fn column_offset(&self, col: u32, key: u64) -> u32 {
-        self.columns.apply(col, key ^ 0x51)
+        self.columns.apply(col, mix64(key ^ 0x51))
     }
 
     /// The fine-grid offset of row `row`.
     #[inline]
     fn row_offset(&self, row: u32, key: u64) -> u32 {
-        self.row_order.apply(row, key ^ 0xa3)
+        self.row_order.apply(row, mix64(key ^ 0xa3))
     }
 
     /// Sample `s` of the `n`-sample pattern, in cell (`col`, `row`) with fine-grid offsets
