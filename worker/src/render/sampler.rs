@@ -111,7 +111,7 @@ impl Permutation {
         // all keys (`every_element_goes_anywhere_as_often`). A turn by an amount of its
         // own, uniform over `0..len` whatever the mix did, spreads them; the turn keeps
         // the map a bijection.
-        let turn = ((mix64(key ^ 0x7e57_7e57) >> 32) * u64::from(self.len) >> 32) as u32;
+        let turn = (((mix64(key ^ 0x7e57_7e57) >> 32) * u64::from(self.len)) >> 32) as u32;
         let y = x + turn;
         if y >= self.len {
             y - self.len
