@@ -155,8 +155,8 @@ pub(crate) struct RenderDef {
     pub(crate) sampler: Option<Spanned<String>>,
     #[serde(default = "default_depth")]
     pub(crate) max_depth: u32,
-    #[serde(default = "one")]
-    pub(crate) diffuse_rays: u32,
+    #[serde(default)]
+    pub(crate) diffuse_rays: Option<Spanned<u32>>,
     #[serde(default = "black")]
     pub(crate) background: Rgb,
     #[serde(default = "black")]
@@ -168,9 +168,6 @@ fn default_spp() -> u32 {
 }
 fn default_depth() -> u32 {
     8
-}
-fn one() -> u32 {
-    1
 }
 pub(crate) fn black() -> Rgb {
     Rgb(Vec3::ZERO)

@@ -52,7 +52,7 @@ fn diffuse_rays_are_counted_within_their_limit() {
     assert_eq!(parse_scene("t.toml", &with(&most.to_string())).unwrap().render.diffuse_rays, most);
     for bad in ["0".to_string(), (most + 1).to_string()] {
         let e = err(&with(&bad));
-        assert_eq!(e.line, 2, "{e}");
+        assert_eq!((e.line, e.column), (5, 16), "{e}");
         assert!(e.message.contains(&format!("diffuse_rays must be 1..={most}, got {bad}")), "{e}");
     }
     for bad in ["-1", "2.5", "\"four\""] {

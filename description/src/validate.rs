@@ -88,12 +88,16 @@ pub(crate) fn validate(
             ctx.err(&rspan, format!("max_depth must be 1..={}, got {}", limits::MAX_DEPTH, r.max_depth))
         );
     }
-    if r.diffuse_rays == 0 || r.diffuse_rays > limits::MAX_DIFFUSE_RAYS {
-        return Err(ctx.err(
-            &rspan,
-            format!("diffuse_rays must be 1..={}, got {}", limits::MAX_DIFFUSE_RAYS, r.diffuse_rays),
-        ));
-    }
+    let diffuse_rays = match &r.diffuse_rays {
+        None => 1,
+        Some(n) if (1..=limits::MAX_DIFFUSE_RAYS).contains(n.get_ref()) => *n.get_ref(),
+        Some(n) => {
+            return Err(ctx.err(
+                &n.span(),
+                format!("diffuse_rays must be 1..={}, got {}", limits::MAX_DIFFUSE_RAYS, n.get_ref()),
+            ))
+        }
+    };
     let sampler = match &r.sampler {
         None => SamplerKind::default(),
         Some(name) => SamplerKind::from_name(name.get_ref()).ok_or_else(|| {
@@ -115,7 +119,7 @@ pub(crate) fn validate(
         seed: r.seed,
         sampler,
         max_depth: r.max_depth,
-        diffuse_rays: r.diffuse_rays,
+        diffuse_rays,
         background,
         ambient,
     };

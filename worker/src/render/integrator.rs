@@ -201,7 +201,9 @@ fn trace(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32,
             s
         };
         if s.lobe == Lobe::Diffuse {
-            // A diffuse lobe ends the path: its rays only look for light.
+            // A diffuse lobe ends the path: its rays only look for light. (Where the
+            // path's own sample failed, at a boundary value of a draw, the lobe is not
+            // known and no ray is sent, as with one ray.)
             if depth + 1 < scene.max_depth {
                 let diffuse = Diffuse { bsdf: &bsdf, frame: &frame, wo, hit: &hit, u_lobe };
                 l += diffuse.light(scene, sampler, s, beta, time);
@@ -255,6 +257,7 @@ impl Diffuse<'_> {
         let mut l = Vec3::ZERO;
         sampler.each_2d_of_set(count, |u| {
             if let Some(s) = self.bsdf.sample(self.wo, self.u_lobe, u) {
+                debug_assert_eq!(s.lobe, Lobe::Diffuse, "a lobe chosen by u, not u_lobe alone");
                 l += self.light_found(scene, s, share, time);
             }
         });

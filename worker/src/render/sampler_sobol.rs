@@ -138,12 +138,14 @@ impl super::Sampler {
     /// per pixel and dimension, `s` being where the dimension's order puts the sample.
     /// Where `count` is a power of two a sample's points are a net (one in each of
     /// `count` elementary intervals of every shape), and the pixel's `spp · count` points
-    /// are the start of one sequence, stratified together: several directions drawn at
+    /// are the start of one sequence (for Cook's pattern at any count, for Sobol's where
+    /// `spp` is a power of two), a net too where `spp · count` is one: several directions drawn at
     /// one hit then cover its lobe as evenly as the pixel's samples cover the pixel,
     /// where as many separate dimensions would leave them independent of one another.
     /// Beyond the pattern, and for independent samples, the points are independent.
     pub fn each_2d_of_set(&mut self, count: u32, mut f: impl FnMut(glam::Vec2)) {
         use super::{hash_step, mix64, unit_float, SamplerKind};
+        debug_assert!(count <= tessera_description::limits::MAX_DIFFUSE_RAYS);
         let k = self.next_dimension();
         if self.index >= self.spp || self.kind == SamplerKind::Independent {
             let from = hash_step(k.from_key, u64::from(self.index));

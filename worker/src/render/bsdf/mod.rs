@@ -249,6 +249,46 @@ mod tests {
         assert!(skipped > 0);
     }
 
+    /// A lobe is chosen by `u_lobe` (and `wo`) alone, never by `u`: a diffuse lobe's
+    /// several rays (`[render] diffuse_rays`) are drawn again with the `u_lobe` that
+    /// picked the lobe, and are each from that lobe only because of this. Every BSDF that
+    /// has a diffuse lobe, and the others, from both sides of the surface.
+    #[test]
+    fn a_lobe_is_chosen_by_u_lobe_alone() {
+        let metal = (Vec3::new(0.2, 0.9, 1.1), Vec3::new(3.9, 2.4, 2.2));
+        let pbr = |metallic: f32, alpha: f32, transmission: f32| {
+            Bsdf::MetallicRoughness(MetallicRoughness {
+                base: Vec3::new(0.8, 0.5, 0.3),
+                metallic,
+                alpha,
+                ior: 1.5,
+                transmission,
+            })
+        };
+        let bsdfs = [
+            Bsdf::Lambert { albedo: Vec3::splat(0.5) },
+            Bsdf::Plastic { diffuse: Vec3::splat(0.5), eta: 1.5, fdr: fresnel_diffuse_reflectance(1.5) },
+            Bsdf::RoughConductor { eta: metal.0, k: metal.1, alpha: 0.3 },
+            Bsdf::RoughDielectric { eta: 1.5, alpha: 0.2 },
+            pbr(0.0, 0.25, 0.0),
+            pbr(0.5, 0.04, 0.0),
+            pbr(0.0, 0.0, 0.0),
+            pbr(0.0, 0.3, 0.6),
+        ];
+        let mut diffuse = 0;
+        for bsdf in bsdfs {
+            for i in 0..4000 {
+                let Some(wo) = (u2(i, 1).extend(u2(i, 2).x) * 2.0 - 1.0).try_normalize() else { continue };
+                let ul = u2(i, 3).x;
+                let lobes: Vec<Lobe> =
+                    (4..12).filter_map(|k| bsdf.sample(wo, ul, u2(i, k)).map(|s| s.lobe)).collect();
+                assert!(lobes.windows(2).all(|w| w[0] == w[1]), "{bsdf:?} wo {wo} u_lobe {ul}: {lobes:?}");
+                diffuse += lobes.iter().filter(|&&l| l == Lobe::Diffuse).count();
+            }
+        }
+        assert!(diffuse > 10_000, "{diffuse} diffuse samples");
+    }
+
     /// A split dielectric follows the two directions its pick chooses between, each weighted
     /// by the pick's weight times its probability, so a path's expectation is the same
     /// either way; from both sides, grazing included. Total internal reflection and every
