@@ -14,7 +14,7 @@ use super::bsdf::{Bsdf, BsdfSample, Frame, Lobe};
 use super::geometry::{offset_ray_origin, Hit, Ray};
 use super::light::ALL_LIGHTS_UP_TO;
 use super::material::{Classic, Material};
-use super::{Sampler, Scene};
+use super::{Sampler, Scene, SurfaceHit};
 
 /// Reflects `v` (pointing away from the surface) about the normal `n`.
 #[inline]
@@ -64,6 +64,37 @@ fn escaped(scene: &Scene, dir: Vec3, from_dirac: bool, prev_pdf: f32) -> Vec3 {
     le * power_heuristic(prev_pdf, w.light_choice.pmf(i as usize) * env.pdf(dir))
 }
 
+/// What a ray along `dir` sees of light `li`, which it hit at `sh`: the light's emission
+/// and its weight, by MIS against the light's samples where the ray was sampled from a
+/// lobe of density `pdf` at `p` (`sampled`), 1 where it came from a Dirac lobe; `None`
+/// where the light emits nothing towards the ray.
+#[inline(always)]
+fn emission_seen(
+    scene: &Scene,
+    sh: &SurfaceHit,
+    li: u32,
+    dir: Vec3,
+    sampled: Option<(Vec3, f32)>,
+    time: f32,
+) -> Option<(Vec3, f32)> {
+    let light = &scene.world.lights[li as usize];
+    let mut le = light.emitted(sh.hit.n, dir);
+    if le != Vec3::ZERO && matches!(scene.world.materials[sh.material as usize], Material::Pbr(_)) {
+        le *= scene.emission_scale(sh, time);
+    }
+    if le == Vec3::ZERO {
+        return None;
+    }
+    let w = match sampled {
+        None => 1.0,
+        Some((p, pdf)) => {
+            let pick = scene.world.light_choice.pmf(li as usize);
+            power_heuristic(pdf, pick * light.pdf(p, dir, sh.hit.t, sh.hit.n))
+        }
+    };
+    Some((le, w))
+}
+
 /// How many times a camera path may follow both lobes of a smooth dielectric instead of
 /// picking one by its Fresnel reflectance. Picking costs nothing but is the noisiest
 /// choice a path makes: a light seen in glass by reflection (a few percent) comes from a
@@ -98,18 +129,8 @@ fn trace(scene: &Scene, sampler: &mut Sampler, ray: &Ray, depth: u32, time: f32,
             break;
         };
         if let Some(li) = sh.light {
-            let light = &scene.world.lights[li as usize];
-            let mut le = light.emitted(sh.hit.n, ray.dir);
-            if le != Vec3::ZERO && matches!(scene.world.materials[sh.material as usize], Material::Pbr(_)) {
-                le *= scene.emission_scale(&sh, time);
-            }
-            if le != Vec3::ZERO {
-                let w = if from_dirac {
-                    1.0
-                } else {
-                    let pick = scene.world.light_choice.pmf(li as usize);
-                    power_heuristic(prev_pdf, pick * light.pdf(prev_p, ray.dir, sh.hit.t, sh.hit.n))
-                };
+            let sampled = (!from_dirac).then_some((prev_p, prev_pdf));
+            if let Some((le, w)) = emission_seen(scene, &sh, li, ray.dir, sampled, time) {
                 l += beta * le * w;
             }
             // Light surfaces reflect nothing.
@@ -284,16 +305,10 @@ impl Diffuse<'_> {
             return beta * escaped(scene, ray.dir, false, s.pdf);
         };
         let Some(li) = sh.light else { return Vec3::ZERO };
-        let light = &scene.world.lights[li as usize];
-        let mut le = light.emitted(sh.hit.n, ray.dir);
-        if le != Vec3::ZERO && matches!(scene.world.materials[sh.material as usize], Material::Pbr(_)) {
-            le *= scene.emission_scale(&sh, time);
+        match emission_seen(scene, &sh, li, ray.dir, Some((hit.p, s.pdf)), time) {
+            Some((le, w)) => beta * le * w,
+            None => Vec3::ZERO,
         }
-        if le == Vec3::ZERO {
-            return Vec3::ZERO;
-        }
-        let pick = scene.world.light_choice.pmf(li as usize);
-        beta * le * power_heuristic(s.pdf, pick * light.pdf(hit.p, ray.dir, sh.hit.t, sh.hit.n))
     }
 }
 
