@@ -166,3 +166,7 @@ impl Cmj {
         Vec2::new(x.min(ONE_MINUS_EPSILON), y.min(ONE_MINUS_EPSILON))
     }
 }
+
+#[cfg(test)]
+#[path = "sampler_cmj_tests.rs"]
+mod tests;
