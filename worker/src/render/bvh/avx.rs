@@ -73,16 +73,28 @@ unsafe fn hit<const EXACT: bool>(n: &Node8, r: &RayLanes, t_max: f32) -> (u32, [
         let (origin, inv) = (_mm256_broadcast_ps(&origin), _mm256_broadcast_ps(&inv));
         // SAFETY: a node's lanes of one axis are eight floats at a multiple of 32 bytes
         // from its start, which `Node8`'s repr aligns to 64.
-        let (min, max) =
-            unsafe { (_mm256_load_ps(n.min[a].as_ptr().cast()), _mm256_load_ps(n.max[a].as_ptr().cast())) };
-        let t0 = _mm256_mul_ps(_mm256_sub_ps(min, origin), inv);
-        let t1 = _mm256_mul_ps(_mm256_sub_ps(max, origin), inv);
-        let (mut near, mut far) = (_mm256_min_ps(t0, t1), _mm256_max_ps(t0, t1));
-        if EXACT {
+        let (near, far) = if EXACT {
+            let (min, max) = unsafe {
+                (_mm256_load_ps(n.min[a].as_ptr().cast()), _mm256_load_ps(n.max[a].as_ptr().cast()))
+            };
+            let t0 = _mm256_mul_ps(_mm256_sub_ps(min, origin), inv);
+            let t1 = _mm256_mul_ps(_mm256_sub_ps(max, origin), inv);
             let inside = _mm256_cmp_ps::<_CMP_UNORD_Q>(t0, t1);
-            near = _mm256_blendv_ps(near, _mm256_set1_ps(f32::NEG_INFINITY), inside);
-            far = _mm256_blendv_ps(far, _mm256_set1_ps(f32::INFINITY), inside);
-        }
+            (
+                _mm256_blendv_ps(_mm256_min_ps(t0, t1), _mm256_set1_ps(f32::NEG_INFINITY), inside),
+                _mm256_blendv_ps(_mm256_max_ps(t0, t1), _mm256_set1_ps(f32::INFINITY), inside),
+            )
+        } else {
+            // The near and far slabs by the direction's sign, as `Node8::hit` takes them.
+            let (first, last) =
+                if r.signs >> a & 1 == 0 { (&n.min[a], &n.max[a]) } else { (&n.max[a], &n.min[a]) };
+            let (first, last) =
+                unsafe { (_mm256_load_ps(first.as_ptr().cast()), _mm256_load_ps(last.as_ptr().cast())) };
+            (
+                _mm256_mul_ps(_mm256_sub_ps(first, origin), inv),
+                _mm256_mul_ps(_mm256_sub_ps(last, origin), inv),
+            )
+        };
         enter = _mm256_max_ps(enter, near);
         exit = _mm256_min_ps(exit, far);
     }

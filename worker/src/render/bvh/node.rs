@@ -98,14 +98,25 @@ impl Node8 {
             let mut enter = Vec4::ZERO;
             let mut exit = Vec4::INFINITY;
             for a in 0..3 {
-                let t0 = (self.min[a][g] - r.origin[a]) * r.inv[a];
-                let t1 = (self.max[a][g] - r.origin[a]) * r.inv[a];
-                let (mut near, mut far) = (t0.min(t1), t0.max(t1));
-                if EXACT {
+                let (near, far) = if EXACT {
+                    let t0 = (self.min[a][g] - r.origin[a]) * r.inv[a];
+                    let t1 = (self.max[a][g] - r.origin[a]) * r.inv[a];
                     let inside = t0.is_nan_mask() | t1.is_nan_mask();
-                    near = Vec4::select(inside, Vec4::NEG_INFINITY, near);
-                    far = Vec4::select(inside, Vec4::INFINITY, far);
-                }
+                    (
+                        Vec4::select(inside, Vec4::NEG_INFINITY, t0.min(t1)),
+                        Vec4::select(inside, Vec4::INFINITY, t0.max(t1)),
+                    )
+                } else {
+                    // The slab the ray enters first is known from its direction's sign:
+                    // with a finite, nonzero reciprocal the products keep the corners'
+                    // order, so the min and max of the two distances are these.
+                    let (first, last) = if r.signs >> a & 1 == 0 {
+                        (self.min[a][g], self.max[a][g])
+                    } else {
+                        (self.max[a][g], self.min[a][g])
+                    };
+                    ((first - r.origin[a]) * r.inv[a], (last - r.origin[a]) * r.inv[a])
+                };
                 enter = enter.max(near);
                 exit = exit.min(far);
             }
