@@ -14,7 +14,7 @@ use super::bsdf::{Bsdf, BsdfSample, Frame, Lobe};
 use super::geometry::{offset_ray_origin, Hit, Ray};
 use super::light::ALL_LIGHTS_UP_TO;
 use super::material::{Classic, Material};
-use super::{Sampler, Scene, SurfaceHit};
+use super::{Sampler, Scene, Seen, SurfaceHit};
 
 /// Reflects `v` (pointing away from the surface) about the normal `n`.
 #[inline]
@@ -301,8 +301,10 @@ impl Diffuse<'_> {
         if !scene.may_find_light(&ray, time) {
             return Vec3::ZERO;
         }
-        let Some(sh) = scene.intersect(&ray, f32::INFINITY, time) else {
-            return beta * escaped(scene, ray.dir, false, s.pdf);
+        let sh = match scene.seen(&ray, time) {
+            Seen::Nothing => return beta * escaped(scene, ray.dir, false, s.pdf),
+            Seen::Surface => return Vec3::ZERO,
+            Seen::Emitter(sh) => sh,
         };
         let Some(li) = sh.light else { return Vec3::ZERO };
         match emission_seen(scene, &sh, li, ray.dir, Some((hit.p, s.pdf)), time) {

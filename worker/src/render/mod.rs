@@ -139,6 +139,17 @@ enum Candidate {
     Sphere(u32, f32),
 }
 
+/// What a ray that only looks for light meets first ([`Scene::seen`]).
+#[derive(Debug, Clone, Copy)]
+pub enum Seen {
+    /// Nothing: it escapes.
+    Nothing,
+    /// A surface that does not emit.
+    Surface,
+    /// An emitting surface, its hit completed (`light` is set).
+    Emitter(SurfaceHit),
+}
+
 /// A hit with what lies at it.
 #[derive(Debug, Clone, Copy)]
 pub struct SurfaceHit {
@@ -187,6 +198,40 @@ impl Scene {
             self.nearest::<true, COHERENT>(ray, t_max, time)
         } else {
             self.nearest::<false, COHERENT>(ray, t_max, time)
+        }
+    }
+
+    /// [`Scene::intersect`] for a ray that only looks for light (a path's last, or a
+    /// diffuse lobe's): the nearest hit is completed (point, normals, uv) only where its
+    /// surface emits, since that is all such a ray reads. Same search, same answer.
+    pub fn seen(&self, ray: &Ray, time: f32) -> Seen {
+        let (found, t_max) = if self.world.surfaces.any_alpha {
+            self.search::<true, false>(ray, f32::INFINITY, time)
+        } else {
+            self.search::<false, false>(ray, f32::INFINITY, time)
+        };
+        if self.nearest_plane(ray, t_max).is_some() {
+            // Planes do not emit.
+            return Seen::Surface;
+        }
+        let w = &*self.world;
+        let light = match (found.nearest, &found.best) {
+            // Plain triangles do not emit (`Scene::complete` gives them no light).
+            (Some(Candidate::Triangle(k, ..)), _) => match w.slots[k].plain_material() {
+                Some(_) => None,
+                None => w.prims[w.slots[k].index() as usize].light,
+            },
+            (Some(Candidate::Rect(i, ..) | Candidate::Sphere(i, _)), _) => w.prims[i as usize].light,
+            (None, Some(sh)) => sh.light,
+            (None, None) => return Seen::Nothing,
+        };
+        if light.is_none() {
+            return Seen::Surface;
+        }
+        // A candidate always completes (an inline triangle's normal is finite).
+        match self.complete(ray, found) {
+            Some(sh) => Seen::Emitter(sh),
+            None => Seen::Nothing,
         }
     }
 

@@ -7,7 +7,7 @@ use tessera_description::bundle::{Assets, Bundle};
 use crate::render::bvh::{MAX_PADDING, PADDING_ALLOWANCE};
 use crate::render::geometry::{Hit, Ray};
 use crate::render::sampler::hash_words;
-use crate::render::{Scene, SurfaceHit};
+use crate::render::{Scene, Seen, SurfaceHit};
 
 /// The primitives an item of the scene's tree stands for: itself, or a moving mesh's
 /// triangles in order.
@@ -128,13 +128,14 @@ fn bits(h: &Hit) -> Vec<u32> {
 /// test, and the same shadows, on random rays into the mesh, motion, shadow and emitting
 /// scenes: inline triangles with and without normals and texture coordinates, plain ones
 /// completed from their slots, emitting ones, moving ones, and leaves that do not start
-/// on a pack (`lone_scene`). Shadows in a scene whose every material is opaque take the
+/// on a pack (`lone_scene`); and a ray that only looks for light ([`Scene::seen`]) sees
+/// what the full hit says, an emitter's hit to the bit. Shadows in a scene whose every material is opaque take the
 /// short way (a crossed inline triangle blocks before its slot is read): `lone_scene` and
 /// the opaque scenes here check it against the crossings one by one.
 #[test]
 fn slots_hit_what_the_primitives_hit_bit_for_bit() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
-    let (mut plain, mut opaque_blocked) = (0, 0);
+    let (mut plain, mut opaque_blocked, mut emitters_seen) = (0, 0, 0);
     assert!(!plain_scene(&root).world.surfaces.opaque, "a classic material that transmits");
     assert!(lone_scene().world.surfaces.opaque);
     let names = [
@@ -144,6 +145,7 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
         "showcase.toml",
         "emissive_mesh.toml",
         "gltf_quad/quad_gltf.toml",
+        "spheres.toml",
     ];
     let scenes = names
         .iter()
@@ -179,6 +181,16 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
                 old.map(|s| (bits(&s.hit), s.material, s.light)),
                 "{name}: ray {k}"
             );
+            // A ray that only looks for light sees what the full hit says.
+            match (scene.seen(&ray, time), new) {
+                (Seen::Nothing, None) => {}
+                (Seen::Surface, Some(s)) if s.light.is_none() => {}
+                (Seen::Emitter(a), Some(b)) if b.light.is_some() => {
+                    assert_eq!((bits(&a.hit), a.material, a.light), (bits(&b.hit), b.material, b.light));
+                    emitters_seen += 1;
+                }
+                (seen, _) => panic!("{name}: ray {k}: seen as {seen:?}, hit {:?}", new.map(|s| s.light)),
+            }
             // The search alone (`bench rays`' closest hits) finds the same primitive at
             // the same distance, by either walk.
             let found = scene.nearest_primitive(&ray, f32::INFINITY, time, k % 4 < 2);
@@ -221,6 +233,7 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
         );
     }
     assert!(plain > 0, "no plain triangle slot was tested");
+    assert!(emitters_seen > 100, "{emitters_seen} rays saw an emitter");
     assert!(opaque_blocked > 100, "{opaque_blocked} shadow rays blocked by triangles of an opaque scene");
     // The lone triangles spent the tree's padding allowance (all but less than a block of
     // it), so some leaves begin inside a pack: the case the leaf test takes across three
