@@ -216,7 +216,9 @@ impl Scene {
         }
         let w = &*self.world;
         let light = match (found.nearest, &found.best) {
-            // Plain triangles do not emit (`Scene::complete` gives them no light).
+            // Plain triangles do not emit (`Scene::complete` gives them no light); where no
+            // inline triangle does, the slot is not read (on a big mesh, a cache miss).
+            (Some(Candidate::Triangle(..)), _) if !w.slots.any_inline_emitter() => None,
             (Some(Candidate::Triangle(k, ..)), _) => match w.slots[k].plain_material() {
                 Some(_) => None,
                 None => w.prims[w.slots[k].index() as usize].light,

@@ -169,6 +169,8 @@ pub struct Slots {
     packs: Vec<Pack>,
     /// Some slot is an inline triangle: leaves are tested pack by pack.
     any_inline: bool,
+    /// Some inline triangle emits light.
+    any_inline_emitter: bool,
 }
 
 impl std::ops::Index<usize> for Slots {
@@ -203,6 +205,13 @@ impl Slots {
     #[inline(always)]
     pub fn any_inline(&self) -> bool {
         self.any_inline
+    }
+
+    /// Whether some inline triangle emits light: where none does, a ray that only looks
+    /// for light and ends on one need not read its slot (`Scene::seen`).
+    #[inline(always)]
+    pub fn any_inline_emitter(&self) -> bool {
+        self.any_inline_emitter
     }
 
     /// Slot `k`'s corners (NaN for a slot that is not an inline triangle, zeros for
@@ -319,7 +328,9 @@ pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Slots {
         .unzip();
     let slots: Vec<Slot> = fours.into_iter().flatten().take(indices.len()).collect();
     let any_inline = slots.par_iter().any(|s| s.prim & GENERIC == 0);
-    Slots { slots, packs, any_inline }
+    let any_inline_emitter =
+        slots.par_iter().any(|s| s.prim & GENERIC == 0 && prims[s.index() as usize].light.is_some());
+    Slots { slots, packs, any_inline, any_inline_emitter }
 }
 
 #[cfg(test)]

@@ -160,7 +160,7 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
         plain += scene.world.slots.iter().filter(|s| s.plain_material().is_some()).count();
         let b = scene.world.bvh.bounds();
         let (c, r) = (b.centroid(), (b.max - b.min).length());
-        let (mut hits, mut crossings) = (0, 0);
+        let (mut hits, mut crossings, seen_before) = (0, 0, emitters_seen);
         for k in 0..20_000u64 {
             let h = |j: u64| (hash_words(&[k, j, 99]) >> 40) as f32 / (1u64 << 24) as f32 - 0.5;
             let origin = c + Vec3::new(h(0), h(1), h(2)) * r;
@@ -227,6 +227,14 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
                 opaque_blocked += 1;
             }
         }
+        // Only a mesh that emits makes a ray that only looks for light read the slot of
+        // the triangle it ends on.
+        let emits = inline_emitters(&scene);
+        assert_eq!(scene.world.slots.any_inline_emitter(), emits, "{name}");
+        if name == "emissive_mesh.toml" {
+            let seen = emitters_seen - seen_before;
+            assert!(emits && seen > 100, "{name}: {seen} rays saw an emitter");
+        }
         assert!(
             hits > 1000 && crossings > 100,
             "{name}: {hits} hits, {crossings} crossings: the rays miss the scene"
@@ -242,6 +250,12 @@ fn slots_hit_what_the_primitives_hit_bit_for_bit() {
     let allowance = (w.prims.len() as f64 * MAX_PADDING) as usize + PADDING_ALLOWANCE;
     let padding = w.bvh.indices().len() - w.prims.len();
     assert!(padding <= allowance && padding + 3 >= allowance, "{padding} padding slots of {allowance}");
+}
+
+/// Whether some still triangle of the scene emits.
+fn inline_emitters(scene: &Scene) -> bool {
+    let w = &scene.world;
+    w.prims.iter().any(|p| p.light.is_some() && super::inline(p, &w.meshes).is_some())
 }
 
 /// A leaf's four-lane test gives each inline triangle the bits of its own scalar test (but
