@@ -21,7 +21,7 @@ use std::arch::x86_64::{
     _mm256_storeu_ps, _mm256_sub_epi32, _mm256_sub_ps, _CMP_LE_OQ, _CMP_UNORD_Q,
 };
 
-use super::node::{BoxTest, Node8, RayLanes, WIDTH};
+use super::node::{BoxTest, Node8, RayLanes, LOWER, UPPER, WIDTH};
 use super::slab_widening;
 
 /// Whether this CPU runs AVX and AVX2 (the standard library caches the answer).
@@ -71,11 +71,14 @@ unsafe fn hit<const EXACT: bool>(n: &Node8, r: &RayLanes, t_max: f32) -> (u32, [
     for a in 0..3 {
         let (origin, inv): (__m128, __m128) = (r.origin[a].into(), r.inv[a].into());
         let (origin, inv) = (_mm256_broadcast_ps(&origin), _mm256_broadcast_ps(&inv));
-        // SAFETY: a node's lanes of one axis are eight floats at a multiple of 32 bytes
-        // from its start, which `Node8`'s repr aligns to 64.
         let (near, far) = if EXACT {
+            // SAFETY: a node's lanes of one axis are eight floats at a multiple of 32 bytes
+            // from its start, which `Node8`'s repr aligns to 64.
             let (min, max) = unsafe {
-                (_mm256_load_ps(n.min[a].as_ptr().cast()), _mm256_load_ps(n.max[a].as_ptr().cast()))
+                (
+                    _mm256_load_ps(n.planes[LOWER][a].as_ptr().cast()),
+                    _mm256_load_ps(n.planes[UPPER][a].as_ptr().cast()),
+                )
             };
             let t0 = _mm256_mul_ps(_mm256_sub_ps(min, origin), inv);
             let t1 = _mm256_mul_ps(_mm256_sub_ps(max, origin), inv);
@@ -85,11 +88,15 @@ unsafe fn hit<const EXACT: bool>(n: &Node8, r: &RayLanes, t_max: f32) -> (u32, [
                 _mm256_blendv_ps(_mm256_max_ps(t0, t1), _mm256_set1_ps(f32::INFINITY), inside),
             )
         } else {
-            // The near and far slabs by the direction's sign, as `Node8::hit` takes them.
-            let (first, last) =
-                if r.signs >> a & 1 == 0 { (&n.min[a], &n.max[a]) } else { (&n.max[a], &n.min[a]) };
-            let (first, last) =
-                unsafe { (_mm256_load_ps(first.as_ptr().cast()), _mm256_load_ps(last.as_ptr().cast())) };
+            // The near and far planes by the direction's sign, as `Node8::hit` takes them.
+            let near = r.near[a] & 1;
+            // SAFETY: as above.
+            let (first, last) = unsafe {
+                (
+                    _mm256_load_ps(n.planes[near][a].as_ptr().cast()),
+                    _mm256_load_ps(n.planes[near ^ 1][a].as_ptr().cast()),
+                )
+            };
             (
                 _mm256_mul_ps(_mm256_sub_ps(first, origin), inv),
                 _mm256_mul_ps(_mm256_sub_ps(last, origin), inv),

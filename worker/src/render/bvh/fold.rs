@@ -6,7 +6,7 @@
 
 use glam::Vec4;
 
-use super::node::{Node8, GROUPS, ORDERS, WIDTH};
+use super::node::{Node8, GROUPS, LOWER, ORDERS, UPPER, WIDTH};
 use super::wide::Wide;
 use super::Node;
 
@@ -34,8 +34,7 @@ pub(super) fn fold(binary: &[Node]) -> Wide {
 /// visit orders `order`; interior kids' lanes point at `child` given alongside.
 fn node(kids: &[(&Node, u32)], lanes: usize, order: [u8; ORDERS]) -> Node8 {
     let mut n = Node8 {
-        min: [[Vec4::ZERO; GROUPS]; 3],
-        max: [[Vec4::ZERO; GROUPS]; 3],
+        planes: [[[Vec4::ZERO; GROUPS]; 3]; 2],
         child: [0; WIDTH],
         counts: 0,
         order,
@@ -43,8 +42,8 @@ fn node(kids: &[(&Node, u32)], lanes: usize, order: [u8; ORDERS]) -> Node8 {
     };
     for (lane, (kid, child)) in kids.iter().enumerate() {
         for a in 0..3 {
-            n.min[a][lane / 4][lane % 4] = kid.bounds.min[a];
-            n.max[a][lane / 4][lane % 4] = kid.bounds.max[a];
+            n.planes[LOWER][a][lane / 4][lane % 4] = kid.bounds.min[a];
+            n.planes[UPPER][a][lane / 4][lane % 4] = kid.bounds.max[a];
         }
         if kid.count > 0 {
             n.child[lane] = kid.offset;

@@ -16,6 +16,10 @@ pub(super) const GROUPS: usize = WIDTH / 4;
 pub(super) const LANE_BITS: u32 = 3;
 /// A lane's index among those bits.
 pub(super) const LANE: u32 = (1 << LANE_BITS) - 1;
+/// [`Node8::planes`]' lower corners.
+pub(super) const LOWER: usize = 0;
+/// [`Node8::planes`]' upper corners.
+pub(super) const UPPER: usize = 1;
 /// Bytes of a node's visit orders: three for each of the eight sign patterns.
 pub(super) const ORDERS: usize = 3 * 8;
 // A leaf's slot count is kept in four bits.
@@ -25,10 +29,10 @@ const _: () = assert!(MAX_LEAF < 16);
 #[derive(Debug, Clone, Copy)]
 #[repr(C, align(64))]
 pub(super) struct Node8 {
-    /// Lower corners: x, y and z of the eight children, four lanes to a group.
-    pub(super) min: [[Vec4; GROUPS]; 3],
-    /// Upper corners.
-    pub(super) max: [[Vec4; GROUPS]; 3],
+    /// Lower corners (`[LOWER]`) and upper ones (`[UPPER]`): x, y and z of the eight
+    /// children, four lanes to a group. One array, so that a ray's near and far planes are
+    /// picked by index, without a branch ([`RayLanes::near`]).
+    pub(super) planes: [[[Vec4; GROUPS]; 3]; 2],
     /// An interior child's node; a leaf's first slot.
     pub(super) child: [u32; WIDTH],
     /// A leaf's slot count, four bits a lane (lane k in bits 4k..4k+4); 0 for an interior
@@ -65,6 +69,11 @@ pub(super) struct RayLanes {
     pub(super) inv: [Vec4; 3],
     /// The direction's sign pattern.
     pub(super) signs: usize,
+    /// For each axis, the corners the ray enters a box by ([`LOWER`] where the direction
+    /// is positive, [`UPPER`] where negative): with a finite, nonzero reciprocal the
+    /// slab distances keep the corners' order, so these are the min of the two distances
+    /// and the others the max.
+    pub(super) near: [usize; 3],
     /// Some component of the direction is zero: a slab test may meet 0 × ∞.
     pub(super) exact: bool,
 }
@@ -77,6 +86,7 @@ impl RayLanes {
             origin: [Vec4::splat(origin.x), Vec4::splat(origin.y), Vec4::splat(origin.z)],
             inv: [Vec4::splat(inv.x), Vec4::splat(inv.y), Vec4::splat(inv.z)],
             signs,
+            near: [signs & 1, signs >> 1 & 1, signs >> 2 & 1],
             exact: !inv.is_finite(),
         }
     }
@@ -99,23 +109,19 @@ impl Node8 {
             let mut exit = Vec4::INFINITY;
             for a in 0..3 {
                 let (near, far) = if EXACT {
-                    let t0 = (self.min[a][g] - r.origin[a]) * r.inv[a];
-                    let t1 = (self.max[a][g] - r.origin[a]) * r.inv[a];
+                    let t0 = (self.planes[LOWER][a][g] - r.origin[a]) * r.inv[a];
+                    let t1 = (self.planes[UPPER][a][g] - r.origin[a]) * r.inv[a];
                     let inside = t0.is_nan_mask() | t1.is_nan_mask();
                     (
                         Vec4::select(inside, Vec4::NEG_INFINITY, t0.min(t1)),
                         Vec4::select(inside, Vec4::INFINITY, t0.max(t1)),
                     )
                 } else {
-                    // The slab the ray enters first is known from its direction's sign:
-                    // with a finite, nonzero reciprocal the products keep the corners'
-                    // order, so the min and max of the two distances are these.
-                    let (first, last) = if r.signs >> a & 1 == 0 {
-                        (self.min[a][g], self.max[a][g])
-                    } else {
-                        (self.max[a][g], self.min[a][g])
-                    };
-                    ((first - r.origin[a]) * r.inv[a], (last - r.origin[a]) * r.inv[a])
+                    let near = r.near[a] & 1;
+                    (
+                        (self.planes[near][a][g] - r.origin[a]) * r.inv[a],
+                        (self.planes[near ^ 1][a][g] - r.origin[a]) * r.inv[a],
+                    )
                 };
                 enter = enter.max(near);
                 exit = exit.min(far);
@@ -154,8 +160,9 @@ impl Node8 {
     /// Lane `lane`'s box.
     pub(super) fn lane_box(&self, lane: usize) -> Aabb {
         let (g, l) = (lane / 4, lane % 4);
-        let min = Vec3::new(self.min[0][g][l], self.min[1][g][l], self.min[2][g][l]);
-        let max = Vec3::new(self.max[0][g][l], self.max[1][g][l], self.max[2][g][l]);
+        let corner =
+            |c: usize| Vec3::new(self.planes[c][0][g][l], self.planes[c][1][g][l], self.planes[c][2][g][l]);
+        let (min, max) = (corner(LOWER), corner(UPPER));
         Aabb { min, max }
     }
 }
