@@ -129,9 +129,10 @@ fn bits(h: &Hit) -> Vec<u32> {
 /// scenes: inline triangles with and without normals and texture coordinates, plain ones
 /// completed from their slots, emitting ones, moving ones, and leaves that do not start
 /// on a pack (`lone_scene`); and a ray that only looks for light ([`Scene::seen`]) sees
-/// what the full hit says, an emitter's hit to the bit. Shadows in a scene whose every material is opaque take the
-/// short way (a crossed inline triangle blocks before its slot is read): `lone_scene` and
-/// the opaque scenes here check it against the crossings one by one.
+/// what the full hit says, an emitter's hit to the bit. Shadows in a scene whose every
+/// material is opaque take the short way (a crossed inline triangle blocks before its
+/// slot is read): `lone_scene` and the opaque scenes here check it against the crossings
+/// one by one.
 #[test]
 fn slots_hit_what_the_primitives_hit_bit_for_bit() {
     let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
