@@ -289,13 +289,16 @@ pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Slots {
     assert!(prims.len() <= INDEX as usize, "more primitives than slots can index");
     let indices = bvh.indices();
     // A pack's four slots and their corners in one pass, each primitive's corners found
-    // once; maps in order: the same slots on any number of threads.
-    let (packs, fours): (Vec<Pack>, Vec<[Slot; 4]>) = indices
+    // once (and whether one of them is an emitting inline triangle, read from the
+    // primitive in hand rather than by a second pass over the slots); maps in order: the
+    // same slots on any number of threads.
+    let (packs, fours): (Vec<Pack>, Vec<([Slot; 4], bool)>) = indices
         .par_chunks(4)
         .map(|four| {
             let mut pack = Pack::EMPTY;
             // Padding (`bvh::PADDING`), and lanes past the last slot: never visited.
             let mut slots = [Slot { prim: INDEX | GENERIC, material: 0 }; 4];
+            let mut emits = false;
             for (l, &i) in four.iter().enumerate() {
                 let Some(prim) = prims.get(i as usize) else {
                     if i != super::bvh::PADDING {
@@ -311,6 +314,7 @@ pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Slots {
                     continue;
                 };
                 let corners = inline(prim, meshes);
+                emits |= corners.is_some() && prim.light.is_some();
                 slots[l] = match corners {
                     Some(_) if plain(prim, meshes) => Slot { prim: i | PLAIN, material: prim.material },
                     Some(_) => Slot { prim: i, material: prim.material },
@@ -323,13 +327,12 @@ pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Slots {
                     }
                 }
             }
-            (pack, slots)
+            (pack, (slots, emits))
         })
         .unzip();
-    let slots: Vec<Slot> = fours.into_iter().flatten().take(indices.len()).collect();
+    let any_inline_emitter = fours.iter().any(|&(_, emits)| emits);
+    let slots: Vec<Slot> = fours.into_iter().flat_map(|(slots, _)| slots).take(indices.len()).collect();
     let any_inline = slots.par_iter().any(|s| s.prim & GENERIC == 0);
-    let any_inline_emitter =
-        slots.par_iter().any(|s| s.prim & GENERIC == 0 && prims[s.index() as usize].light.is_some());
     Slots { slots, packs, any_inline, any_inline_emitter }
 }
 
