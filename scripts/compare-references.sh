@@ -29,7 +29,7 @@ for scene in spheres cornell terrain; do
   case $scene in
     spheres) ref_noise=0.00976 ;;
     cornell) ref_noise=0.00086 ;;
-    terrain) ref_noise=0.00039 file=scenes/terrain/terrain.toml size=(--size 320x240)
+    terrain) ref_noise=0.00019 file=scenes/terrain/terrain.toml size=(--size 320x240)
       if [ ! -f scenes/terrain/terrain.obj ]; then
         echo "terrain: skipped (run python3 scenes/generate-terrain.py to write its mesh)"
         continue
