@@ -13,6 +13,9 @@ Each run of either renderer has a seed of its own (1, 2, 3, ...). Both images ar
 converged references in docs/references/<scene>_cook.exr (--refs). Prints one row per (scene, spp) and,
 per scene, the time each needs to reach the error Tessera reaches at its largest spp
 (interpolated on the log-log error curve): the ratio that matters to someone rendering.
+A reference's own noise adds to every error measured against it, most to the smallest:
+--also-refs OLD measures the same images against a second set too (an older, noisier
+reference, say), so a change of reference shows apart from a change of renderer.
 Run it on an otherwise idle machine; both renderers use every core.
 """
 import argparse, contextlib, math, os, subprocess, sys, tempfile, time
@@ -79,6 +82,8 @@ def main():
     p.add_argument("--runs", type=int, default=3, help="runs per renderer; medians are reported")
     p.add_argument("--refs", default=os.path.join(HERE, "..", "..", "docs", "references"),
                    help="folder with <scene>_cook.exr (default: the repository's docs/references)")
+    p.add_argument("--also-refs", help="a second folder of references (an older one, say): the same images "
+                   "are also measured against it where it has the scene, and the ratio printed for both")
     a = p.parse_args()
     mi.set_variant("llvm_ad_rgb")
     import cook_integrator
@@ -88,15 +93,19 @@ def main():
     for name in a.scenes.split(","):
         ref = read_exr(os.path.join(a.refs, f"{name}_cook.exr"))
         h, w = ref.shape[:2]
-        mrows, trows = [], []
+        alt_path = a.also_refs and os.path.join(a.also_refs, f"{name}_cook.exr")
+        alt = read_exr(alt_path) if alt_path and os.path.exists(alt_path) else None
+        mrows, trows, malt, talt = [], [], [], []
         for spp in [int(s) for s in a.spp.split(",")]:
             scene = mi.load_dict(scenes.mitsuba_dict(name, {"type": "cook", "max_depth": 8}, spp=spp))
             render_mitsuba(scene, spp, 0)  # traces and compiles the kernel
-            mt, me = [], []
+            mt, me, me2 = [], [], []
             for r in range(a.runs):
                 img, t = render_mitsuba(scene, spp, 1 + r)
                 mt.append(t); me.append(rmse(img, ref))
-            tt, te = [], []
+                if alt is not None:
+                    me2.append(rmse(img, alt))
+            tt, te, te2 = [], [], []
             for r in range(a.runs):
                 out = os.path.join(tmp, f"{name}-{spp}.exr")
                 # Tessera is deterministic: without a seed of its own per run, every run
@@ -109,16 +118,26 @@ def main():
                     tt.append(time.perf_counter() - t0)
                 if cp.returncode != 0:
                     sys.exit(f"tessera render failed: {cp.stderr.strip()[-400:]}")
-                te.append(rmse(read_exr(out), ref))
+                img = read_exr(out)
+                te.append(rmse(img, ref))
+                if alt is not None:
+                    te2.append(rmse(img, alt))
             m_t, t_t = float(np.median(mt)), float(np.median(tt))
             m_e, t_e = float(np.median(me)), float(np.median(te))
             mrows.append((m_t, m_e)); trows.append((t_t, t_e))
+            if alt is not None:
+                malt.append((m_t, float(np.median(me2)))); talt.append((t_t, float(np.median(te2))))
             print(f"{name:8} {spp:5d} | {m_t:9.3f} {w*h*spp/m_t/1e6:6.2f} {m_e:8.5f} | "
                   f"{t_t:9.3f} {w*h*spp/t_t/1e6:6.2f} {t_e:8.5f} | {t_t/m_t:5.2f}", flush=True)
         target = trows[-1][1]
         m_need = time_to(target, mrows)
         print(f"{name}: to reach RMSE {target:.5f} Tessera takes {trows[-1][0]:.2f} s, Mitsuba ~{m_need:.2f} s"
               f" -> time ratio at equal error T/M = {trows[-1][0]/m_need:.2f}", flush=True)
+        if alt is not None:
+            errs = ", ".join(f"{m:.5f}/{t:.5f}" for (_, m), (_, t) in zip(malt, talt))
+            m_alt = time_to(talt[-1][1], malt)
+            print(f"{name} against {alt_path}: RMSE Mitsuba/Tessera {errs}; to reach RMSE {talt[-1][1]:.5f}"
+                  f" Mitsuba ~{m_alt:.2f} s -> T/M = {talt[-1][0]/m_alt:.2f}", flush=True)
 
 if __name__ == "__main__":
     main()
