@@ -219,10 +219,29 @@ pub enum BenchCommand {
         /// Samples per pixel [default: the scene's].
         #[arg(long)]
         spp: Option<u32>,
+        /// Image size WIDTHxHEIGHT [default: the scene's].
+        #[arg(long, value_parser = crate::parse_size)]
+        size: Option<(u32, u32)>,
         /// Local worker processes [default: 1, as `tessera render`].
         #[arg(long)]
         workers: Option<usize>,
     },
+}
+
+/// The scene limits a render would refuse past, refused before a benchmark starts (the
+/// one-process side of `bench overhead` would otherwise trace them before the farm side
+/// got to say no).
+fn check_spp_and_size(spp: Option<u32>, size: Option<(u32, u32)>) -> Result<()> {
+    use tessera_description::limits::{MAX_PIXELS, MAX_SIDE, MAX_SPP};
+    if let Some(s) = spp.filter(|&s| s == 0 || s > MAX_SPP) {
+        anyhow::bail!("--spp {s}: 1 to {MAX_SPP}");
+    }
+    if let Some((w, h)) =
+        size.filter(|&(w, h)| w.max(h) > MAX_SIDE || u64::from(w) * u64::from(h) > MAX_PIXELS)
+    {
+        anyhow::bail!("--size {w}x{h}: at most {MAX_SIDE} a side and {MAX_PIXELS} pixels");
+    }
+    Ok(())
 }
 
 fn median(mut v: Vec<Duration>) -> Duration {
@@ -255,15 +274,7 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             if runs > 1000 || threads.is_some_and(|t| t > 1024) {
                 anyhow::bail!("--runs at most 1000 and --threads at most 1024");
             }
-            use tessera_description::limits::{MAX_PIXELS, MAX_SIDE, MAX_SPP};
-            if let Some(s) = spp.filter(|&s| s > MAX_SPP) {
-                anyhow::bail!("--spp {s}: at most {MAX_SPP}");
-            }
-            if let Some((w, h)) =
-                size.filter(|&(w, h)| w.max(h) > MAX_SIDE || u64::from(w) * u64::from(h) > MAX_PIXELS)
-            {
-                anyhow::bail!("--size {w}x{h}: at most {MAX_SIDE} a side and {MAX_PIXELS} pixels");
-            }
+            check_spp_and_size(spp, size)?;
             let threads = threads.unwrap_or_else(crate::cores);
             samples::run(&scene, &samples::SamplesOptions { spp, size, threads, runs })?;
             Ok(ExitCode::SUCCESS)
@@ -314,18 +325,18 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             viewers::run(&scene, spp, runs.max(1)).await?;
             Ok(ExitCode::SUCCESS)
         }
-        BenchCommand::Overhead { scene, runs, spp, workers } => {
-            if runs == 0 {
-                anyhow::bail!("--runs must be at least 1");
+        BenchCommand::Overhead { scene, runs, spp, size, workers } => {
+            if runs == 0 || runs > 1000 {
+                anyhow::bail!("--runs must be 1 to 1000");
             }
+            check_spp_and_size(spp, size)?;
             let cores = crate::cores();
             let workers = workers.unwrap_or(1).max(1);
             let threads = (cores / workers).max(1);
             let bundle = Bundle::read(&scene)?;
             let mut parsed = parse_bundle(&bundle)?;
-            if let Some(s) = spp {
-                parsed.spp = s;
-            }
+            // As the farm side applies them: the same image on both sides.
+            parsed.apply(spp, size);
             let pool = rayon::ThreadPoolBuilder::new().num_threads(cores).build().map_err(|e| anyhow!(e))?;
             let (w, h, n) = (parsed.width, parsed.height, parsed.spp);
             println!(
@@ -350,7 +361,7 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
                         workers,
                         threads,
                         spp,
-                        size: None,
+                        size,
                         time_limit: None,
                         noise: None,
                         layers: Default::default(),
