@@ -25,6 +25,7 @@ fn the_overhead_benchmark_renders_the_size_asked_for_and_refuses_what_a_render_w
         (vec!["bench", "overhead", scene, "--spp", "0"], "--spp 0"),
         (vec!["bench", "overhead", scene, "--spp", "99999999"], "--spp 99999999"),
         (vec!["bench", "overhead", scene, "--runs", "0"], "--runs"),
+        (vec!["bench", "overhead", scene, "--workers", "100000"], "--workers"),
         (vec!["bench", "overhead", scene, "--size", "0x10"], "WIDTHxHEIGHT"),
     ] {
         let out = run_with_timeout(&args, Duration::from_secs(30));
