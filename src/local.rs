@@ -491,6 +491,16 @@ fn update_bar(bar: &ProgressBar, p: &JobProgress) {
     bar.set_message(rate(p.samples_per_second));
 }
 
+/// The local worker processes `--workers` asks for (one by default), bounded: each is a
+/// process.
+pub fn local_workers(asked: Option<usize>) -> Result<usize> {
+    let workers = asked.unwrap_or(1);
+    if workers == 0 || workers > 256 {
+        anyhow::bail!("--workers must be 1..=256, got {workers}");
+    }
+    Ok(workers)
+}
+
 /// `tessera render`.
 pub async fn render(args: RenderArgs) -> Result<ExitCode> {
     crate::check_output(&args.output)?;
@@ -498,10 +508,7 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
     let frames = crate::frames::parse(args.frames.as_deref())?;
     crate::frames::check_pattern(&args.output, frames)?;
     let cores = crate::cores();
-    let workers = args.workers.unwrap_or(1);
-    if workers == 0 || workers > 256 {
-        anyhow::bail!("--workers must be 1..=256, got {workers}");
-    }
+    let workers = local_workers(args.workers)?;
     let threads = args.threads.unwrap_or((cores / workers).max(1));
     if threads == 0 {
         anyhow::bail!("--threads must be at least 1");

@@ -331,11 +331,7 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             }
             check_spp_and_size(spp, size)?;
             let cores = crate::cores();
-            // `tessera render`'s bound: each is a process.
-            let workers = workers.unwrap_or(1);
-            if workers == 0 || workers > 256 {
-                anyhow::bail!("--workers must be 1..=256, got {workers}");
-            }
+            let workers = crate::local::local_workers(workers)?;
             let threads = (cores / workers).max(1);
             let bundle = Bundle::read(&scene)?;
             let mut parsed = parse_bundle(&bundle)?;
