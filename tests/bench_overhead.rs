@@ -19,6 +19,8 @@ fn the_overhead_benchmark_renders_the_size_asked_for_and_refuses_what_a_render_w
     assert!(stdout.contains("(32x24, 2 spp)"), "{stdout}");
     assert!(stdout.lines().any(|l| l.starts_with("run 1: one process")), "{stdout}");
     assert!(stdout.contains("farm overhead:"), "{stdout}");
+    // The one process loads the scene inside its clock, and says how long that took.
+    assert!(stdout.contains("(its load ") && stdout.contains("against the render alone"), "{stdout}");
 
     for (args, says) in [
         (vec!["bench", "overhead", scene, "--size", "100000x100000"], "--size 100000x100000"),

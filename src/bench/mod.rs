@@ -11,15 +11,13 @@ use tessera_worker::batch::{render_batch, Sums};
 use tessera_worker::build::parse_bundle;
 use tessera_worker::render::sampler::MOST_PLANNED;
 
-use crate::local::{render_local, LocalOptions};
-use rows::rows_in_parallel;
-
 mod audit;
 mod checkpoint;
 mod convergence;
 mod farm;
 mod font;
 mod load;
+mod overhead;
 mod plot;
 mod rays;
 mod reference;
@@ -326,91 +324,7 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             Ok(ExitCode::SUCCESS)
         }
         BenchCommand::Overhead { scene, runs, spp, size, workers } => {
-            if runs == 0 || runs > 1000 {
-                anyhow::bail!("--runs must be 1 to 1000");
-            }
-            check_spp_and_size(spp, size)?;
-            let cores = crate::cores();
-            let workers = crate::local::local_workers(workers)?;
-            let threads = (cores / workers).max(1);
-            let bundle = Bundle::read(&scene)?;
-            let mut parsed = parse_bundle(&bundle)?;
-            // As the farm side applies them: the same image on both sides.
-            parsed.apply(spp, size);
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(cores).build().map_err(|e| anyhow!(e))?;
-            let (w, h, n) = (parsed.width, parsed.height, parsed.spp);
-            println!(
-                "scene {} ({w}x{h}, {n} spp), {cores} cores; farm: {workers} workers x {threads} threads",
-                scene.display()
-            );
-            let (mut single, mut farm, mut preview) = (Vec::new(), Vec::new(), Vec::new());
-            for run in 0..runs {
-                // Alternate, so that drifting machine load hits both alike.
-                let t = Instant::now();
-                let rows: Vec<u64> = pool.install(|| {
-                    rows_in_parallel(h, |y| {
-                        let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, y)).collect();
-                        render_batch(&parsed, &pixels, 0..n, Sums::Radiance).sums.iter().sum::<u64>()
-                    })
-                });
-                std::hint::black_box(rows);
-                single.push(t.elapsed());
-                let r = render_local(
-                    &scene,
-                    LocalOptions {
-                        workers,
-                        threads,
-                        spp,
-                        size,
-                        time_limit: None,
-                        noise: None,
-                        layers: Default::default(),
-                        frames: None,
-                        progress_bar: false,
-                        view: false,
-                        output: None,
-                        // Measure the farm as `tessera render` runs it, checkpoints included.
-                        checkpoints: Some(crate::local::Checkpoints {
-                            dir: std::env::temp_dir()
-                                .join(format!("tessera-bench-{}-{run}", std::process::id())),
-                            interval: std::time::Duration::from_secs(30),
-                            resume: false,
-                        }),
-                    },
-                )
-                .await?;
-                farm.push(r.wall);
-                preview.push(r.first_preview.unwrap_or(r.wall));
-                println!(
-                    "run {}: one process {:.3} s, farm {:.3} s, first preview {:.1} ms",
-                    run + 1,
-                    single[run].as_secs_f64(),
-                    farm[run].as_secs_f64(),
-                    preview[run].as_secs_f64() * 1e3
-                );
-            }
-            // The minimum is the run least disturbed by other load on a shared machine; the
-            // median shows what a typical run costs.
-            let min_ratio =
-                farm.iter().min().unwrap().as_secs_f64() / single.iter().min().unwrap().as_secs_f64();
-            let (s, f, p) = (median(single), median(farm), median(preview));
-            let samples = u64::from(w) * u64::from(h) * u64::from(n);
-            println!(
-                "median one process:   {:.3} s ({})",
-                s.as_secs_f64(),
-                crate::report::rate(samples as f64 / s.as_secs_f64())
-            );
-            println!(
-                "median farm:          {:.3} s ({})",
-                f.as_secs_f64(),
-                crate::report::rate(samples as f64 / f.as_secs_f64())
-            );
-            println!(
-                "farm overhead:        {:+.1} % (medians), {:+.1} % (fastest runs)",
-                (f.as_secs_f64() / s.as_secs_f64() - 1.0) * 100.0,
-                (min_ratio - 1.0) * 100.0
-            );
-            println!("first full-frame preview: {:.1} ms after start (workers spawned, scene sent, first batch back)", p.as_secs_f64() * 1e3);
+            overhead::run(&scene, runs, spp, size, workers).await?;
             Ok(ExitCode::SUCCESS)
         }
     }
