@@ -16,6 +16,10 @@ per scene, the time each needs to reach the error Tessera reaches at its largest
 A reference's own noise adds to every error measured against it, most to the smallest:
 --also-refs OLD measures the same images against a second set too (an older, noisier
 reference, say), so a change of reference shows apart from a change of renderer.
+--reach measures instead of extrapolating: where Tessera's error at its largest spp is
+below Mitsuba's, Mitsuba renders 4x the samples again and again (passes of at most 256 spp
+averaged, each with its seed, timed in sum) until its error is at or below Tessera's, and
+its time to that error is interpolated between the two measured points around it.
 Run it on an otherwise idle machine; both renderers use every core.
 """
 import argparse, contextlib, math, os, subprocess, sys, tempfile, time
@@ -34,6 +38,30 @@ def render_mitsuba(scene, spp, seed):
     img = np.array(mi.render(scene, spp=spp, seed=seed), dtype=np.float32)
     dr.sync_thread()
     return img[..., :3], time.perf_counter() - t0
+
+def render_mitsuba_passes(name, spp, seed):
+    """Mitsuba at `spp` in passes of at most 256 (one launch holds every sample's state, so
+    a larger one would exhaust memory), averaged; the time is the passes' sum."""
+    per = min(spp, 256)
+    scene = mi.load_dict(scenes.mitsuba_dict(name, {"type": "cook", "max_depth": 8}, spp=per))
+    render_mitsuba(scene, per, 0)  # traces and compiles the kernel
+    total, t = None, 0.0
+    for k in range(spp // per):
+        img, dt = render_mitsuba(scene, per, seed * 100_000 + k)
+        total = img.astype(np.float64) if total is None else total + img
+        t += dt
+    return total / (spp // per), t
+
+def time_between(err_target, rows):
+    """Time to reach err_target, interpolated on log-log between the two rows around it."""
+    rows = sorted(rows)
+    for (t0, e0), (t1, e1) in zip(rows, rows[1:]):
+        if e1 <= err_target <= e0:
+            if e0 == e1:
+                return t0
+            f = (math.log(e0) - math.log(err_target)) / (math.log(e0) - math.log(e1))
+            return float(math.exp(math.log(t0) + f * (math.log(t1) - math.log(t0))))
+    return None
 
 def read_exr(path):
     return np.array(mi.Bitmap(path), dtype=np.float64)[..., :3]
@@ -84,6 +112,9 @@ def main():
                    help="folder with <scene>_cook.exr (default: the repository's docs/references)")
     p.add_argument("--also-refs", help="a second folder of references (an older one, say): the same images "
                    "are also measured against it where it has the scene, and the ratio printed for both")
+    p.add_argument("--reach", action="store_true", help="render Mitsuba at 4x the samples until its error is "
+                   "at or below Tessera's, and interpolate its time to that error instead of extrapolating")
+    p.add_argument("--reach-limit", type=int, default=16384, help="the most spp --reach renders Mitsuba at")
     a = p.parse_args()
     mi.set_variant("llvm_ad_rgb")
     import cook_integrator
@@ -133,6 +164,24 @@ def main():
         m_need = time_to(target, mrows)
         print(f"{name}: to reach RMSE {target:.5f} Tessera takes {trows[-1][0]:.2f} s, Mitsuba ~{m_need:.2f} s"
               f" -> time ratio at equal error T/M = {trows[-1][0]/m_need:.2f}", flush=True)
+        if a.reach:
+            spp, rows = int(a.spp.split(",")[-1]), list(mrows)
+            while min(e for _, e in rows) > target and spp * 4 <= a.reach_limit:
+                spp *= 4
+                mt, me = [], []
+                for r in range(a.runs):
+                    img, t = render_mitsuba_passes(name, spp, 1 + r)
+                    mt.append(t); me.append(rmse(img, ref))
+                m_t, m_e = float(np.median(mt)), float(np.median(me))
+                rows.append((m_t, m_e))
+                print(f"{name:8} {spp:5d} | {m_t:9.3f} {w*h*spp/m_t/1e6:6.2f} {m_e:8.5f} | (Mitsuba only, --reach)",
+                      flush=True)
+            m_meas = time_between(target, rows)
+            if m_meas is None:
+                print(f"{name}: Mitsuba did not reach RMSE {target:.5f} by {spp} spp (--reach-limit)", flush=True)
+            else:
+                print(f"{name}: measured, Mitsuba reaches RMSE {target:.5f} in ~{m_meas:.2f} s (interpolated between "
+                      f"its measured points) -> T/M = {trows[-1][0]/m_meas:.2f}", flush=True)
         if alt is not None:
             errs = ", ".join(f"{m:.5f}/{t:.5f}" for (_, m), (_, t) in zip(malt, talt))
             m_alt = time_to(talt[-1][1], malt)
