@@ -206,8 +206,8 @@ pub enum BenchCommand {
         runs: usize,
     },
     /// The farm's overhead: `tessera render` with local workers against the same image
-    /// traced in one process on the same cores, as a ratio, and the time to the first
-    /// full-frame preview.
+    /// loaded and traced in one process on the same cores, as a ratio (and against the
+    /// one process's render alone), and the time to the first full-frame preview.
     Overhead {
         /// The scene file.
         scene: PathBuf,
