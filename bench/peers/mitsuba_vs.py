@@ -39,12 +39,15 @@ def render_mitsuba(scene, spp, seed):
     dr.sync_thread()
     return img[..., :3], time.perf_counter() - t0
 
-def render_mitsuba_passes(name, spp, seed):
-    """Mitsuba at `spp` in passes of at most 256 (one launch holds every sample's state, so
-    a larger one would exhaust memory), averaged; the time is the passes' sum."""
-    per = min(spp, 256)
-    scene = mi.load_dict(scenes.mitsuba_dict(name, {"type": "cook", "max_depth": 8}, spp=per))
-    render_mitsuba(scene, per, 0)  # traces and compiles the kernel
+def load_mitsuba(name, spp):
+    """Mitsuba's scene `name` with the Cook integrator, its kernel traced and compiled."""
+    scene = mi.load_dict(scenes.mitsuba_dict(name, {"type": "cook", "max_depth": 8}, spp=spp))
+    render_mitsuba(scene, spp, 0)
+    return scene
+
+def render_mitsuba_passes(scene, per, spp, seed):
+    """Mitsuba at `spp` in passes of `per` (at most 256: one launch holds every sample's
+    state, so a larger one would exhaust memory), averaged; the time is the passes' sum."""
     total, t = None, 0.0
     for k in range(spp // per):
         img, dt = render_mitsuba(scene, per, seed * 100_000 + k)
@@ -128,8 +131,7 @@ def main():
         alt = read_exr(alt_path) if alt_path and os.path.exists(alt_path) else None
         mrows, trows, malt, talt = [], [], [], []
         for spp in [int(s) for s in a.spp.split(",")]:
-            scene = mi.load_dict(scenes.mitsuba_dict(name, {"type": "cook", "max_depth": 8}, spp=spp))
-            render_mitsuba(scene, spp, 0)  # traces and compiles the kernel
+            scene = load_mitsuba(name, spp)
             mt, me, me2 = [], [], []
             for r in range(a.runs):
                 img, t = render_mitsuba(scene, spp, 1 + r)
@@ -169,8 +171,10 @@ def main():
             while min(e for _, e in rows) > target and spp * 4 <= a.reach_limit:
                 spp *= 4
                 mt, me = [], []
+                per = min(spp, 256)
+                passes = load_mitsuba(name, per)
                 for r in range(a.runs):
-                    img, t = render_mitsuba_passes(name, spp, 1 + r)
+                    img, t = render_mitsuba_passes(passes, per, spp, 1 + r)
                     mt.append(t); me.append(rmse(img, ref))
                 m_t, m_e = float(np.median(mt)), float(np.median(me))
                 rows.append((m_t, m_e))

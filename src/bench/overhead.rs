@@ -41,14 +41,9 @@ pub async fn run(
         parsed.apply(spp, size);
         Ok(parsed)
     };
-    let parsed = load()?;
-    let (w, h, n) = (parsed.width, parsed.height, parsed.spp);
-    println!(
-        "scene {} ({w}x{h}, {n} spp), {cores} cores; farm: {workers} workers x {threads} threads",
-        scene.display()
-    );
-    drop(parsed);
     let (mut loads, mut single, mut farm, mut preview) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    // Every run loads the same image; its sample count, for the rates.
+    let mut samples = 0;
     for run in 0..runs {
         // Alternate, so that drifting machine load hits both alike. The one process
         // loads the scene inside its clock, as the farm's worker does: the load is
@@ -56,6 +51,14 @@ pub async fn run(
         let t = Instant::now();
         let parsed = load()?;
         loads.push(t.elapsed());
+        let (w, h, n) = (parsed.width, parsed.height, parsed.spp);
+        if run == 0 {
+            println!(
+                "scene {} ({w}x{h}, {n} spp), {cores} cores; farm: {workers} workers x {threads} threads",
+                scene.display()
+            );
+        }
+        samples = u64::from(w) * u64::from(h) * u64::from(n);
         let rows: Vec<u64> = pool.install(|| {
             rows_in_parallel(h, |y| {
                 let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, y)).collect();
@@ -82,7 +85,7 @@ pub async fn run(
                 // Measure the farm as `tessera render` runs it, checkpoints included.
                 checkpoints: Some(crate::local::Checkpoints {
                     dir: std::env::temp_dir().join(format!("tessera-bench-{}-{run}", std::process::id())),
-                    interval: std::time::Duration::from_secs(30),
+                    interval: Duration::from_secs(30),
                     resume: false,
                 }),
             },
@@ -107,7 +110,6 @@ pub async fn run(
     let min_ratio = secs(fastest(&farm)) / secs(fastest(&single));
     let min_render_ratio = secs(fastest(&farm)) / secs(fastest(&rendering));
     let (s, l, r, f, p) = (median(single), median(loads), median(rendering), median(farm), median(preview));
-    let samples = u64::from(w) * u64::from(h) * u64::from(n);
     println!(
         "median one process:   {:.3} s ({}), of which the load {:.3} s",
         secs(s),
