@@ -9,12 +9,16 @@
 #   bias      sqrt(max(0, rmse^2 - noise^2 - ref_noise^2)): what noise does not explain
 #   rmse[0,1] the rmse with both images clamped to [0, 1], as a display shows them (a few
 #             pixels seeing the light, at radiance 200, otherwise dominate the rmse)
-# Usage: scripts/compare-references.sh [SPP] (default 256). The references are in
+# Usage: scripts/compare-references.sh [SPP [RENDER ARGS...]] (default 256); RENDER ARGS go
+# to every `tessera render`, e.g. `4096 --noise 0.1` checks adaptive sampling (SPP then the
+# most a pixel takes) for bias. SCENES=spheres,cornell limits the scenes. The references are in
 # docs/references (or REFS=path/to/refs). BIN=path/to/tessera uses that build instead of
 # building target/release/tessera (e.g. to compare two builds, docs/determinism.md).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 spp=${1:-256}
+shift || true
+extra=("$@")
 refs=${REFS:-docs/references}
 if [ -z "${BIN:-}" ]; then
   cargo build --release --quiet
@@ -24,7 +28,7 @@ tmp=$(mktemp -d)
 seeded=
 trap 'rm -rf "$tmp"; [ -z "$seeded" ] || rm -f "$seeded"' EXIT
 printf '%-8s %5s %10s %10s %10s %10s %10s\n' scene spp rmse noise "ref noise" bias "rmse[0,1]"
-for scene in spheres cornell terrain; do
+for scene in $(tr , " " <<< "${SCENES:-spheres,cornell,terrain}"); do
   file=scenes/$scene.toml size=()
   case $scene in
     spheres) ref_noise=0.00976 ;;
@@ -40,7 +44,7 @@ for scene in spheres cornell terrain; do
     seeded=$(mktemp "$(dirname "$file")/.seed$seed-XXXXXX.toml")
     sed "s/^\[render\]\$/[render]\nseed = $seed/" "$file" > "$seeded"
     grep -q "^seed = $seed\$" "$seeded" || { echo "$file: no [render] table to set the seed in" >&2; exit 1; }
-    "$bin" render "$seeded" -o "$tmp/$scene-$seed.exr" --spp "$spp" ${size[@]+"${size[@]}"} 2>/dev/null
+    "$bin" render "$seeded" -o "$tmp/$scene-$seed.exr" --spp "$spp" ${size[@]+"${size[@]}"} ${extra[@]+"${extra[@]}"} 2>/dev/null
     rm -f "$seeded"
     seeded=
   done

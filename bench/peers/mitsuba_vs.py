@@ -20,9 +20,14 @@ reference, say), so a change of reference shows apart from a change of renderer.
 below Mitsuba's, Mitsuba renders 4x the samples again and again (passes of at most 256 spp
 averaged, each with its seed, timed in sum) until its error is at or below Tessera's, and
 its time to that error is interpolated between the two measured points around it.
+--noise 0.1,0.05 also renders Tessera with adaptive sampling (`tessera render --noise T
+--spp CAP`: each pixel stops once its estimated relative error is below T; --noise-cap is
+the most samples a pixel takes): one row per target, with the samples a pixel took on
+average, and the time-to-equal-error ratios for each target's error. Mitsuba 3
+has no adaptive sampler, so its rows are the same uniform ones.
 Run it on an otherwise idle machine; both renderers use every core.
 """
-import argparse, contextlib, math, os, subprocess, sys, tempfile, time
+import argparse, contextlib, math, os, re, subprocess, sys, tempfile, time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 import llvm_path  # noqa: E402
@@ -104,6 +109,23 @@ def seeded_scene(path, seed):
     finally:
         os.remove(out)
 
+def render_tessera(binary, scene, seed, out, size, extra):
+    """`tessera render` of `scene` with `seed` at `size`, plus the arguments `extra`, timed
+    as a whole process: (seconds, image, the last line it printed)."""
+    # Tessera is deterministic: without a seed of its own per run, every run would be the
+    # same image and the median of its errors one sample.
+    with seeded_scene(scene, seed) as seeded:
+        t0 = time.perf_counter()
+        cp = subprocess.run([binary, "render", seeded, "-o", out, "--size", size, *extra],
+                            capture_output=True, text=True)
+        t = time.perf_counter() - t0
+    if cp.returncode != 0:
+        sys.exit(f"tessera render failed: {cp.stderr.strip()[-400:]}")
+    lines = (cp.stdout + cp.stderr).strip().splitlines()
+    return t, read_exr(out), lines[-1] if lines else ""
+
+AVERAGE_SPP = re.compile(r"at ([0-9.]+) samples per pixel on average")
+
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--tessera", required=True, help="path to the tessera binary")
@@ -118,6 +140,8 @@ def main():
     p.add_argument("--reach", action="store_true", help="render Mitsuba at 4x the samples until its error is "
                    "at or below Tessera's, and interpolate its time to that error instead of extrapolating")
     p.add_argument("--reach-limit", type=int, default=16384, help="the most spp --reach renders Mitsuba at")
+    p.add_argument("--noise", help="also render Tessera adaptively to these relative noise targets, e.g. 0.1,0.05")
+    p.add_argument("--noise-cap", type=int, default=4096, help="the most samples a pixel takes with --noise")
     a = p.parse_args()
     mi.set_variant("llvm_ad_rgb")
     import cook_integrator
@@ -140,19 +164,10 @@ def main():
                     me2.append(rmse(img, alt))
             tt, te, te2 = [], [], []
             for r in range(a.runs):
-                out = os.path.join(tmp, f"{name}-{spp}.exr")
-                # Tessera is deterministic: without a seed of its own per run, every run
-                # would be the same image and the median of its errors one sample.
-                with seeded_scene(tessera_scene(a.scene_dir, name), 1 + r) as seeded:
-                    t0 = time.perf_counter()
-                    # The reference's size: a scene may be compared smaller than its file says.
-                    cp = subprocess.run([a.tessera, "render", seeded, "-o", out, "--spp", str(spp),
-                                         "--size", f"{w}x{h}"], capture_output=True, text=True)
-                    tt.append(time.perf_counter() - t0)
-                if cp.returncode != 0:
-                    sys.exit(f"tessera render failed: {cp.stderr.strip()[-400:]}")
-                img = read_exr(out)
-                te.append(rmse(img, ref))
+                # The reference's size: a scene may be compared smaller than its file says.
+                t, img, _ = render_tessera(a.tessera, tessera_scene(a.scene_dir, name), 1 + r,
+                                           os.path.join(tmp, f"{name}-{spp}.exr"), f"{w}x{h}", ["--spp", str(spp)])
+                tt.append(t); te.append(rmse(img, ref))
                 if alt is not None:
                     te2.append(rmse(img, alt))
             m_t, t_t = float(np.median(mt)), float(np.median(tt))
@@ -162,11 +177,25 @@ def main():
                 malt.append((m_t, float(np.median(me2)))); talt.append((t_t, float(np.median(te2))))
             print(f"{name:8} {spp:5d} | {m_t:9.3f} {w*h*spp/m_t/1e6:6.2f} {m_e:8.5f} | "
                   f"{t_t:9.3f} {w*h*spp/t_t/1e6:6.2f} {t_e:8.5f} | {t_t/m_t:5.2f}", flush=True)
-        target = trows[-1][1]
-        m_need = time_to(target, mrows)
-        print(f"{name}: to reach RMSE {target:.5f} Tessera takes {trows[-1][0]:.2f} s, Mitsuba ~{m_need:.2f} s"
-              f" -> time ratio at equal error T/M = {trows[-1][0]/m_need:.2f}", flush=True)
+        ratios = [("uniform", trows[-1])]
+        for target_noise in [float(n) for n in a.noise.split(",")] if a.noise else []:
+            tt, te, avg = [], [], []
+            for r in range(a.runs):
+                t, img, line = render_tessera(a.tessera, tessera_scene(a.scene_dir, name), 1 + r,
+                                              os.path.join(tmp, f"{name}-noise.exr"), f"{w}x{h}",
+                                              ["--noise", str(target_noise), "--spp", str(a.noise_cap)])
+                m = AVERAGE_SPP.search(line)
+                tt.append(t); te.append(rmse(img, ref)); avg.append(float(m.group(1)) if m else float("nan"))
+            t_t, t_e, t_spp = float(np.median(tt)), float(np.median(te)), float(np.median(avg))
+            print(f"{name:8} {'':5} | noise {target_noise:<5g} (Tessera only, adaptive: {t_spp:.1f} spp on average, "
+                  f"at most {a.noise_cap}) | {t_t:9.3f} {w*h*t_spp/t_t/1e6:6.2f} {t_e:8.5f} |", flush=True)
+            ratios.append((f"noise {target_noise:g}", (t_t, t_e)))
+        for how, (t_t, target) in ratios:
+            m_need = time_to(target, mrows)
+            print(f"{name} ({how}): to reach RMSE {target:.5f} Tessera takes {t_t:.2f} s, Mitsuba ~{m_need:.2f} s"
+                  f" -> time ratio at equal error T/M = {t_t/m_need:.2f}", flush=True)
         if a.reach:
+            target = min(e for _, (_, e) in ratios)
             spp, rows = int(a.spp.split(",")[-1]), list(mrows)
             while min(e for _, e in rows) > target and spp * 4 <= a.reach_limit:
                 spp *= 4
@@ -180,12 +209,14 @@ def main():
                 rows.append((m_t, m_e))
                 print(f"{name:8} {spp:5d} | {m_t:9.3f} {w*h*spp/m_t/1e6:6.2f} {m_e:8.5f} | (Mitsuba only, --reach)",
                       flush=True)
-            m_meas = time_between(target, rows)
-            if m_meas is None:
-                print(f"{name}: Mitsuba did not reach RMSE {target:.5f} by {spp} spp (--reach-limit)", flush=True)
-            else:
-                print(f"{name}: measured, Mitsuba reaches RMSE {target:.5f} in ~{m_meas:.2f} s (interpolated between "
-                      f"its measured points) -> T/M = {trows[-1][0]/m_meas:.2f}", flush=True)
+            for how, (t_t, target) in ratios:
+                m_meas = time_between(target, rows)
+                if m_meas is None:
+                    print(f"{name} ({how}): Mitsuba did not reach RMSE {target:.5f} by {spp} spp (--reach-limit)",
+                          flush=True)
+                else:
+                    print(f"{name} ({how}): measured, Mitsuba reaches RMSE {target:.5f} in ~{m_meas:.2f} s "
+                          f"(interpolated between its measured points) -> T/M = {t_t/m_meas:.2f}", flush=True)
         if alt is not None:
             errs = ", ".join(f"{m:.5f}/{t:.5f}" for (_, m), (_, t) in zip(malt, talt))
             m_alt = time_to(talt[-1][1], malt)
