@@ -125,6 +125,7 @@ def render_tessera(binary, scene, seed, out, size, extra):
     return t, read_exr(out), lines[-1] if lines else ""
 
 AVERAGE_SPP = re.compile(r"at ([0-9.]+) samples per pixel on average")
+EVERY_PIXEL_SPP = re.compile(r", ([0-9]+) spp\)")
 
 def main():
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -184,8 +185,11 @@ def main():
                 t, img, line = render_tessera(a.tessera, tessera_scene(a.scene_dir, name), 1 + r,
                                               os.path.join(tmp, f"{name}-noise.exr"), f"{w}x{h}",
                                               ["--noise", str(target_noise), "--spp", str(a.noise_cap)])
-                m = AVERAGE_SPP.search(line)
-                tt.append(t); te.append(rmse(img, ref)); avg.append(float(m.group(1)) if m else float("nan"))
+                # Where no pixel met the target before the cap, every pixel took the cap.
+                m = AVERAGE_SPP.search(line) or EVERY_PIXEL_SPP.search(line)
+                if m is None:
+                    sys.exit(f"tessera render: no sample count in its last line: {line!r}")
+                tt.append(t); te.append(rmse(img, ref)); avg.append(float(m.group(1)))
             t_t, t_e, t_spp = float(np.median(tt)), float(np.median(te)), float(np.median(avg))
             print(f"{name:8} {'':5} | noise {target_noise:<5g} (Tessera only, adaptive: {t_spp:.1f} spp on average, "
                   f"at most {a.noise_cap}) | {t_t:9.3f} {w*h*t_spp/t_t/1e6:6.2f} {t_e:8.5f} |", flush=True)
