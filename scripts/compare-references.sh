@@ -38,6 +38,7 @@ for scene in $(tr , " " <<< "${SCENES:-spheres,cornell,terrain}"); do
         echo "terrain: skipped (run python3 scenes/generate-terrain.py to write its mesh)"
         continue
       fi ;;
+    *) echo "SCENES: no reference for '$scene' (spheres, cornell, terrain)" >&2; exit 2 ;;
   esac
   for seed in 1 2; do
     # Beside the original, so that the paths of its assets resolve.
