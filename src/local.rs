@@ -62,6 +62,11 @@ pub struct RenderArgs {
     /// 0.01 (adaptive sampling, in rounds as with --time; spp is the most a pixel takes).
     #[arg(long, allow_negative_numbers = true)]
     pub noise: Option<f32>,
+    /// As --noise, but the error in the image's linear units, e.g. 0.02: every pixel to
+    /// the same absolute error (what an RMSE counts), so the samples go to the bright,
+    /// noisy highlights and dark pixels stop early.
+    #[arg(long, allow_negative_numbers = true, conflicts_with = "noise")]
+    pub noise_abs: Option<f32>,
     /// Continue an interrupted render of the same scene and settings from its checkpoint.
     #[arg(long)]
     pub resume: bool,
@@ -115,7 +120,7 @@ pub struct LocalOptions {
     /// Time budget.
     pub time_limit: Option<Duration>,
     /// Noise target.
-    pub noise: Option<f32>,
+    pub noise: Option<tessera_description::Noise>,
     /// AOV layers to accumulate and write, and denoising.
     pub layers: crate::layers::AovArgs,
     /// The frames of a sequence (`None`: a still); `output` is then a pattern.
@@ -200,7 +205,7 @@ fn open_job(
         ([(id, hash, stored)], true) => {
             if *hash != bundle.hash() || stored != settings {
                 bail!(
-                    "the checkpoint in {} is of a different scene or settings (the scene file, its assets, --spp, --size, --time or --noise changed); render without --resume after deleting it",
+                    "the checkpoint in {} is of a different scene or settings (the scene file, its assets, --spp, --size, --time, --noise or --noise-abs changed); render without --resume after deleting it",
                     c.dir.display()
                 );
             }
@@ -529,7 +534,7 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
         spp: args.spp,
         size: args.size,
         time_limit: args.time,
-        noise: args.noise,
+        noise: crate::noise_target(args.noise, args.noise_abs),
         layers: args.layers.clone(),
         frames,
         progress_bar: true,

@@ -431,7 +431,6 @@ pub fn check_output(path: &std::path::Path) -> Result<()> {
     Ok(())
 }
 
-/// Parses `WIDTHxHEIGHT`.
 /// A positive number of seconds from the command line.
 pub fn seconds(flag: &str, value: f64) -> Result<std::time::Duration> {
     if !(value.is_finite() && value > 0.0 && value < 1e9) {
@@ -470,11 +469,19 @@ pub async fn shutdown_signal() {
     let _ = tokio::signal::ctrl_c().await;
 }
 
+/// The noise target of `--noise` (relative) or `--noise-abs` (absolute), which clap keeps
+/// apart; the coordinator checks its range.
+pub fn noise_target(relative: Option<f32>, absolute: Option<f32>) -> Option<tessera_description::Noise> {
+    use tessera_description::Noise;
+    relative.map(Noise::Relative).or(absolute.map(Noise::Absolute))
+}
+
 /// A duration such as `90`, `90s`, `2m`, `1h30m` or `1.5h` (also the web API's `time`).
 pub fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
     tessera_description::job::parse_duration(s)
 }
 
+/// Parses `WIDTHxHEIGHT`.
 pub fn parse_size(s: &str) -> Result<(u32, u32), String> {
     let (w, h) = s.split_once(['x', 'X']).ok_or_else(|| format!("expected WIDTHxHEIGHT, got {s:?}"))?;
     let parse = |v: &str| v.trim().parse::<u32>().ok().filter(|&n| n > 0);

@@ -173,6 +173,9 @@ pub struct SubmitArgs {
     /// Per-pixel noise target, e.g. 0.01 (adaptive sampling; see `tessera render`).
     #[arg(long, allow_negative_numbers = true)]
     pub noise: Option<f32>,
+    /// Per-pixel absolute noise target, e.g. 0.02 (see `tessera render`).
+    #[arg(long, allow_negative_numbers = true, conflicts_with = "noise")]
+    pub noise_abs: Option<f32>,
     /// Priority: jobs with a higher one are served first, equal ones oldest first (a
     /// submitter may ask at most the coordinator's --max-priority).
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
@@ -350,7 +353,7 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
                 spp: args.spp,
                 size: args.size,
                 time_limit: args.time,
-                noise: args.noise,
+                noise: crate::noise_target(args.noise, args.noise_abs),
                 aovs: args.layers.aovs(),
                 frames,
             })),

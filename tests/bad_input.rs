@@ -196,6 +196,15 @@ fn bad_halt_conditions_are_clear_errors() {
             "{noise}: {e}"
         );
     }
+    for noise in ["0", "-0.1", "nan", "inf"] {
+        let e = render(&["--noise-abs", noise]);
+        assert!(
+            e.contains("absolute noise target must be a positive number") || e.contains("--noise-abs"),
+            "{noise}: {e}"
+        );
+    }
+    let both = render(&["--noise", "0.1", "--noise-abs", "0.1"]);
+    assert!(both.contains("cannot be used with"), "{both}");
     for time in ["0", "soon", "5x", "-1s"] {
         let e = render(&["--time", time]);
         assert!(e.contains("--time") && e.contains("duration"), "{time}: {e}");

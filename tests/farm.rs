@@ -226,6 +226,10 @@ fn noise_target_is_deterministic_and_a_time_budget_stops() {
     render_local(&small_scene(), &one, 1, &adaptive);
     render_local(&small_scene(), &three, 3, &adaptive);
     assert_eq!(read(&one), read(&three), "adaptive sampling differs between 1 and 3 workers");
+    let absolute = ["--spp", "128", "--noise-abs", "0.02"];
+    render_local(&small_scene(), &one, 1, &absolute);
+    render_local(&small_scene(), &three, 3, &absolute);
+    assert_eq!(read(&one), read(&three), "absolute adaptive sampling differs between 1 and 3 workers");
 
     let timed = dir.path().join("timed.png");
     let start = std::time::Instant::now();

@@ -23,8 +23,10 @@ its time to that error is interpolated between the two measured points around it
 --noise 0.1,0.05 also renders Tessera with adaptive sampling (`tessera render --noise T
 --spp CAP`: each pixel stops once its estimated relative error is below T; --noise-cap is
 the most samples a pixel takes): one row per target, with the samples a pixel took on
-average, and the time-to-equal-error ratios for each target's error. Mitsuba 3
-has no adaptive sampler, so its rows are the same uniform ones.
+average, and the time-to-equal-error ratios for each target's error. --noise-abs 0.05 does
+the same with absolute targets (`tessera render --noise-abs T`: the error in the image's
+linear units, what an RMSE counts). Mitsuba 3 has no adaptive sampler, so its rows are the
+same uniform ones.
 A reference's own noise is in every error measured against it: with --reach the measured
 ratios are printed again with it taken out of every error in quadrature (sqrt(e^2 - r^2),
 r the reference's noise: --ref-noise, by default the values scripts/compare-references.sh
@@ -154,10 +156,11 @@ def main():
                    "at or below Tessera's, and interpolate its time to that error instead of extrapolating")
     p.add_argument("--reach-limit", type=int, default=16384, help="the most spp --reach renders Mitsuba at")
     p.add_argument("--noise", help="also render Tessera adaptively to these relative noise targets, e.g. 0.1,0.05")
+    p.add_argument("--noise-abs", help="also render Tessera adaptively to these absolute noise targets, e.g. 0.05")
     p.add_argument("--ref-noise", default=",".join(f"{k}={v}" for k, v in REF_NOISE.items()),
                    help="each reference's own RMS noise, scene=value,... (or 'none'), taken out of the errors "
                    "in quadrature for a second line of --reach's ratios")
-    p.add_argument("--noise-cap", type=int, default=4096, help="the most samples a pixel takes with --noise")
+    p.add_argument("--noise-cap", type=int, default=4096, help="the most samples a pixel takes with --noise and --noise-abs")
     a = p.parse_args()
     try:
         ref_noise = {} if a.ref_noise == "none" else {
@@ -199,21 +202,23 @@ def main():
             print(f"{name:8} {spp:5d} | {m_t:9.3f} {w*h*spp/m_t/1e6:6.2f} {m_e:8.5f} | "
                   f"{t_t:9.3f} {w*h*spp/t_t/1e6:6.2f} {t_e:8.5f} | {t_t/m_t:5.2f}", flush=True)
         ratios = [("uniform", trows[-1])]
-        for target_noise in [float(n) for n in a.noise.split(",")] if a.noise else []:
+        targets = [("--noise", "noise", float(n)) for n in a.noise.split(",")] if a.noise else []
+        targets += [("--noise-abs", "noise-abs", float(n)) for n in a.noise_abs.split(",")] if a.noise_abs else []
+        for flag, label, target_noise in targets:
             tt, te, avg = [], [], []
             for r in range(a.runs):
                 t, img, line = render_tessera(a.tessera, tessera_scene(a.scene_dir, name), 1 + r,
                                               os.path.join(tmp, f"{name}-noise.exr"), f"{w}x{h}",
-                                              ["--noise", str(target_noise), "--spp", str(a.noise_cap)])
+                                              [flag, str(target_noise), "--spp", str(a.noise_cap)])
                 # Where no pixel met the target before the cap, every pixel took the cap.
                 m = AVERAGE_SPP.search(line) or EVERY_PIXEL_SPP.search(line)
                 if m is None:
                     sys.exit(f"tessera render: no sample count in its last line: {line!r}")
                 tt.append(t); te.append(rmse(img, ref)); avg.append(float(m.group(1)))
             t_t, t_e, t_spp = float(np.median(tt)), float(np.median(te)), float(np.median(avg))
-            print(f"{name:8} {'':5} | noise {target_noise:<5g} (Tessera only, adaptive: {t_spp:.1f} spp on average, "
+            print(f"{name:8} {'':5} | {label} {target_noise:<5g} (Tessera only, adaptive: {t_spp:.1f} spp on average, "
                   f"at most {a.noise_cap}) | {t_t:9.3f} {w*h*t_spp/t_t/1e6:6.2f} {t_e:8.5f} |", flush=True)
-            ratios.append((f"noise {target_noise:g}", (t_t, t_e)))
+            ratios.append((f"{label} {target_noise:g}", (t_t, t_e)))
         for how, (t_t, target) in ratios:
             m_need = time_to(target, mrows)
             print(f"{name} ({how}): to reach RMSE {target:.5f} Tessera takes {t_t:.2f} s, Mitsuba ~{m_need:.2f} s"

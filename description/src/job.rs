@@ -16,12 +16,58 @@ pub struct JobSettings {
     pub size: Option<(u32, u32)>,
     /// Stop after this much rendering time, wherever the job is.
     pub time_limit: Option<Duration>,
-    /// Stop sampling each pixel once its estimated relative error is below this.
-    pub noise: Option<f32>,
+    /// Stop sampling each pixel once its estimated error is below this.
+    pub noise: Option<Noise>,
     /// First-hit layers to accumulate beside radiance.
     pub aovs: Aovs,
     /// Frames to render, inclusive; None: one still image.
     pub frames: Option<(u32, u32)>,
+}
+
+/// A per-pixel noise target (adaptive sampling): a pixel stops taking samples once the
+/// estimated standard error of its mean, pooled with its neighbours', is below it.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub enum Noise {
+    /// Relative to the pixel's brightness (the mean of its channels, floored at 0.05 so that
+    /// black pixels converge too), in (0, 1): every pixel to the same relative quality,
+    /// which is what an eye judges.
+    Relative(f32),
+    /// In the image's own linear units, positive: every pixel to the same absolute error,
+    /// which is what an RMSE against a reference counts. The samples go where the absolute
+    /// noise is, the bright highlights, and dark pixels stop at the minimum.
+    Absolute(f32),
+}
+
+impl Noise {
+    /// The target's number.
+    pub fn value(self) -> f32 {
+        match self {
+            Noise::Relative(v) | Noise::Absolute(v) => v,
+        }
+    }
+
+    /// The target if its number is in range (relative: in (0, 1); absolute: positive and
+    /// finite), else a one-line reason that names it.
+    pub fn checked(self) -> Result<Noise, String> {
+        match self {
+            Noise::Relative(v) if !(v.is_finite() && v > 0.0 && v < 1.0) => {
+                Err(format!("the noise target must be a relative error in (0, 1), e.g. 0.01, got {v}"))
+            }
+            Noise::Absolute(v) if !(v.is_finite() && v > 0.0) => {
+                Err(format!("the absolute noise target must be a positive number, e.g. 0.02, got {v}"))
+            }
+            n => Ok(n),
+        }
+    }
+}
+
+impl std::fmt::Display for Noise {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Noise::Relative(v) => write!(f, "relative {v}"),
+            Noise::Absolute(v) => write!(f, "absolute {v}"),
+        }
+    }
 }
 
 /// Which first-hit layers (arbitrary output variables) a job accumulates beside radiance:

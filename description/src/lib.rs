@@ -73,6 +73,6 @@ pub const RENDERER_VERSION: &str = concat!(env!("CARGO_PKG_VERSION"), "+images.8
 pub use bundle::{AssetRefusal, Assets, Bundle, NoAssets};
 pub use error::SceneError;
 pub use ids::{BatchId, JobId, WorkerId};
-pub use job::{Aovs, JobSettings, JobState};
+pub use job::{Aovs, JobSettings, JobState, Noise};
 pub use model::Description;
 pub use summary::Summary;

@@ -185,12 +185,13 @@ impl Framebuffer {
         self.tiles[t].counts[i]
     }
 
-    /// The estimated relative standard error of pixel `(x, y)`'s mean luminance: half the
-    /// difference of the means of its even and odd samples (each half an independent
-    /// estimate, so that their difference has twice the mean's standard deviation),
-    /// relative to the mean, which is floored at `floor` so that black pixels converge too.
-    /// `None` before two samples, or without even sums.
-    pub fn noise(&self, x: u32, y: u32, floor: f64) -> Option<f64> {
+    /// The estimated standard error of pixel `(x, y)`'s mean luminance (the mean of its
+    /// channels): half the difference of the means of its even and odd samples (each half
+    /// an independent estimate, so that their difference has twice the mean's standard
+    /// deviation). With `Some(floor)` relative to the mean, which is floored at `floor` so
+    /// that black pixels converge too; with `None` in the image's linear units. `None`
+    /// before two samples, or without even sums.
+    pub fn noise(&self, x: u32, y: u32, floor: Option<f64>) -> Option<f64> {
         let (t, i) = self.locate(x, y);
         let tile = &self.tiles[t];
         let n = tile.counts[i];
@@ -201,9 +202,12 @@ impl Framebuffer {
         let even = tile.even[i] as f64;
         let (n_even, n_odd) = (f64::from(n.div_ceil(2)), f64::from(n / 2));
         let (m_even, m_odd) = (even / n_even, (total - even).max(0.0) / n_odd);
-        let mean = total / f64::from(n);
         let scale = fixed::SCALE;
-        Some((m_even - m_odd).abs() / 2.0 / (mean / scale).max(floor) / scale)
+        let half = (m_even - m_odd).abs() / 2.0;
+        Some(match floor {
+            Some(floor) => half / (total / f64::from(n) / scale).max(floor) / scale,
+            None => half / scale,
+        })
     }
 
     /// A framebuffer holding these accumulators (a checkpoint read back), pixel index

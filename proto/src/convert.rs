@@ -10,7 +10,7 @@ use std::time::Duration;
 use bytes::Bytes;
 use prost::Message;
 use tessera_description::ids::{BatchId, JobId, WorkerId};
-use tessera_description::job::{Aovs, FrameProgress, JobProgress, JobSettings, JobState};
+use tessera_description::job::{Aovs, FrameProgress, JobProgress, JobSettings, JobState, Noise};
 use tessera_description::Bundle;
 use tessera_film::PixelState;
 
@@ -116,7 +116,14 @@ pub fn settings_to_wire(s: &JobSettings) -> pb::RenderSettings {
         width,
         height,
         time_limit_seconds: s.time_limit.map_or(0.0, |t| t.as_secs_f64()),
-        noise: s.noise.map_or(0.0, f64::from),
+        noise: match s.noise {
+            Some(Noise::Relative(v)) => f64::from(v),
+            _ => 0.0,
+        },
+        noise_absolute: match s.noise {
+            Some(Noise::Absolute(v)) => f64::from(v),
+            _ => 0.0,
+        },
         aovs: aovs_to_wire(s.aovs),
         frames: s.frames.map(|(first, last)| pb::FrameRange { first, last }),
     }
@@ -154,10 +161,13 @@ pub fn settings_from_wire(s: pb::RenderSettings) -> Result<JobSettings, WireErro
         t if t.is_finite() && t > 0.0 && t < 1e9 => Some(Duration::from_secs_f64(t)),
         t => return bad(format!("time_limit_seconds must be a positive number of seconds, got {t}")),
     };
-    let noise = match s.noise {
-        0.0 => None,
-        n if n.is_finite() && n > 0.0 && n < 1.0 => Some(n as f32),
-        n => return bad(format!("noise must be a relative error in (0, 1), got {n}")),
+    let noise = match (s.noise, s.noise_absolute) {
+        (0.0, 0.0) => None,
+        (n, 0.0) if n.is_finite() && n > 0.0 && n < 1.0 => Some(Noise::Relative(n as f32)),
+        (n, 0.0) => return bad(format!("noise must be a relative error in (0, 1), got {n}")),
+        (0.0, n) if n.is_finite() && n > 0.0 && n <= f64::from(f32::MAX) => Some(Noise::Absolute(n as f32)),
+        (0.0, n) => return bad(format!("noise_absolute must be a positive number, got {n}")),
+        (r, a) => return bad(format!("give noise or noise_absolute, not both (got {r} and {a})")),
     };
     let Some(aovs) = aovs_from_wire(s.aovs) else {
         return bad(format!("aovs: unknown layer bits in {:#x} (1 albedo, 2 normal, 4 depth)", s.aovs));
@@ -323,10 +333,11 @@ mod tests {
                 spp: Some(1024),
                 size: None,
                 time_limit: Some(Duration::from_secs(90)),
-                noise: Some(0.01),
+                noise: Some(Noise::Relative(0.01)),
                 aovs: Aovs { albedo: true, normal: false, depth: true },
                 frames: None,
             },
+            JobSettings { noise: Some(Noise::Absolute(0.02)), ..JobSettings::sized(Some(4096), None) },
             JobSettings { frames: Some((1, 48)), ..JobSettings::sized(Some(4), None) },
         ] {
             assert_eq!(settings_from_wire(settings_to_wire(&s)), Ok(s));
@@ -344,6 +355,14 @@ mod tests {
         assert!(wire(|s| s.time_limit_seconds = -1.0).contains("time_limit_seconds"));
         assert!(wire(|s| s.time_limit_seconds = f64::NAN).contains("time_limit_seconds"));
         assert!(wire(|s| s.noise = 1.0).contains("noise"));
+        assert!(wire(|s| s.noise_absolute = -0.5).contains("noise_absolute must be a positive number"));
+        assert!(wire(|s| s.noise_absolute = f64::INFINITY).contains("noise_absolute"));
+        assert!(wire(|s| s.noise_absolute = 1e300).contains("noise_absolute"));
+        let both = wire(|s| {
+            s.noise = 0.1;
+            s.noise_absolute = 0.1;
+        });
+        assert!(both.contains("not both"), "{both}");
         assert!(wire(|s| s.aovs = 8).contains("aovs: unknown layer bits"));
         let reversed = wire(|s| s.frames = Some(pb::FrameRange { first: 5, last: 2 }));
         assert!(reversed.contains("frames 5-2: the range is reversed"), "{reversed}");

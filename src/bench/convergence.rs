@@ -281,7 +281,7 @@ pub async fn halt(
                     spp: Some(1 << 20),
                     size,
                     time_limit: Some(std::time::Duration::from_secs_f64(budget)),
-                    noise: adaptive,
+                    noise: adaptive.map(tessera_description::Noise::Relative),
                     layers: Default::default(),
                     frames: None,
                     progress_bar: false,

@@ -59,6 +59,16 @@ fn bad_input_gets_a_clear_4xx_json_error() {
         400,
         "`spp` \"many\" is not a whole number",
     );
+    assert_error(
+        submit(&web, None, small_form(8, 8, 1).text("noise_absolute", "-1")),
+        400,
+        "noise_absolute must be a positive number",
+    );
+    assert_error(
+        submit(&web, None, small_form(8, 8, 1).text("noise", "0.1").text("noise_absolute", "0.1")),
+        400,
+        "not both",
+    );
     let traversal = small_form(8, 8, 1)
         .part("asset", multipart::Part::bytes(b"x".to_vec()).file_name("../../etc/passwd"));
     assert_error(submit(&web, None, traversal), 400, "escapes the scene's folder");

@@ -265,7 +265,10 @@ fn split(spec: &BatchSpec) -> (Vec<u64>, Vec<u64>) {
 /// 0..count, and with equal counts the accumulators are bit for bit a clean run's.
 #[test]
 fn a_repaired_noise_target_job_is_exact_for_its_sample_counts() {
-    let settings = JobSettings { noise: Some(0.02), ..JobSettings::sized(Some(256), Some((40, 36))) };
+    let settings = JobSettings {
+        noise: Some(tessera_description::Noise::Relative(0.02)),
+        ..JobSettings::sized(Some(256), Some((40, 36)))
+    };
     let go = |policy: AuditPolicy, lie: bool| {
         let mut f = farm(policy);
         let now = Instant::now();

@@ -272,8 +272,8 @@ impl Job {
                 u32::MAX
             )));
         }
-        if let Some(n) = settings.noise.filter(|n| !(n.is_finite() && *n > 0.0 && *n < 1.0)) {
-            return Err(SubmitError::Noise(n));
+        if let Some(n) = settings.noise {
+            n.checked().map_err(SubmitError::Noise)?;
         }
         if settings.time_limit.is_some_and(|t| t.is_zero()) {
             return Err(SubmitError::TimeLimit);

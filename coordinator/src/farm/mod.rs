@@ -28,7 +28,7 @@ use tessera_description::ids::{BatchId, JobId, WorkerId};
 pub use tessera_description::job::{JobProgress, JobSettings, JobState};
 use tessera_film::MergeError;
 
-pub use adaptive::{NOISE_FLOOR, NOISE_MIN_SAMPLES};
+pub use adaptive::{NOISE_FLOOR, NOISE_MIN_SAMPLES, NOISE_MIN_SAMPLES_ABSOLUTE};
 pub use assign::BatchFailure;
 pub use audit::{AuditPolicy, DEFAULT_AUDIT_FRACTION};
 pub use census::{Census, LeaseCounters, JOB_STATES};
@@ -196,9 +196,9 @@ pub enum SubmitError {
         /// Limit.
         max: u32,
     },
-    /// Noise target out of range.
-    #[error("the noise target must be a relative error in (0, 1), e.g. 0.01, got {0}")]
-    Noise(f32),
+    /// Noise target out of range (`Noise::checked`'s reason).
+    #[error("{0}")]
+    Noise(String),
     /// A zero time budget.
     #[error("the time budget must be positive")]
     TimeLimit,

@@ -5,6 +5,7 @@ use std::time::{Duration, Instant};
 
 use tessera_description::bundle::Bundle;
 use tessera_description::ids::WorkerId;
+use tessera_description::Noise;
 use tessera_film::Quad;
 
 use super::*;
@@ -225,11 +226,21 @@ fn run_adaptive(farm: &mut Farm, limit: usize, window: usize) -> usize {
     merged
 }
 
-/// With a noise target, flat pixels stop early and noisy ones go on; the result is the
-/// same bits whatever the merge order, and after a restore from a mid-run checkpoint.
+/// With a noise target, relative or absolute, flat pixels stop early and noisy ones go
+/// on; the result is the same bits whatever the merge order, and after a restore from a
+/// mid-run checkpoint.
 #[test]
 fn adaptive_sampling_is_deterministic_and_resumable() {
-    let adaptive = JobSettings { noise: Some(0.02), ..settings(40, 36, 256) };
+    // The noisy part's samples are spread over [0, 1) with a mean about 0.49: after 256 a
+    // pixel's standard error is about 0.018, 0.036 of its mean, above both targets.
+    for (target, min) in
+        [(Noise::Relative(0.02), NOISE_MIN_SAMPLES), (Noise::Absolute(0.01), NOISE_MIN_SAMPLES_ABSOLUTE)]
+    {
+        adaptive_run_checks(JobSettings { noise: Some(target), ..settings(40, 36, 256) }, min);
+    }
+}
+
+fn adaptive_run_checks(adaptive: JobSettings, min: u32) {
     let mut reference = Farm::new();
     let id = reference.submit(bundle(), adaptive.clone(), 0).unwrap();
     run_adaptive(&mut reference, usize::MAX, 1);
@@ -239,9 +250,9 @@ fn adaptive_sampling_is_deterministic_and_resumable() {
     let counts = done.framebuffer().accumulators().1;
     // Flat pixels stop at the minimum, but for those whose window reaches the noise.
     let flat = counts.iter().enumerate().filter(|(i, _)| i % 40 < 18).map(|(_, &c)| c);
-    assert!(flat.clone().all(|c| c == NOISE_MIN_SAMPLES), "flat pixels stop at the minimum");
+    assert!(flat.clone().all(|c| c == min), "flat pixels stop at the minimum: {:?}", adaptive.noise);
     let noisy = counts.iter().enumerate().filter(|(i, _)| i % 40 >= 20).map(|(_, &c)| c);
-    assert!(noisy.clone().all(|c| c == 256), "noisy pixels take every sample");
+    assert!(noisy.clone().all(|c| c == 256), "noisy pixels take every sample: {:?}", adaptive.noise);
 
     let mut shuffled = Farm::new();
     shuffled.submit(bundle(), adaptive.clone(), 0).unwrap();

@@ -14,7 +14,7 @@ use tracing::warn;
 
 use crate::checkpoint::{Checkpoint, Part};
 use tessera_description::ids::JobId;
-use tessera_description::job::{JobSettings, JobState};
+use tessera_description::job::{JobSettings, JobState, Noise};
 
 pub use crate::persist::{JobRecord, JobStore, Loaded, LoadedJob, StoreError};
 
@@ -272,7 +272,22 @@ impl Store {
         let (priority, spp, width, height, time_limit, noise, state, error) = row;
         let time_limit =
             time_limit.filter(|t| t.is_finite() && *t > 0.0).map(std::time::Duration::from_secs_f64);
-        let noise = noise.map(|n| n as f32);
+        // A salvaged copy of a database from before the column has none: relative or no
+        // target.
+        let absolute: Option<f64> = match self.conn.prepare("SELECT noise_absolute FROM jobs WHERE id = ?1") {
+            Ok(mut s) => s.query_row([id], |r| r.get(0))?,
+            Err(_) => None,
+        };
+        let noise = match (noise, absolute) {
+            (_, Some(a)) => Some(Noise::Absolute(a as f32)),
+            (Some(r), None) => Some(Noise::Relative(r as f32)),
+            (None, None) => None,
+        };
+        if let Some(Err(reason)) = noise.map(Noise::checked) {
+            problems
+                .push(format!("job {id}: its stored noise target is out of range ({reason}); it is lost"));
+            return Ok(None);
+        }
         // A salvaged copy of a database from before the column has none: no layers.
         let aov_bits: u32 = match self.conn.prepare("SELECT aovs FROM jobs WHERE id = ?1") {
             Ok(mut s) => s.query_row([id], |r| r.get(0))?,
@@ -372,8 +387,8 @@ impl JobStore for Store {
         .map_err(err)?;
         tx.execute(
             "INSERT INTO jobs (id, priority, spp, width, height, time_limit, noise, state, error, owner, aovs,
-                               frame_first, frame_last)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13)",
+                               frame_first, frame_last, noise_absolute)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14)",
             params![
                 job.id.0 as i64,
                 job.priority,
@@ -381,13 +396,20 @@ impl JobStore for Store {
                 width,
                 height,
                 job.settings.time_limit.map(|t| t.as_secs_f64()),
-                job.settings.noise.map(f64::from),
+                match job.settings.noise {
+                    Some(Noise::Relative(v)) => Some(f64::from(v)),
+                    _ => None,
+                },
                 state,
                 error,
                 job.owner,
                 tessera_proto::convert::aovs_to_wire(job.settings.aovs),
                 job.settings.frames.map(|f| f.0),
-                job.settings.frames.map(|f| f.1)
+                job.settings.frames.map(|f| f.1),
+                match job.settings.noise {
+                    Some(Noise::Absolute(v)) => Some(f64::from(v)),
+                    _ => None,
+                }
             ],
         )
         .map_err(err)?;

@@ -69,5 +69,15 @@ pub(super) fn migrate(conn: &Connection, path: &Path) -> Result<(), StoreError> 
         conn.execute_batch("ALTER TABLE jobs ADD COLUMN aovs INTEGER NOT NULL DEFAULT 0")
             .map_err(write_err)?;
     }
+    // An absolute noise target, likewise (NULL: none, or the relative one in `noise`). Its
+    // own column rather than a flag beside `noise`: an older Tessera, which does not read
+    // it, then sees a job without a target instead of a relative one of the wrong size.
+    let has_noise_absolute = conn
+        .prepare("SELECT 1 FROM pragma_table_info('jobs') WHERE name = 'noise_absolute'")
+        .and_then(|mut q| q.exists([]))
+        .map_err(write_err)?;
+    if !has_noise_absolute {
+        conn.execute_batch("ALTER TABLE jobs ADD COLUMN noise_absolute REAL").map_err(write_err)?;
+    }
     Ok(())
 }

@@ -5,6 +5,7 @@ use super::schema::SCHEMA_VERSION;
 use super::*;
 use crate::scheduler::Completed;
 use tessera_description::bundle::Bundle;
+use tessera_description::Noise;
 
 fn record(id: u64) -> JobRecord {
     JobRecord {
@@ -19,7 +20,7 @@ fn record(id: u64) -> JobRecord {
             spp: Some(4),
             size: Some((40, 30)),
             time_limit: Some(std::time::Duration::from_millis(1500)),
-            noise: Some(0.02),
+            noise: Some(Noise::Relative(0.02)),
             aovs: tessera_description::job::Aovs { albedo: true, normal: false, depth: true },
             frames: Some((3, 9)),
         },
@@ -74,9 +75,9 @@ fn jobs_and_the_newest_checkpoint_survive_a_reopen() {
         let (mut store, loaded) = Store::open(dir.path()).unwrap();
         assert!(loaded.jobs.is_empty() && loaded.problems.is_empty());
         store.add_job(&record(1)).unwrap();
-        store
-            .add_job(&JobRecord { id: JobId(2), state: JobState::Failed("boom".into()), ..record(2) })
-            .unwrap();
+        let mut two = JobRecord { id: JobId(2), state: JobState::Failed("boom".into()), ..record(2) };
+        two.settings.noise = Some(Noise::Absolute(0.05));
+        store.add_job(&two).unwrap();
         for below in [10, 20, 30] {
             store.save(&checkpoint(1, 50, below), &JobState::Running).unwrap();
         }
@@ -89,6 +90,7 @@ fn jobs_and_the_newest_checkpoint_survive_a_reopen() {
     assert_eq!(one.record, JobRecord { state: JobState::Paused, ..record(1) });
     assert_eq!(one.checkpoint, Some(checkpoint(1, 50, 30)));
     assert_eq!(loaded.jobs[1].record.state, JobState::Failed("boom".into()));
+    assert_eq!(loaded.jobs[1].record.settings.noise, Some(Noise::Absolute(0.05)));
     assert!(loaded.jobs[1].checkpoint.is_none());
     assert_eq!(store.max_job_id(), 2);
     let generations: i64 = store
@@ -96,6 +98,24 @@ fn jobs_and_the_newest_checkpoint_survive_a_reopen() {
         .query_row("SELECT COUNT(DISTINCT generation) FROM checkpoint_parts", [], |r| r.get(0))
         .unwrap();
     assert_eq!(generations, GENERATIONS_KEPT);
+}
+
+/// A stored absolute noise target out of range (a file edited by hand, or damaged) loses
+/// its job with a reason, as a damaged scene does, instead of running it.
+#[test]
+fn a_stored_noise_target_out_of_range_is_reported_and_the_job_dropped() {
+    let dir = tempfile::tempdir().unwrap();
+    {
+        let (mut store, _) = Store::open(dir.path()).unwrap();
+        store.add_job(&record(1)).unwrap();
+        store.add_job(&record(2)).unwrap();
+        store.conn.execute("UPDATE jobs SET noise = NULL, noise_absolute = -1.0 WHERE id = 2", []).unwrap();
+    }
+    let (_, loaded) = Store::open(dir.path()).unwrap();
+    assert_eq!(loaded.jobs.len(), 1);
+    assert_eq!(loaded.problems.len(), 1, "{:?}", loaded.problems);
+    let p = &loaded.problems[0];
+    assert!(p.contains("job 2: its stored noise target is out of range") && p.contains("-1"), "{p}");
 }
 
 /// A database of layout 1 (before owners) is migrated at open: its jobs read back with no

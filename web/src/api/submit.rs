@@ -158,7 +158,7 @@ async fn read_form(multipart: &mut Multipart) -> Result<Form, ApiError> {
                 let data = field.bytes().await.map_err(multipart_error)?;
                 form.assets.push(pb::Asset { path, data: data.to_vec() });
             }
-            "spp" | "width" | "height" | "priority" | "time" | "noise" => {
+            "spp" | "width" | "height" | "priority" | "time" | "noise" | "noise_absolute" => {
                 let value = setting(field, &name).await?;
                 let value = value.trim();
                 let number = |what: &str| bad(format!("`{name}` {value:?} is not {what}"));
@@ -182,13 +182,14 @@ async fn read_form(multipart: &mut Multipart) -> Result<Form, ApiError> {
                             .map_err(|e| bad(format!("`time`: {e}")))?;
                         form.settings.time_limit_seconds = d.as_secs_f64();
                     }
-                    _ => form.settings.noise = value.parse().map_err(|_| number("a number"))?,
+                    "noise" => form.settings.noise = value.parse().map_err(|_| number("a number"))?,
+                    _ => form.settings.noise_absolute = value.parse().map_err(|_| number("a number"))?,
                 }
             }
             other => {
                 let shown: String = other.chars().take(40).collect();
                 return Err(bad(format!(
-                    "unknown part {shown:?}; expected scene, asset, spp, width, height, priority, time or noise"
+                    "unknown part {shown:?}; expected scene, asset, spp, width, height, priority, time, noise or noise_absolute"
                 )));
             }
         }
