@@ -227,7 +227,12 @@ fn noise_target_is_deterministic_and_a_time_budget_stops() {
     render_local(&small_scene(), &three, 3, &adaptive);
     assert_eq!(read(&one), read(&three), "adaptive sampling differs between 1 and 3 workers");
     let absolute = ["--spp", "128", "--noise-abs", "0.02"];
-    render_local(&small_scene(), &one, 1, &absolute);
+    let scene = small_scene();
+    let mut args = vec!["render", scene.to_str().unwrap(), "-o", one.to_str().unwrap(), "--workers", "1"];
+    args.extend_from_slice(&absolute);
+    let o = run(&args);
+    let err = String::from_utf8_lossy(&o.stderr);
+    assert!(o.status.success() && err.contains("stopped by the noise target"), "{err}");
     render_local(&small_scene(), &three, 3, &absolute);
     assert_eq!(read(&one), read(&three), "absolute adaptive sampling differs between 1 and 3 workers");
 

@@ -56,7 +56,10 @@ impl Job {
             }
             if c.even.is_empty() == job.framebuffer.has_even() {
                 return Err(RestoreJobError::Mismatch {
-                    expected: format!("noise target {:?}", job.settings.noise),
+                    expected: job
+                        .settings
+                        .noise
+                        .map_or("no noise target".into(), |n| format!("a noise target ({n})")),
                     got: "a checkpoint with other accumulators".into(),
                 });
             }
