@@ -237,14 +237,14 @@ pub fn default_out(scene: &Path) -> PathBuf {
 }
 
 /// `tessera bench halt`: for each time budget, the error reached by the farm with pass two
-/// in even rounds, with adaptive sampling to a noise target within the same budget, and by
+/// in even rounds, with adaptive sampling to each noise target within the same budget, and by
 /// the paper's single pass two given the same number of samples (its walk-ordered pass two
 /// stopped where those samples run out: the first pixels finished, the rest at 1 spp).
 pub async fn halt(
     scene_path: &Path,
     size: Option<(u32, u32)>,
     budgets: &[f64],
-    noise: f32,
+    targets: &[tessera_description::Noise],
     paper_spp: u32,
     reference_spp: u32,
 ) -> Result<()> {
@@ -271,7 +271,9 @@ pub async fn halt(
     );
     for &budget in budgets {
         let mut uniform_spp = 0.0;
-        for (name, adaptive) in [("rounds, uniform", None), ("rounds, adaptive", Some(noise))] {
+        let runs = std::iter::once(("rounds, uniform", None))
+            .chain(targets.iter().map(|&t| ("rounds, adaptive", Some(t))));
+        for (name, adaptive) in runs {
             let out = dir.join("halt.exr");
             let r = render_local(
                 scene_path,
@@ -281,7 +283,7 @@ pub async fn halt(
                     spp: Some(1 << 20),
                     size,
                     time_limit: Some(std::time::Duration::from_secs_f64(budget)),
-                    noise: adaptive.map(tessera_description::Noise::Relative),
+                    noise: adaptive,
                     layers: Default::default(),
                     frames: None,
                     progress_bar: false,

@@ -119,6 +119,10 @@ pub enum BenchCommand {
         /// The adaptive runs' noise target [default: 0.01].
         #[arg(long, default_value_t = 0.01)]
         noise: f32,
+        /// Also runs adaptive sampling to this absolute noise target (`tessera render
+        /// --noise-abs`) in each budget.
+        #[arg(long)]
+        noise_abs: Option<f32>,
         /// The paper's pass two: samples per pixel of a finished pixel, the quality a
         /// final render would ask for [default: 1024].
         #[arg(long, default_value_t = 1024)]
@@ -300,14 +304,20 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             convergence::convergence(&scene, size, max_spp, reference_spp, reference.as_deref(), &out)?;
             Ok(ExitCode::SUCCESS)
         }
-        BenchCommand::Halt { scene, size, budgets, noise, paper_spp, reference_spp } => {
+        BenchCommand::Halt { scene, size, budgets, noise, noise_abs, paper_spp, reference_spp } => {
             if budgets.iter().any(|b| !(b.is_finite() && *b > 0.0)) || budgets.is_empty() {
                 anyhow::bail!("--budgets must be positive numbers of seconds");
             }
             if paper_spp < 2 || reference_spp == 0 {
                 anyhow::bail!("--paper-spp must be at least 2 and --reference-spp at least 1");
             }
-            convergence::halt(&scene, size, &budgets, noise, paper_spp, reference_spp).await?;
+            use tessera_description::Noise;
+            let mut targets = vec![Noise::Relative(noise)];
+            targets.extend(noise_abs.map(Noise::Absolute));
+            for t in &targets {
+                t.checked().map_err(|e| anyhow::anyhow!("--noise/--noise-abs: {e}"))?;
+            }
+            convergence::halt(&scene, size, &budgets, &targets, paper_spp, reference_spp).await?;
             Ok(ExitCode::SUCCESS)
         }
         BenchCommand::Preview { scene, size, out } => {
