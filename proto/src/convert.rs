@@ -161,12 +161,18 @@ pub fn settings_from_wire(s: pb::RenderSettings) -> Result<JobSettings, WireErro
         t if t.is_finite() && t > 0.0 && t < 1e9 => Some(Duration::from_secs_f64(t)),
         t => return bad(format!("time_limit_seconds must be a positive number of seconds, got {t}")),
     };
+    // The ranges are `Noise::checked`'s, applied to the f32 the job keeps (an f64 beyond
+    // f32's range becomes infinite there, and is refused); the messages name the wire's fields.
     let noise = match (s.noise, s.noise_absolute) {
         (0.0, 0.0) => None,
-        (n, 0.0) if n.is_finite() && n > 0.0 && n < 1.0 => Some(Noise::Relative(n as f32)),
-        (n, 0.0) => return bad(format!("noise must be a relative error in (0, 1), got {n}")),
-        (0.0, n) if n.is_finite() && n > 0.0 && n <= f64::from(f32::MAX) => Some(Noise::Absolute(n as f32)),
-        (0.0, n) => return bad(format!("noise_absolute must be a positive number, got {n}")),
+        (n, 0.0) => match Noise::Relative(n as f32).checked() {
+            Ok(t) => Some(t),
+            Err(_) => return bad(format!("noise must be a relative error in (0, 1), got {n}")),
+        },
+        (0.0, n) => match Noise::Absolute(n as f32).checked() {
+            Ok(t) => Some(t),
+            Err(_) => return bad(format!("noise_absolute must be a positive number, got {n}")),
+        },
         (r, a) => return bad(format!("give noise or noise_absolute, not both (got {r} and {a})")),
     };
     let Some(aovs) = aovs_from_wire(s.aovs) else {
