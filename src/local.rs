@@ -67,6 +67,11 @@ pub struct RenderArgs {
     /// noisy highlights and dark pixels stop early.
     #[arg(long, allow_negative_numbers = true, conflicts_with = "noise")]
     pub noise_abs: Option<f32>,
+    /// Samples every pixel takes before --noise or --noise-abs may stop it [default: 16
+    /// with --noise, 64 with --noise-abs]; at most --spp. More cuts the low bias of pixels
+    /// whose first samples missed a rare bright path, at the cost of time (docs/accuracy.md).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(2..), allow_negative_numbers = true)]
+    pub noise_min: Option<u32>,
     /// Continue an interrupted render of the same scene and settings from its checkpoint.
     #[arg(long)]
     pub resume: bool,
@@ -121,6 +126,8 @@ pub struct LocalOptions {
     pub time_limit: Option<Duration>,
     /// Noise target.
     pub noise: Option<tessera_description::Noise>,
+    /// Samples a pixel takes before the noise target may stop it (`None`: the target's own).
+    pub noise_min: Option<u32>,
     /// AOV layers to accumulate and write, and denoising.
     pub layers: crate::layers::AovArgs,
     /// The frames of a sequence (`None`: a still); `output` is then a pattern.
@@ -205,7 +212,7 @@ fn open_job(
         ([(id, hash, stored)], true) => {
             if *hash != bundle.hash() || stored != settings {
                 bail!(
-                    "the checkpoint in {} is of a different scene or settings (the scene file, its assets, --spp, --size, --time, --noise or --noise-abs changed); render without --resume after deleting it",
+                    "the checkpoint in {} is of a different scene or settings (the scene file, its assets, --spp, --size, --time, --noise, --noise-abs or --noise-min changed); render without --resume after deleting it",
                     c.dir.display()
                 );
             }
@@ -332,6 +339,7 @@ pub async fn render_local(scene: &Path, opts: LocalOptions) -> Result<LocalRende
         size: opts.size,
         time_limit: opts.time_limit,
         noise: opts.noise,
+        noise_min: opts.noise_min,
         aovs: opts.layers.aovs(),
         frames: opts.frames,
     };
@@ -528,13 +536,15 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
         interval: crate::seconds("--checkpoint-interval", args.checkpoint_interval)?,
         resume: args.resume,
     };
+    let (noise, noise_min) = crate::noise_target(args.noise, args.noise_abs, args.noise_min)?;
     let opts = LocalOptions {
         workers,
         threads,
         spp: args.spp,
         size: args.size,
         time_limit: args.time,
-        noise: crate::noise_target(args.noise, args.noise_abs),
+        noise,
+        noise_min,
         layers: args.layers.clone(),
         frames,
         progress_bar: true,

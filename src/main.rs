@@ -470,10 +470,18 @@ pub async fn shutdown_signal() {
 }
 
 /// The noise target of `--noise` (relative) or `--noise-abs` (absolute), which clap keeps
-/// apart; the coordinator checks its range.
-pub fn noise_target(relative: Option<f32>, absolute: Option<f32>) -> Option<tessera_description::Noise> {
+/// apart, and `--noise-min`, which needs one of them; the coordinator checks their ranges.
+pub fn noise_target(
+    relative: Option<f32>,
+    absolute: Option<f32>,
+    min: Option<u32>,
+) -> anyhow::Result<(Option<tessera_description::Noise>, Option<u32>)> {
     use tessera_description::Noise;
-    relative.map(Noise::Relative).or(absolute.map(Noise::Absolute))
+    let target = relative.map(Noise::Relative).or(absolute.map(Noise::Absolute));
+    if let (None, Some(m)) = (target, min) {
+        anyhow::bail!("--noise-min {m}: a minimum of samples needs a noise target, --noise or --noise-abs");
+    }
+    Ok((target, min))
 }
 
 /// A duration such as `90`, `90s`, `2m`, `1h30m` or `1.5h` (also the web API's `time`).

@@ -176,6 +176,9 @@ pub struct SubmitArgs {
     /// Per-pixel absolute noise target, e.g. 0.02 (see `tessera render`).
     #[arg(long, allow_negative_numbers = true, conflicts_with = "noise")]
     pub noise_abs: Option<f32>,
+    /// Samples every pixel takes before the noise target may stop it (see `tessera render`).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(2..), allow_negative_numbers = true)]
+    pub noise_min: Option<u32>,
     /// Priority: jobs with a higher one are served first, equal ones oldest first (a
     /// submitter may ask at most the coordinator's --max-priority).
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
@@ -335,6 +338,7 @@ pub async fn connect(conn: &ClientArgs) -> Result<Client> {
 /// `tessera submit`.
 pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
     let frames = crate::frames::parse(args.frames.as_deref())?;
+    let (noise, noise_min) = crate::noise_target(args.noise, args.noise_abs, args.noise_min)?;
     if let Some(out) = &args.output {
         crate::check_output(out)?;
         args.layers.check(Some(out))?;
@@ -353,7 +357,8 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
                 spp: args.spp,
                 size: args.size,
                 time_limit: args.time,
-                noise: crate::noise_target(args.noise, args.noise_abs),
+                noise,
+                noise_min,
                 aovs: args.layers.aovs(),
                 frames,
             })),

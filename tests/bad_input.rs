@@ -205,6 +205,14 @@ fn bad_halt_conditions_are_clear_errors() {
     }
     let both = render(&["--noise", "0.1", "--noise-abs", "0.1"]);
     assert!(both.contains("cannot be used with"), "{both}");
+    let alone = render(&["--noise-min", "32"]);
+    assert!(alone.contains("--noise-min 32: a minimum of samples needs a noise target"), "{alone}");
+    for min in ["1", "0", "-3", "many"] {
+        let e = render(&["--noise", "0.1", "--noise-min", min]);
+        assert!(e.contains("--noise-min"), "{min}: {e}");
+    }
+    let over = render(&["--noise-abs", "0.1", "--spp", "16", "--noise-min", "32"]);
+    assert!(over.contains("minimum of 32 samples is more than the job's 16 samples per pixel"), "{over}");
     for time in ["0", "soon", "5x", "-1s"] {
         let e = render(&["--time", time]);
         assert!(e.contains("--time") && e.contains("duration"), "{time}: {e}");

@@ -216,7 +216,8 @@ fn thin_and_tiny_images_render_through_the_farm() {
 }
 
 /// Halt conditions through the whole farm: a noise target gives the same bytes with 1 and
-/// 3 workers and stops early; a time budget stops a render that would take hours.
+/// 3 workers and stops early, and with a minimum of every sample gives a plain render's;
+/// a time budget stops a render that would take hours.
 #[test]
 fn noise_target_is_deterministic_and_a_time_budget_stops() {
     let dir = tempfile::tempdir().unwrap();
@@ -235,6 +236,15 @@ fn noise_target_is_deterministic_and_a_time_budget_stops() {
     assert!(o.status.success() && err.contains("stopped by the noise target"), "{err}");
     render_local(&small_scene(), &three, 3, &absolute);
     assert_eq!(read(&one), read(&three), "absolute adaptive sampling differs between 1 and 3 workers");
+    // A loose target stops pixels at its minimum; a minimum of every sample stops none, and
+    // gives the bytes of a target no pixel reaches (rounds draw another pattern than a
+    // render without a target, so that is the comparison).
+    let (loose, all) = (dir.path().join("loose.png"), dir.path().join("all.png"));
+    render_local(&small_scene(), &loose, 2, &["--spp", "64", "--noise", "0.5"]);
+    render_local(&small_scene(), &all, 2, &["--spp", "64", "--noise", "0.0001"]);
+    render_local(&small_scene(), &one, 2, &["--spp", "64", "--noise", "0.5", "--noise-min", "64"]);
+    assert_eq!(read(&one), read(&all), "a noise minimum of every sample left pixels short");
+    assert_ne!(read(&loose), read(&all), "the loose target stopped no pixel: the check above tells nothing");
 
     let timed = dir.path().join("timed.png");
     let start = std::time::Instant::now();

@@ -137,13 +137,14 @@ fn sigint_then_resume_gives_the_uninterrupted_bytes() {
 /// The same with a noise target, relative or absolute: an adaptive render interrupted and
 /// resumed ends in the bytes of an uninterrupted one (its decisions depend on merged
 /// samples only, and the checkpoint keeps the even-sample sums they are made from; the
-/// store keeps which kind of target it was).
+/// store keeps which kind of target it was, and its minimum: a resume without it is
+/// refused).
 #[test]
 fn adaptive_render_resumes_to_the_same_bytes() {
     // As above: at most 32 samples a pixel the render ended (1.8 s) before the interrupt,
     // and at 240x135 it took 2.3 s once the showcase's knot became an instance (320x180:
     // 4.0 s). The absolute target takes at least 64 samples a pixel, so it runs longer.
-    adaptive_resume_case(&["--size", "320x180", "--spp", "128", "--noise", "0.02"]);
+    adaptive_resume_case(&["--size", "320x180", "--spp", "128", "--noise", "0.02", "--noise-min", "32"]);
     adaptive_resume_case(&["--size", "320x180", "--spp", "128", "--noise-abs", "0.01"]);
 }
 
@@ -164,6 +165,13 @@ fn adaptive_resume_case(settings: &[&str]) {
     assert_eq!(status.code(), Some(130), "finished before the interrupt: {}", first.stderr.lock().unwrap());
     let mut resume = args.clone();
     resume.push("--resume");
+    if let Some(at) = resume.iter().position(|a| *a == "--noise-min") {
+        let mut other = resume.clone();
+        other.drain(at..at + 2);
+        let refused = run(&other);
+        let msg = String::from_utf8_lossy(&refused.stderr);
+        assert!(!refused.status.success() && msg.contains("different scene or settings"), "{msg}");
+    }
     let o = run(&resume);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     assert_eq!(read(&out), read(&reference), "resumed adaptive render differs: {settings:?}");

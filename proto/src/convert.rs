@@ -124,6 +124,7 @@ pub fn settings_to_wire(s: &JobSettings) -> pb::RenderSettings {
             Some(Noise::Absolute(v)) => f64::from(v),
             _ => 0.0,
         },
+        noise_min_samples: s.noise_min.unwrap_or(0),
         aovs: aovs_to_wire(s.aovs),
         frames: s.frames.map(|(first, last)| pb::FrameRange { first, last }),
     }
@@ -175,6 +176,11 @@ pub fn settings_from_wire(s: pb::RenderSettings) -> Result<JobSettings, WireErro
         },
         (r, a) => return bad(format!("give noise or noise_absolute, not both (got {r} and {a})")),
     };
+    let noise_min = (s.noise_min_samples != 0).then_some(s.noise_min_samples);
+    let adaptive = JobSettings { noise, noise_min, ..JobSettings::default() };
+    if let Err(e) = adaptive.checked_noise() {
+        return bad(format!("noise_min_samples: {e}"));
+    }
     let Some(aovs) = aovs_from_wire(s.aovs) else {
         return bad(format!("aovs: unknown layer bits in {:#x} (1 albedo, 2 normal, 4 depth)", s.aovs));
     };
@@ -186,7 +192,7 @@ pub fn settings_from_wire(s: pb::RenderSettings) -> Result<JobSettings, WireErro
             Some((f.first, f.last))
         }
     };
-    Ok(JobSettings { spp: (s.spp != 0).then_some(s.spp), size, time_limit, noise, aovs, frames })
+    Ok(JobSettings { spp: (s.spp != 0).then_some(s.spp), size, time_limit, noise, noise_min, aovs, frames })
 }
 
 /// A job state as it travels (a failure's reason travels apart, in `JobStatus::error`).
@@ -340,10 +346,16 @@ mod tests {
                 size: None,
                 time_limit: Some(Duration::from_secs(90)),
                 noise: Some(Noise::Relative(0.01)),
+                noise_min: None,
                 aovs: Aovs { albedo: true, normal: false, depth: true },
                 frames: None,
             },
             JobSettings { noise: Some(Noise::Absolute(0.02)), ..JobSettings::sized(Some(4096), None) },
+            JobSettings {
+                noise: Some(Noise::Absolute(0.02)),
+                noise_min: Some(256),
+                ..JobSettings::sized(Some(4096), None)
+            },
             JobSettings { frames: Some((1, 48)), ..JobSettings::sized(Some(4), None) },
         ] {
             assert_eq!(settings_from_wire(settings_to_wire(&s)), Ok(s));
@@ -369,6 +381,13 @@ mod tests {
             s.noise_absolute = 0.1;
         });
         assert!(both.contains("not both"), "{both}");
+        let alone = wire(|s| s.noise_min_samples = 32);
+        assert!(alone.contains("noise_min_samples") && alone.contains("without a noise target"), "{alone}");
+        let one = wire(|s| {
+            s.noise_absolute = 0.1;
+            s.noise_min_samples = 1;
+        });
+        assert!(one.contains("noise_min_samples") && one.contains("at least 2"), "{one}");
         assert!(wire(|s| s.aovs = 8).contains("aovs: unknown layer bits"));
         let reversed = wire(|s| s.frames = Some(pb::FrameRange { first: 5, last: 2 }));
         assert!(reversed.contains("frames 5-2: the range is reversed"), "{reversed}");

@@ -284,6 +284,7 @@ pub async fn halt(
                     size,
                     time_limit: Some(std::time::Duration::from_secs_f64(budget)),
                     noise: adaptive,
+                    noise_min: None,
                     layers: Default::default(),
                     frames: None,
                     progress_bar: false,

@@ -77,6 +77,7 @@ pub async fn run(
                 size,
                 time_limit: None,
                 noise: None,
+                noise_min: None,
                 layers: Default::default(),
                 frames: None,
                 progress_bar: false,

@@ -69,6 +69,21 @@ fn bad_input_gets_a_clear_4xx_json_error() {
         400,
         "not both",
     );
+    assert_error(
+        submit(&web, None, small_form(8, 8, 16).text("noise_min", "4")),
+        400,
+        "without a noise target",
+    );
+    assert_error(
+        submit(&web, None, small_form(8, 8, 16).text("noise", "0.1").text("noise_min", "some")),
+        400,
+        "`noise_min` \"some\" is not a whole number",
+    );
+    assert_error(
+        submit(&web, None, small_form(8, 8, 16).text("noise_absolute", "0.1").text("noise_min", "32")),
+        400,
+        "minimum of 32 samples is more than the job's 16 samples per pixel",
+    );
     let traversal = small_form(8, 8, 1)
         .part("asset", multipart::Part::bytes(b"x".to_vec()).file_name("../../etc/passwd"));
     assert_error(submit(&web, None, traversal), 400, "escapes the scene's folder");
@@ -76,7 +91,7 @@ fn bad_input_gets_a_clear_4xx_json_error() {
         .part("scene", multipart::Part::text("[render]\nwidth = -1\n").file_name("bad.toml"));
     assert_error(submit(&web, None, scene_error), 400, "bad.toml:2");
     // Too many parts: refused once counted past the limit (the form written out by hand:
-    // reqwest takes tens of seconds to build one of 65 545 parts).
+    // reqwest takes tens of seconds to build one of 65 546 parts).
     let mut many =
         b"--b\r\ncontent-disposition: form-data; name=\"scene\"; filename=\"s.toml\"\r\n\r\n[render]\r\n"
             .to_vec();
@@ -90,7 +105,7 @@ fn bad_input_gets_a_clear_4xx_json_error() {
         .body(many)
         .send()
         .unwrap();
-    assert_error(r, 400, "more than 65543 parts");
+    assert_error(r, 400, "more than 65545 parts");
     // Bad JSON, unknown jobs, non-numeric ids, unknown routes.
     assert_error(post(&web, None, "/api/jobs/1/priority", Some("{\"priority\":")), 400, "bad JSON");
     assert_error(

@@ -366,7 +366,7 @@
         error.textContent = `${scene.name} refers to ${missing.join(", ")}: pick its folder or the file${missing.length > 1 ? "s" : ""}`;
         return;
       }
-      for (const name of ["width", "height", "spp", "priority", "time", "noise", "noise_absolute"]) {
+      for (const name of ["width", "height", "spp", "priority", "time", "noise", "noise_absolute", "noise_min"]) {
         const input = document.getElementById(`submit-${name}`);
         if (input.validity && input.validity.badInput) {
           error.textContent = `${input.labels[0].textContent}: not a number`;

@@ -8,31 +8,24 @@ use tessera_film::{Framebuffer, Quad};
 /// Luminance below which a pixel's noise is measured against this floor instead: black
 /// pixels would otherwise never reach a relative target. (An absolute target needs none.)
 pub const NOISE_FLOOR: f64 = 0.05;
-/// Samples a pixel takes before its noise estimate may stop it: fewer give estimates too
-/// rough to trust.
-pub const NOISE_MIN_SAMPLES: u32 = 16;
-/// The same for an absolute target, which stops the dark pixels at this minimum: they are
-/// where rare bright paths hide (a glossy highlight's tail, light through frosted glass),
-/// and a pixel whose first samples missed them looks smooth and stops with the miss, low.
-/// On `spheres` at a target of 0.05 (seeds 1–4), 64 instead of 16 halved that bias (0.12 %
-/// → 0.055 % of the image's light) and lowered the error for the time (docs/accuracy.md).
-pub const NOISE_MIN_SAMPLES_ABSOLUTE: u32 = 64;
 /// The radius of the window over which pixels' error estimates are pooled (5×5).
 const NOISE_WINDOW: u32 = 2;
 
-/// Whether pixel `q` has reached the noise target (never without one).
+/// Whether pixel `q` has reached the noise target (never without one), having taken at
+/// least the target's minimum of samples (`JobSettings::adaptive`: the job's own, or
+/// `Noise::default_min_samples`).
 ///
 /// One pixel's estimate (half the difference of its even and odd halves) is a single draw
 /// of the error, often far below it by chance; stopping on it would stop noisy pixels
 /// early. So the errors of the pixels around it, within its own tile (whose
 /// samples are all merged when its round ends, which keeps the decision deterministic), are
 /// averaged in square: an estimate with about 25 degrees of freedom instead of one.
-pub(crate) fn converged(fb: &Framebuffer, q: Quad, target: Option<Noise>) -> bool {
-    let Some(target) = target else { return false };
+pub(crate) fn converged(fb: &Framebuffer, q: Quad, adaptive: Option<(Noise, u32)>) -> bool {
+    let Some((target, min)) = adaptive else { return false };
     let count = fb.count(q.x, q.y);
-    let (min, floor) = match target {
-        Noise::Relative(_) => (NOISE_MIN_SAMPLES, Some(NOISE_FLOOR)),
-        Noise::Absolute(_) => (NOISE_MIN_SAMPLES_ABSOLUTE, None),
+    let floor = match target {
+        Noise::Relative(_) => Some(NOISE_FLOOR),
+        Noise::Absolute(_) => None,
     };
     if count < min {
         return false;

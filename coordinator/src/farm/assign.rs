@@ -302,11 +302,11 @@ impl Farm {
                     // The tile's next round: every pixel, or those still above the noise
                     // target (decided on merged samples only, so the same whatever the
                     // arrival order).
-                    let next = job.settings.noise.map(|target| {
+                    let next = job.settings.adaptive().map(|adaptive| {
                         spec.quads
                             .iter()
                             .copied()
-                            .filter(|q| !converged(&job.framebuffer, *q, Some(target)))
+                            .filter(|q| !converged(&job.framebuffer, *q, Some(adaptive)))
                             .collect()
                     });
                     job.queue.schedule_round(tile, round + 1, next);

@@ -272,9 +272,7 @@ impl Job {
                 u32::MAX
             )));
         }
-        if let Some(n) = settings.noise {
-            n.checked().map_err(SubmitError::Noise)?;
-        }
+        settings.checked_noise_for(scene.spp).map_err(SubmitError::Noise)?;
         if settings.time_limit.is_some_and(|t| t.is_zero()) {
             return Err(SubmitError::TimeLimit);
         }

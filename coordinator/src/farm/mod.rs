@@ -28,7 +28,7 @@ use tessera_description::ids::{BatchId, JobId, WorkerId};
 pub use tessera_description::job::{JobProgress, JobSettings, JobState};
 use tessera_film::MergeError;
 
-pub use adaptive::{NOISE_FLOOR, NOISE_MIN_SAMPLES, NOISE_MIN_SAMPLES_ABSOLUTE};
+pub use adaptive::NOISE_FLOOR;
 pub use assign::BatchFailure;
 pub use audit::{AuditPolicy, DEFAULT_AUDIT_FRACTION};
 pub use census::{Census, LeaseCounters, JOB_STATES};

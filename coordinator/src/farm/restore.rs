@@ -66,7 +66,7 @@ impl Job {
             let fb = Framebuffer::from_accumulators(w, h, c.sums, c.counts, c.even)
                 .expect("decode checked lengths");
             job.queue = if job.settings.in_rounds() {
-                let target = job.settings.noise;
+                let target = job.settings.adaptive();
                 let keep = |q: Quad| !converged(&fb, q, target);
                 let decide: Option<&dyn Fn(Quad) -> bool> = if target.is_some() { Some(&keep) } else { None };
                 PassQueue::restore_rounds(w, h, job.spp, &c.completed, &fb.accumulators().1, decide)?

@@ -233,14 +233,36 @@ fn run_adaptive(farm: &mut Farm, limit: usize, window: usize) -> usize {
 fn adaptive_sampling_is_deterministic_and_resumable() {
     // The noisy part's samples are spread over [0, 1) with a mean about 0.49: after 256 a
     // pixel's standard error is about 0.018, 0.036 of its mean, above both targets.
-    for (target, min) in
-        [(Noise::Relative(0.02), NOISE_MIN_SAMPLES), (Noise::Absolute(0.01), NOISE_MIN_SAMPLES_ABSOLUTE)]
-    {
-        adaptive_run_checks(JobSettings { noise: Some(target), ..settings(40, 36, 256) }, min);
+    // Flat pixels stop at the end of the first round at or past the minimum: the target's
+    // own (16 and 64), or the job's (2; 100, whose round ends at 128).
+    for (target, noise_min, stop) in [
+        (Noise::Relative(0.02), None, 16),
+        (Noise::Absolute(0.01), None, 64),
+        (Noise::Relative(0.02), Some(2), 2),
+        (Noise::Absolute(0.01), Some(100), 128),
+    ] {
+        adaptive_run_checks(JobSettings { noise: Some(target), noise_min, ..settings(40, 36, 256) }, stop);
     }
 }
 
-fn adaptive_run_checks(adaptive: JobSettings, min: u32) {
+/// A noise target's minimum is refused without a target, below two samples and above the
+/// job's sample count, with the reason.
+#[test]
+fn a_noise_minimum_out_of_range_is_refused() {
+    let abs = Some(Noise::Absolute(0.01));
+    for (noise, noise_min, says) in [
+        (None, Some(32), "without a noise target"),
+        (abs, Some(1), "at least 2 samples"),
+        (abs, Some(257), "minimum of 257 samples is more than the job's 256"),
+    ] {
+        let err = Farm::new()
+            .submit(bundle(), JobSettings { noise, noise_min, ..settings(8, 8, 256) }, 0)
+            .unwrap_err();
+        assert!(err.to_string().contains(says), "{err}");
+    }
+}
+
+fn adaptive_run_checks(adaptive: JobSettings, flat_stop: u32) {
     let mut reference = Farm::new();
     let id = reference.submit(bundle(), adaptive.clone(), 0).unwrap();
     run_adaptive(&mut reference, usize::MAX, 1);
@@ -250,7 +272,11 @@ fn adaptive_run_checks(adaptive: JobSettings, min: u32) {
     let counts = done.framebuffer().accumulators().1;
     // Flat pixels stop at the minimum, but for those whose window reaches the noise.
     let flat = counts.iter().enumerate().filter(|(i, _)| i % 40 < 18).map(|(_, &c)| c);
-    assert!(flat.clone().all(|c| c == min), "flat pixels stop at the minimum: {:?}", adaptive.noise);
+    assert!(
+        flat.clone().all(|c| c == flat_stop),
+        "flat pixels stop at the minimum: {:?}",
+        adaptive.adaptive()
+    );
     let noisy = counts.iter().enumerate().filter(|(i, _)| i % 40 >= 20).map(|(_, &c)| c);
     assert!(noisy.clone().all(|c| c == 256), "noisy pixels take every sample: {:?}", adaptive.noise);
 

@@ -283,7 +283,20 @@ impl Store {
             (Some(r), None) => Some(Noise::Relative(r as f32)),
             (None, None) => None,
         };
-        if let Some(Err(reason)) = noise.map(Noise::checked) {
+        // Likewise: the target's own minimum.
+        let noise_min: Option<i64> = match self.conn.prepare("SELECT noise_min FROM jobs WHERE id = ?1") {
+            Ok(mut s) => s.query_row([id], |r| r.get(0))?,
+            Err(_) => None,
+        };
+        let Ok(noise_min) = noise_min.map(u32::try_from).transpose() else {
+            problems.push(format!(
+                "job {id}: its stored noise target's minimum {} is not a sample count; it is lost",
+                noise_min.unwrap_or_default()
+            ));
+            return Ok(None);
+        };
+        let noise_settings = JobSettings { noise, noise_min, ..JobSettings::default() };
+        if let Err(reason) = noise_settings.checked_noise() {
             problems
                 .push(format!("job {id}: its stored noise target is out of range ({reason}); it is lost"));
             return Ok(None);
@@ -312,7 +325,15 @@ impl Store {
         let record = JobRecord {
             id: JobId(id as u64),
             bundle: std::sync::Arc::new(bundle),
-            settings: JobSettings { spp, size, time_limit, noise, aovs, frames: frames.0.zip(frames.1) },
+            settings: JobSettings {
+                spp,
+                size,
+                time_limit,
+                noise,
+                noise_min,
+                aovs,
+                frames: frames.0.zip(frames.1),
+            },
             priority,
             state,
             owner,
@@ -387,8 +408,8 @@ impl JobStore for Store {
         .map_err(err)?;
         tx.execute(
             "INSERT INTO jobs (id, priority, spp, width, height, time_limit, noise, state, error, owner, aovs,
-                               frame_first, frame_last, noise_absolute)
-             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14)",
+                               frame_first, frame_last, noise_absolute, noise_min)
+             VALUES (?1, ?2, ?3, ?4, ?5, ?6, ?7, ?8, ?9, ?10, ?11, ?12, ?13, ?14, ?15)",
             params![
                 job.id.0 as i64,
                 job.priority,
@@ -409,7 +430,8 @@ impl JobStore for Store {
                 match job.settings.noise {
                     Some(Noise::Absolute(v)) => Some(f64::from(v)),
                     _ => None,
-                }
+                },
+                job.settings.noise_min,
             ],
         )
         .map_err(err)?;

@@ -58,26 +58,25 @@ pub(super) fn migrate(conn: &Connection, path: &Path) -> Result<(), StoreError> 
     } else if version != SCHEMA_VERSION {
         return Err(StoreError::Version { expected: SCHEMA_VERSION, path: path.to_owned(), found: version });
     }
-    // The jobs' AOV layers: a column added where it is missing, whatever the layout
-    // version (older files, and older Tessera versions, which name their columns and
-    // so ignore it; a job without it keeps no layers).
-    let has_aovs = conn
-        .prepare("SELECT 1 FROM pragma_table_info('jobs') WHERE name = 'aovs'")
-        .and_then(|mut q| q.exists([]))
-        .map_err(write_err)?;
-    if !has_aovs {
-        conn.execute_batch("ALTER TABLE jobs ADD COLUMN aovs INTEGER NOT NULL DEFAULT 0")
+    // Columns added where they are missing, whatever the layout version (older files, and
+    // older Tessera versions, which name their columns and so ignore them):
+    // - the jobs' AOV layers (a job without the column keeps no layers);
+    // - an absolute noise target (NULL: none, or the relative one in `noise`). Its own
+    //   column rather than a flag beside `noise`: an older Tessera, which does not read it,
+    //   then sees a job without a target instead of a relative one of the wrong size;
+    // - the noise target's minimum of samples (NULL: the target's own). An older Tessera
+    //   uses the target's own, a render with other stopping points but still the job's.
+    for (column, declaration) in
+        [("aovs", "INTEGER NOT NULL DEFAULT 0"), ("noise_absolute", "REAL"), ("noise_min", "INTEGER")]
+    {
+        let present = conn
+            .prepare("SELECT 1 FROM pragma_table_info('jobs') WHERE name = ?1")
+            .and_then(|mut q| q.exists([column]))
             .map_err(write_err)?;
-    }
-    // An absolute noise target, likewise (NULL: none, or the relative one in `noise`). Its
-    // own column rather than a flag beside `noise`: an older Tessera, which does not read
-    // it, then sees a job without a target instead of a relative one of the wrong size.
-    let has_noise_absolute = conn
-        .prepare("SELECT 1 FROM pragma_table_info('jobs') WHERE name = 'noise_absolute'")
-        .and_then(|mut q| q.exists([]))
-        .map_err(write_err)?;
-    if !has_noise_absolute {
-        conn.execute_batch("ALTER TABLE jobs ADD COLUMN noise_absolute REAL").map_err(write_err)?;
+        if !present {
+            conn.execute_batch(&format!("ALTER TABLE jobs ADD COLUMN {column} {declaration}"))
+                .map_err(write_err)?;
+        }
     }
     Ok(())
 }

@@ -21,6 +21,7 @@ fn record(id: u64) -> JobRecord {
             size: Some((40, 30)),
             time_limit: Some(std::time::Duration::from_millis(1500)),
             noise: Some(Noise::Relative(0.02)),
+            noise_min: None,
             aovs: tessera_description::job::Aovs { albedo: true, normal: false, depth: true },
             frames: Some((3, 9)),
         },
@@ -77,6 +78,7 @@ fn jobs_and_the_newest_checkpoint_survive_a_reopen() {
         store.add_job(&record(1)).unwrap();
         let mut two = JobRecord { id: JobId(2), state: JobState::Failed("boom".into()), ..record(2) };
         two.settings.noise = Some(Noise::Absolute(0.05));
+        two.settings.noise_min = Some(100);
         store.add_job(&two).unwrap();
         for below in [10, 20, 30] {
             store.save(&checkpoint(1, 50, below), &JobState::Running).unwrap();
@@ -91,6 +93,7 @@ fn jobs_and_the_newest_checkpoint_survive_a_reopen() {
     assert_eq!(one.checkpoint, Some(checkpoint(1, 50, 30)));
     assert_eq!(loaded.jobs[1].record.state, JobState::Failed("boom".into()));
     assert_eq!(loaded.jobs[1].record.settings.noise, Some(Noise::Absolute(0.05)));
+    assert_eq!(loaded.jobs[1].record.settings.noise_min, Some(100));
     assert!(loaded.jobs[1].checkpoint.is_none());
     assert_eq!(store.max_job_id(), 2);
     let generations: i64 = store
@@ -109,13 +112,23 @@ fn a_stored_noise_target_out_of_range_is_reported_and_the_job_dropped() {
         let (mut store, _) = Store::open(dir.path()).unwrap();
         store.add_job(&record(1)).unwrap();
         store.add_job(&record(2)).unwrap();
+        store.add_job(&record(3)).unwrap();
+        store.add_job(&record(4)).unwrap();
         store.conn.execute("UPDATE jobs SET noise = NULL, noise_absolute = -1.0 WHERE id = 2", []).unwrap();
+        // A minimum that is no u32, and one below two samples.
+        store.conn.execute("UPDATE jobs SET noise_min = -5 WHERE id = 3", []).unwrap();
+        store.conn.execute("UPDATE jobs SET noise_min = 1 WHERE id = 4", []).unwrap();
     }
     let (_, loaded) = Store::open(dir.path()).unwrap();
     assert_eq!(loaded.jobs.len(), 1);
-    assert_eq!(loaded.problems.len(), 1, "{:?}", loaded.problems);
-    let p = &loaded.problems[0];
-    assert!(p.contains("job 2: its stored noise target is out of range") && p.contains("-1"), "{p}");
+    assert_eq!(loaded.problems.len(), 3, "{:?}", loaded.problems);
+    let p = &loaded.problems;
+    assert!(p[0].contains("job 2: its stored noise target is out of range") && p[0].contains("-1"), "{p:?}");
+    assert!(p[1].contains("job 3: its stored noise target's minimum -5 is not a sample count"), "{p:?}");
+    assert!(
+        p[2].contains("job 4: its stored noise target is out of range") && p[2].contains("got 1"),
+        "{p:?}"
+    );
 }
 
 /// A database of layout 1 (before owners) is migrated at open: its jobs read back with no

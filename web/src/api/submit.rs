@@ -19,8 +19,8 @@ use crate::AppState;
 /// The largest upload: the largest Submit message (a bundle and its framing). Multipart
 /// framing adds ~200 bytes a part, well within its slack.
 pub(crate) const MAX_UPLOAD_BYTES: u64 = tessera_proto::connect::MAX_MESSAGE_BYTES as u64;
-/// The most parts: a scene, every asset it may carry, and the six settings.
-pub(crate) const MAX_PARTS: usize = MAX_ASSETS + 1 + 6;
+/// The most parts: a scene, every asset it may carry, and the eight settings.
+pub(crate) const MAX_PARTS: usize = MAX_ASSETS + 1 + 8;
 /// The longest setting value, in bytes.
 const MAX_SETTING_BYTES: usize = 64;
 
@@ -158,7 +158,7 @@ async fn read_form(multipart: &mut Multipart) -> Result<Form, ApiError> {
                 let data = field.bytes().await.map_err(multipart_error)?;
                 form.assets.push(pb::Asset { path, data: data.to_vec() });
             }
-            "spp" | "width" | "height" | "priority" | "time" | "noise" | "noise_absolute" => {
+            "spp" | "width" | "height" | "priority" | "time" | "noise" | "noise_absolute" | "noise_min" => {
                 let value = setting(field, &name).await?;
                 let value = value.trim();
                 let number = |what: &str| bad(format!("`{name}` {value:?} is not {what}"));
@@ -183,13 +183,19 @@ async fn read_form(multipart: &mut Multipart) -> Result<Form, ApiError> {
                         form.settings.time_limit_seconds = d.as_secs_f64();
                     }
                     "noise" => form.settings.noise = value.parse().map_err(|_| number("a number"))?,
-                    _ => form.settings.noise_absolute = value.parse().map_err(|_| number("a number"))?,
+                    "noise_absolute" => {
+                        form.settings.noise_absolute = value.parse().map_err(|_| number("a number"))?
+                    }
+                    _ => {
+                        form.settings.noise_min_samples =
+                            value.parse().map_err(|_| number("a whole number"))?
+                    }
                 }
             }
             other => {
                 let shown: String = other.chars().take(40).collect();
                 return Err(bad(format!(
-                    "unknown part {shown:?}; expected scene, asset, spp, width, height, priority, time, noise or noise_absolute"
+                    "unknown part {shown:?}; expected scene, asset, spp, width, height, priority, time, noise, noise_absolute or noise_min"
                 )));
             }
         }
