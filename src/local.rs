@@ -210,7 +210,9 @@ fn open_job(
             Ok((service, Opening::Submit { fresh_store }))
         }
         ([(id, hash, stored)], true) => {
-            if *hash != bundle.hash() || stored != settings {
+            // A minimum given as the target's own is the same job as one not given.
+            let plain = |s: &JobSettings| (JobSettings { noise_min: None, ..s.clone() }, s.adaptive());
+            if *hash != bundle.hash() || plain(stored) != plain(settings) {
                 bail!(
                     "the checkpoint in {} is of a different scene or settings (the scene file, its assets, --spp, --size, --time, --noise, --noise-abs or --noise-min changed); render without --resume after deleting it",
                     c.dir.display()

@@ -130,6 +130,21 @@ fn submitting_a_bad_scene_or_asking_for_a_missing_job_is_refused() {
     let scene = write_scene(dir.path(), "[render]\nwidth = 4\n");
     let e = stderr_of(&["submit", &scene, "--coordinator", &coord.url]);
     assert!(e.contains("bad.toml:") && e.contains("height"), "{e}");
+    let small = small_scene();
+    let small = small.to_str().unwrap();
+    let e = stderr_of(&[
+        "submit",
+        small,
+        "--coordinator",
+        &coord.url,
+        "--spp",
+        "16",
+        "--noise-abs",
+        "0.1",
+        "--noise-min",
+        "32",
+    ]);
+    assert!(e.contains("minimum of 32 samples is more than the job's 16 samples per pixel"), "{e}");
     let e = stderr_of(&["cancel", "99", "--coordinator", &coord.url]);
     assert!(e.contains("no job 99"), "{e}");
     // The coordinator is still serving.

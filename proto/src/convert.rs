@@ -179,7 +179,7 @@ pub fn settings_from_wire(s: pb::RenderSettings) -> Result<JobSettings, WireErro
     let noise_min = (s.noise_min_samples != 0).then_some(s.noise_min_samples);
     let adaptive = JobSettings { noise, noise_min, ..JobSettings::default() };
     if let Err(e) = adaptive.checked_noise() {
-        return bad(format!("noise_min_samples: {e}"));
+        return bad(format!("{e} (noise_min_samples {})", s.noise_min_samples));
     }
     let Some(aovs) = aovs_from_wire(s.aovs) else {
         return bad(format!("aovs: unknown layer bits in {:#x} (1 albedo, 2 normal, 4 depth)", s.aovs));

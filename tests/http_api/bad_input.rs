@@ -80,6 +80,11 @@ fn bad_input_gets_a_clear_4xx_json_error() {
         "`noise_min` \"some\" is not a whole number",
     );
     assert_error(
+        submit(&web, None, small_form(8, 8, 16).text("noise", "0.1").text("noise_min", "0")),
+        400,
+        "`noise_min` \"0\" is not a whole number of at least 2 samples",
+    );
+    assert_error(
         submit(&web, None, small_form(8, 8, 16).text("noise_absolute", "0.1").text("noise_min", "32")),
         400,
         "minimum of 32 samples is more than the job's 16 samples per pixel",

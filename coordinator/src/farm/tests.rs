@@ -260,6 +260,14 @@ fn a_noise_minimum_out_of_range_is_refused() {
             .unwrap_err();
         assert!(err.to_string().contains(says), "{err}");
     }
+    // A stored job whose minimum is above its samples (a store edited by hand) is refused
+    // when taken up again, with the same reason.
+    let mut farm = Farm::new();
+    let id = farm.submit(bundle(), JobSettings { noise: abs, ..settings(8, 8, 256) }, 0).unwrap();
+    let mut record = farm.job(id).unwrap().record();
+    record.settings.noise_min = Some(300);
+    let err = Farm::new().restore(LoadedJob { record, checkpoint: None }, Instant::now()).unwrap_err();
+    assert!(err.to_string().contains("minimum of 300 samples is more than the job's 256"), "{err}");
 }
 
 fn adaptive_run_checks(adaptive: JobSettings, flat_stop: u32) {

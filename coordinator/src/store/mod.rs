@@ -298,7 +298,7 @@ impl Store {
         let noise_settings = JobSettings { noise, noise_min, ..JobSettings::default() };
         if let Err(reason) = noise_settings.checked_noise() {
             problems
-                .push(format!("job {id}: its stored noise target is out of range ({reason}); it is lost"));
+                .push(format!("job {id}: its stored noise settings are out of range: {reason}; it is lost"));
             return Ok(None);
         }
         // A salvaged copy of a database from before the column has none: no layers.

@@ -16,8 +16,8 @@ const FRAME_COLUMNS: &str = "ALTER TABLE jobs ADD COLUMN frame_first INTEGER;
                  ALTER TABLE jobs ADD COLUMN frame_last INTEGER;";
 
 /// Brings the tables of an open database to the current layout: creates them in a new
-/// file, migrates an older layout (each in one transaction), adds the AOV column where it
-/// is missing; a newer layout is refused.
+/// file, migrates an older layout (each in one transaction), adds the columns of the AOV
+/// layers and the noise settings where they are missing; a newer layout is refused.
 pub(super) fn migrate(conn: &Connection, path: &Path) -> Result<(), StoreError> {
     let write_err = |source: rusqlite::Error| {
         sqlite_error(path, &source)

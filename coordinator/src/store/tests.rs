@@ -103,8 +103,8 @@ fn jobs_and_the_newest_checkpoint_survive_a_reopen() {
     assert_eq!(generations, GENERATIONS_KEPT);
 }
 
-/// A stored absolute noise target out of range (a file edited by hand, or damaged) loses
-/// its job with a reason, as a damaged scene does, instead of running it.
+/// A stored absolute noise target or minimum out of range (a file edited by hand, or
+/// damaged) loses its job with a reason, as a damaged scene does, instead of running it.
 #[test]
 fn a_stored_noise_target_out_of_range_is_reported_and_the_job_dropped() {
     let dir = tempfile::tempdir().unwrap();
@@ -123,10 +123,13 @@ fn a_stored_noise_target_out_of_range_is_reported_and_the_job_dropped() {
     assert_eq!(loaded.jobs.len(), 1);
     assert_eq!(loaded.problems.len(), 3, "{:?}", loaded.problems);
     let p = &loaded.problems;
-    assert!(p[0].contains("job 2: its stored noise target is out of range") && p[0].contains("-1"), "{p:?}");
+    assert!(
+        p[0].contains("job 2: its stored noise settings are out of range") && p[0].contains("-1"),
+        "{p:?}"
+    );
     assert!(p[1].contains("job 3: its stored noise target's minimum -5 is not a sample count"), "{p:?}");
     assert!(
-        p[2].contains("job 4: its stored noise target is out of range") && p[2].contains("got 1"),
+        p[2].contains("job 4: its stored noise settings are out of range") && p[2].contains("got 1"),
         "{p:?}"
     );
 }

@@ -187,8 +187,13 @@ async fn read_form(multipart: &mut Multipart) -> Result<Form, ApiError> {
                         form.settings.noise_absolute = value.parse().map_err(|_| number("a number"))?
                     }
                     _ => {
+                        // 0 is the wire's "unset": refused here rather than taken as the
+                        // target's own minimum.
+                        let least = tessera_description::job::NOISE_MIN_SAMPLES_LEAST;
                         form.settings.noise_min_samples =
-                            value.parse().map_err(|_| number("a whole number"))?
+                            value.parse().ok().filter(|&m| m >= least).ok_or_else(|| {
+                                number(&format!("a whole number of at least {least} samples"))
+                            })?
                     }
                 }
             }
