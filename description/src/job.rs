@@ -62,13 +62,7 @@ impl Noise {
             n => Ok(n),
         }
     }
-}
 
-/// The fewest samples a noise target's minimum may be: a pixel's estimate compares its even
-/// and odd samples, so it needs one of each.
-pub const NOISE_MIN_SAMPLES_LEAST: u32 = 2;
-
-impl Noise {
     /// Samples a pixel takes before this target may stop it, unless the job names its own
     /// minimum: 16 for a relative target (fewer give estimates too rough to trust); 64 for
     /// an absolute one, which stops the dark pixels at the minimum. Those are where rare
@@ -84,6 +78,10 @@ impl Noise {
         }
     }
 }
+
+/// The fewest samples a noise target's minimum may be: a pixel's estimate compares its even
+/// and odd samples, so it needs one of each.
+pub const NOISE_MIN_SAMPLES_LEAST: u32 = 2;
 
 impl std::fmt::Display for Noise {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
@@ -120,6 +118,14 @@ impl JobSettings {
     /// The noise target and the samples a pixel takes before it may stop it.
     pub fn adaptive(&self) -> Option<(Noise, u32)> {
         self.noise.map(|n| (n, self.noise_min.unwrap_or(n.default_min_samples())))
+    }
+
+    /// Whether `other` renders the same job: equal settings, where a noise minimum given as
+    /// the target's own is the same as none (a `--resume` with it spelled out takes up the
+    /// job started without it).
+    pub fn same_job_as(&self, other: &JobSettings) -> bool {
+        let plain = |s: &JobSettings| JobSettings { noise_min: None, ..s.clone() };
+        plain(self) == plain(other) && self.adaptive() == other.adaptive()
     }
 
     /// The noise target and its minimum, if they make sense whatever the sample count: a
@@ -366,6 +372,9 @@ mod tests {
         assert!(one.contains("at least 2 samples") && one.contains("got 1"), "{one}");
         let over = with(abs, Some(300)).checked_noise_for(256).unwrap_err();
         assert!(over.contains("minimum of 300 samples is more than the job's 256"), "{over}");
+        assert!(with(abs, Some(64)).same_job_as(&with(abs, None)));
+        assert!(!with(abs, Some(32)).same_job_as(&with(abs, None)));
+        assert!(!with(abs, Some(16)).same_job_as(&with(Some(Noise::Relative(0.05)), Some(16))));
         let range = with(Some(Noise::Relative(2.0)), Some(32)).checked_noise().unwrap_err();
         assert!(range.contains("relative error in (0, 1)"), "{range}");
     }
