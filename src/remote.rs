@@ -15,7 +15,9 @@ use tessera_description::bundle::Bundle;
 use tessera_description::ids::JobId;
 use tessera_description::job::{JobProgress, JobSettings, JobState};
 use tessera_proto::connect::{Backoff, Client, EndpointConfig};
-use tessera_proto::convert::{bundle_to_wire, settings_to_wire, state_name, status_from_wire};
+use tessera_proto::convert::{
+    bundle_to_wire, settings_from_wire, settings_to_wire, state_name, status_from_wire,
+};
 use tessera_proto::credentials::{ClientTls, ServerTls, Token};
 use tessera_proto::v1 as pb;
 
@@ -501,6 +503,9 @@ pub async fn status(conn: &ClientArgs, each_frame: bool) -> Result<ExitCode> {
             j.height,
             if j.error.is_empty() { String::new() } else { format!(": {}", j.error) }
         );
+        if let Some(line) = early_end_line(j.settings) {
+            outln!(out, "{line}");
+        }
         if let Some(f) = &j.frames {
             out.push_str(&frames_lines(f, &j.frame_status, each_frame));
         }
@@ -526,6 +531,16 @@ pub async fn status(conn: &ClientArgs, each_frame: bool) -> Result<ExitCode> {
     match std::io::stdout().lock().write_all(out.as_bytes()) {
         Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e).context("writing the status"),
         _ => Ok(ExitCode::SUCCESS),
+    }
+}
+
+/// The line under a job in `tessera status` that says how it may end before its spp (a
+/// noise target, a time budget); `None` for a job that runs to its spp, or from a
+/// coordinator too old to say.
+fn early_end_line(settings: Option<pb::RenderSettings>) -> Option<String> {
+    match settings_from_wire(settings?) {
+        Ok(s) => s.early_end().map(|e| format!("       ends {e}")),
+        Err(e) => Some(format!("       (the coordinator sent settings that make no sense: {e})")),
     }
 }
 

@@ -307,6 +307,10 @@ fn the_dashboard_in_a_real_browser() {
     page.fill("#submit-height", "240");
     page.fill("#submit-spp", "256");
     page.fill("#submit-priority", "-5");
+    // A noise target no pixel reaches in 256 samples: it runs as long, and its page says
+    // how it may end.
+    page.fill("#submit-noise_absolute", "0.0001");
+    page.fill("#submit-noise_min", "128");
     page.click("#submit-button");
     assert_eq!(page.submitted(long), 2);
     // The table follows the event stream.
@@ -429,6 +433,7 @@ fn the_dashboard_in_a_real_browser() {
     assert_eq!((shown.0, shown.1), (400, 300));
     assert_eq!((served.0, served.1), (400, 300));
     assert_eq!(differing(&shown.2, &served.2), 0, "the final canvas differs from image.png");
+    assert_eq!(page.js("document.getElementById('job-ends-wrap').hidden"), true, "job 1 runs to its spp");
 
     eprintln!("{:5.1} s: job 1 done", started.elapsed().as_secs_f64());
     // The jobs page: job 2 runs now; a screenshot, then cancel it from its row.
@@ -455,6 +460,15 @@ fn the_dashboard_in_a_real_browser() {
     );
 
     eprintln!("{:5.1} s: job 2 cancelled", started.elapsed().as_secs_f64());
+    // Its page says how it would have ended.
+    page.open("/jobs/2");
+    page.wait(
+        "document.getElementById('job-ends').textContent === 'absolute noise 0.0001 (after 128 spp)' && !document.getElementById('job-ends-wrap').hidden",
+        long,
+        "job 2's noise target on its page",
+        "document.getElementById('status-line').innerText",
+    );
+    page.open("/");
     // A viewer sees the jobs but is offered no control, and no submit form.
     page.click("#logout");
     page.wait("document.body.dataset.session === 'out'", long, "logged out", "document.body.dataset.session");

@@ -79,6 +79,16 @@ impl Noise {
     }
 }
 
+/// A duration as people write it on the command line: whole seconds as `90s`, else to the
+/// millisecond (`2.5s`).
+fn humantime_seconds(t: Duration) -> String {
+    if t.subsec_millis() == 0 {
+        format!("{}s", t.as_secs())
+    } else {
+        format!("{}s", (t.as_secs_f64() * 1000.0).round() / 1000.0)
+    }
+}
+
 /// The fewest samples a noise target's minimum may be: a pixel's estimate compares its even
 /// and odd samples, so it needs one of each.
 pub const NOISE_MIN_SAMPLES_LEAST: u32 = 2;
@@ -118,6 +128,24 @@ impl JobSettings {
     /// The noise target and the samples a pixel takes before it may stop it.
     pub fn adaptive(&self) -> Option<(Noise, u32)> {
         self.noise.map(|n| (n, self.noise_min.unwrap_or(n.default_min_samples())))
+    }
+
+    /// How a job with these settings may end before its sample count, in a few words for
+    /// people (`tessera status`): its noise target with the samples a pixel takes first,
+    /// its time budget; `None` when it runs to its sample count.
+    pub fn early_end(&self) -> Option<String> {
+        let noise = self.adaptive().map(|(n, min)| {
+            let (kind, v) = match n {
+                Noise::Relative(v) => ("a relative", v),
+                Noise::Absolute(v) => ("an absolute", v),
+            };
+            format!("at {kind} noise of {v}, each pixel after at least {min} samples")
+        });
+        let time = self.time_limit.map(|t| format!("after {} of rendering", humantime_seconds(t)));
+        match (noise, time) {
+            (Some(n), Some(t)) => Some(format!("{n}, or {t}")),
+            (one, other) => one.or(other),
+        }
     }
 
     /// Whether `other` renders the same job: equal settings, where a noise minimum given as
@@ -284,6 +312,8 @@ pub struct JobProgress {
     /// Why the job ended before its sample count: "time budget", or "noise target" when
     /// every pixel reached it.
     pub halted: Option<&'static str>,
+    /// The settings the job was submitted with: how it may end before its sample count.
+    pub settings: JobSettings,
     /// The frames of a sequence, inclusive (`None`: a still); the other figures are the
     /// whole sequence's, `width` and `height` one frame's.
     pub frames: Option<(u32, u32)>,
@@ -336,6 +366,28 @@ pub fn parse_duration(s: &str) -> Result<std::time::Duration, String> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_early_end_says_the_target_its_minimum_and_the_budget() {
+        assert_eq!(JobSettings::sized(Some(64), None).early_end(), None);
+        let noise = JobSettings { noise: Some(Noise::Absolute(0.05)), ..JobSettings::default() };
+        assert_eq!(
+            noise.early_end().as_deref(),
+            Some("at an absolute noise of 0.05, each pixel after at least 64 samples")
+        );
+        let both = JobSettings {
+            noise: Some(Noise::Relative(0.1)),
+            noise_min: Some(32),
+            time_limit: Some(Duration::from_millis(2500)),
+            ..JobSettings::default()
+        };
+        assert_eq!(
+            both.early_end().as_deref(),
+            Some("at a relative noise of 0.1, each pixel after at least 32 samples, or after 2.5s of rendering")
+        );
+        let time = JobSettings { time_limit: Some(Duration::from_secs(90)), ..JobSettings::default() };
+        assert_eq!(time.early_end().as_deref(), Some("after 90s of rendering"));
+    }
 
     #[test]
     fn frame_ranges_parse_and_bad_ones_get_one_line() {

@@ -250,6 +250,7 @@ pub fn status_to_wire(p: &JobProgress) -> pb::JobStatus {
         owner: String::new(),
         workers: 0,
         frames: p.frames.map(|(first, last)| pb::FrameRange { first, last }),
+        settings: Some(settings_to_wire(&p.settings)),
         frame_status: p
             .frame_progress
             .iter()
@@ -264,9 +265,12 @@ pub fn status_to_wire(p: &JobProgress) -> pb::JobStatus {
 }
 
 /// A job's progress from the wire. Why a job halted early does not travel (`halted` is
-/// `None`); a nonsensical elapsed time reads as zero.
+/// `None`); a nonsensical elapsed time reads as zero; settings an older coordinator does
+/// not send read as none overridden, and settings out of range are refused as a
+/// submission's are.
 pub fn status_from_wire(s: pb::JobStatus) -> Result<JobProgress, WireError> {
     let state = state_from_wire(s.state, &s.error)?;
+    let settings = s.settings.map(settings_from_wire).transpose()?.unwrap_or_default();
     Ok(JobProgress {
         id: JobId(s.job_id),
         scene: s.scene,
@@ -283,6 +287,7 @@ pub fn status_from_wire(s: pb::JobStatus) -> Result<JobProgress, WireError> {
         nonfinite_samples: 0,
         priority: s.priority,
         halted: None,
+        settings,
         frames: s.frames.map(|f| (f.first, f.last)),
         frame_progress: s
             .frame_status
@@ -430,6 +435,12 @@ mod tests {
             nonfinite_samples: 0,
             priority: -1,
             halted: None,
+            settings: JobSettings {
+                noise: Some(Noise::Absolute(0.05)),
+                noise_min: Some(128),
+                time_limit: Some(Duration::from_secs(30)),
+                ..JobSettings::sized(Some(16), Some((64, 96)))
+            },
             frames: Some((7, 8)),
             frame_progress: vec![
                 FrameProgress { frame: 7, pass_one_done: 64 * 48, samples_done: 900, samples_total: 49152 },
@@ -438,7 +449,15 @@ mod tests {
         };
         let wire = status_to_wire(&p);
         assert_eq!(wire.error, "out of memory");
-        assert_eq!(status_from_wire(wire), Ok(p));
+        assert_eq!(status_from_wire(wire.clone()), Ok(p.clone()));
+        // An older coordinator's status has no settings: none overridden.
+        let old = status_from_wire(pb::JobStatus { settings: None, ..wire.clone() }).unwrap();
+        assert_eq!(old.settings, JobSettings::default());
+        // Settings a submission could not have had are refused, as a submission's are.
+        let mut lying = wire;
+        lying.settings.as_mut().unwrap().noise = 0.2;
+        let refused = status_from_wire(lying).unwrap_err().to_string();
+        assert!(refused.contains("not both"), "{refused}");
     }
 
     fn pixel(index: u32, count: u32) -> PixelState {

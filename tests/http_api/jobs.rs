@@ -74,6 +74,32 @@ fn pause_resume_priority_and_cancel_act_on_the_job() {
     assert_eq!(client().get(web.url(&format!("/api/jobs/{id}/image.png"))).send().unwrap().status(), 200);
 }
 
+/// How a job may end before its spp travels with its status: the API's job, and the line
+/// `tessera status` prints under it. No worker: the job stays queued.
+#[test]
+fn a_jobs_noise_target_and_time_budget_show_in_the_api_and_the_status() {
+    let web = Web::start(&[]);
+    let form =
+        small_form(16, 16, 64).text("noise_absolute", "0.05").text("noise_min", "32").text("time", "90s");
+    let id = submit_ok(&web, None, form);
+    let j = job(&web, None, id);
+    assert_eq!(j["noise"]["kind"], "absolute", "{j}");
+    assert_eq!(j["noise"]["target"], 0.05, "{j}");
+    assert_eq!(j["noise"]["min_samples"], 32, "{j}");
+    assert_eq!(j["time_limit_seconds"], 90.0, "{j}");
+    let plain = submit_ok(&web, None, small_form(16, 16, 2));
+    let j = job(&web, None, plain);
+    assert!(j.get("noise").is_none() && j.get("time_limit_seconds").is_none(), "{j}");
+    let status = web.coord.status();
+    assert!(
+        status.contains(
+            "ends at an absolute noise of 0.05, each pixel after at least 32 samples, or after 90s of rendering"
+        ),
+        "{status}"
+    );
+    assert_eq!(status.matches("ends ").count(), 1, "only the job with a target says how it ends: {status}");
+}
+
 #[test]
 fn events_stream_the_listing_when_it_changes() {
     let web = Web::start(&[]);

@@ -178,6 +178,16 @@
     if (reopen) reopen();
   }
 
+  // How the job may end before its spp: its noise target (pixels stop as they reach it,
+  // so the samples left are a bound and there is no ETA) and its time budget.
+  function renderEnds(j) {
+    const parts = [];
+    if (j.noise) parts.push(`${j.noise.kind} noise ${j.noise.target} (after ${j.noise.min_samples} spp)`);
+    if (j.time_limit_seconds != null) parts.push(`after ${T.duration(j.time_limit_seconds)}`);
+    document.getElementById("job-ends-wrap").hidden = parts.length === 0;
+    document.getElementById("job-ends").textContent = parts.join(" or ");
+  }
+
   /** A sequence's frame selector and figures, from its status. */
   function renderFrames(j) {
     const select = document.getElementById("job-frame");
@@ -242,6 +252,7 @@
     document.getElementById("job-workers").textContent = String(j.workers);
     document.getElementById("job-priority-text").textContent = String(j.priority);
     document.getElementById("job-owner").textContent = j.owner || "—";
+    renderEnds(j);
     renderFrames(j);
 
     const may = T.canControl(j);

@@ -101,6 +101,7 @@ impl Job {
             nonfinite_samples: self.nonfinite_samples,
             priority: self.priority,
             halted: self.halted,
+            settings: self.settings.clone(),
             frames: self.settings.frames,
             frame_progress: self.frame_progress(),
         }
