@@ -180,7 +180,7 @@ impl JobSettings {
         self.checked_noise()?;
         match self.noise_min {
             Some(m) if m > spp => Err(format!(
-                "the noise target's minimum of {m} samples is more than the job's {spp} samples per pixel (--spp, or the scene's spp)"
+                "the noise target's minimum of {m} samples is more than the job's {spp} samples per pixel (its spp, or the scene's where it gives none)"
             )),
             _ => Ok(()),
         }
