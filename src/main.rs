@@ -10,6 +10,7 @@ mod local;
 mod remote;
 mod report;
 mod rpc;
+mod status;
 mod worker;
 
 use std::io::IsTerminal;

@@ -15,9 +15,7 @@ use tessera_description::bundle::Bundle;
 use tessera_description::ids::JobId;
 use tessera_description::job::{JobProgress, JobSettings, JobState};
 use tessera_proto::connect::{Backoff, Client, EndpointConfig};
-use tessera_proto::convert::{
-    bundle_to_wire, settings_from_wire, settings_to_wire, state_name, status_from_wire,
-};
+use tessera_proto::convert::{bundle_to_wire, settings_to_wire, status_from_wire};
 use tessera_proto::credentials::{ClientTls, ServerTls, Token};
 use tessera_proto::v1 as pb;
 
@@ -467,105 +465,13 @@ async fn wait(client: &mut Client, job: JobId) -> Result<JobProgress> {
 pub async fn status(conn: &ClientArgs, each_frame: bool) -> Result<ExitCode> {
     let mut client = connect(conn).await?;
     let s = client.status(pb::StatusRequest { job_id: 0 }).await.map_err(status_error)?.into_inner();
-    let mut out = String::new();
-    macro_rules! outln {
-        ($o:ident, $($arg:tt)*) => {{
-            use std::fmt::Write as _;
-            let _ = writeln!($o, $($arg)*);
-        }};
-    }
-    outln!(
-        out,
-        "{:>5}  {:<10} {:>5} {:>7}  {:>6} {:>4} {:>16}  scene",
-        "job",
-        "state",
-        "pass",
-        "done",
-        "spp",
-        "prio",
-        "rate"
-    );
-    for j in &s.jobs {
-        let state = state_name(j.state);
-        let done = j.samples_done as f64 / j.samples_total.max(1) as f64 * 100.0;
-        outln!(
-            out,
-            "{:>5}  {:<10} {:>5} {:>6.1}%  {:>6} {:>4} {:>16}  {} ({}x{}){}",
-            j.job_id,
-            state,
-            j.pass,
-            done,
-            j.spp,
-            j.priority,
-            crate::report::rate(j.samples_per_second),
-            j.scene,
-            j.width,
-            j.height,
-            if j.error.is_empty() { String::new() } else { format!(": {}", j.error) }
-        );
-        if let Some(line) = early_end_line(j.settings) {
-            outln!(out, "{line}");
-        }
-        if let Some(f) = &j.frames {
-            out.push_str(&frames_lines(f, &j.frame_status, each_frame));
-        }
-    }
-    outln!(out, "");
-    outln!(out, "{:>6}  {:<24} {:>7} {:>9} {:>12}", "worker", "name", "threads", "in flight", "batches done");
-    for w in &s.workers {
-        outln!(
-            out,
-            "{:>6}  {:<24} {:>7} {:>9} {:>12}",
-            w.worker_id,
-            w.name,
-            w.threads,
-            w.batches_in_flight,
-            w.batches_done
-        );
-    }
-    if s.workers.is_empty() {
-        outln!(out, "(no workers connected)");
-    }
+    let out = crate::status::table(&s, each_frame);
     // A reader that stops early (`| head`, `grep -q`) is not an error.
     use std::io::Write as _;
     match std::io::stdout().lock().write_all(out.as_bytes()) {
         Err(e) if e.kind() != std::io::ErrorKind::BrokenPipe => Err(e).context("writing the status"),
         _ => Ok(ExitCode::SUCCESS),
     }
-}
-
-/// The line under a job in `tessera status` that says how it may end before its spp (a
-/// noise target, a time budget); `None` for a job that runs to its spp, or from a
-/// coordinator too old to say.
-fn early_end_line(settings: Option<pb::RenderSettings>) -> Option<String> {
-    match settings_from_wire(settings?) {
-        Ok(s) => s.early_end().map(|e| format!("       ends {e}")),
-        Err(e) => Some(format!("       (the coordinator sent settings that make no sense: {e})")),
-    }
-}
-
-/// A sequence's lines under its job in `tessera status`: the frames done, rendering and
-/// with their pass one; with `each_frame`, a line per frame.
-fn frames_lines(range: &pb::FrameRange, frames: &[pb::FrameStatus], each_frame: bool) -> String {
-    let done = frames.iter().filter(|f| f.samples_done >= f.samples_total).count();
-    let started = frames.iter().filter(|f| f.samples_done > 0 && f.samples_done < f.samples_total).count();
-    let previewed = frames.iter().filter(|f| f.pass_one_done > 0).count();
-    let mut out = format!(
-        "       frames {}-{}: {done} of {} done, {started} rendering, {previewed} with a preview\n",
-        range.first,
-        range.last,
-        frames.len()
-    );
-    if each_frame {
-        for f in frames {
-            let pct = f.samples_done as f64 / f.samples_total.max(1) as f64 * 100.0;
-            out.push_str(&format!(
-                "       frame {:>5} {:>6.1}%  pass one {} pixels\n",
-                f.frame, pct, f.pass_one_done
-            ));
-        }
-    }
-    out
 }
 
 /// `tessera pause` and `tessera resume`.
