@@ -79,14 +79,9 @@ impl Noise {
     }
 }
 
-/// A duration as people write it on the command line: whole seconds as `90s`, else to the
-/// millisecond (`2.5s`).
+/// A duration as people write it on the command line, in seconds: `90s`, `2.5s`.
 fn humantime_seconds(t: Duration) -> String {
-    if t.subsec_millis() == 0 {
-        format!("{}s", t.as_secs())
-    } else {
-        format!("{}s", (t.as_secs_f64() * 1000.0).round() / 1000.0)
-    }
+    format!("{}s", t.as_secs_f64())
 }
 
 /// The fewest samples a noise target's minimum may be: a pixel's estimate compares its even
@@ -387,6 +382,8 @@ mod tests {
         );
         let time = JobSettings { time_limit: Some(Duration::from_secs(90)), ..JobSettings::default() };
         assert_eq!(time.early_end().as_deref(), Some("after 90s of rendering"));
+        let short = JobSettings { time_limit: Some(Duration::from_micros(500)), ..JobSettings::default() };
+        assert_eq!(short.early_end().as_deref(), Some("after 0.0005s of rendering"));
     }
 
     #[test]
