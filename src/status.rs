@@ -27,7 +27,11 @@ pub fn table(s: &pb::StatusResponse, each_frame: bool) -> String {
     );
     for j in &s.jobs {
         let state = state_name(j.state);
-        let done = j.samples_done as f64 / j.samples_total.max(1) as f64 * 100.0;
+        // A job that ended at its noise target or time budget is done, short of its spp:
+        // the line under it says how far it got.
+        let finished = j.state == pb::JobState::Done as i32;
+        let done =
+            if finished { 100.0 } else { j.samples_done as f64 / j.samples_total.max(1) as f64 * 100.0 };
         outln!(
             out,
             "{:>5}  {:<10} {:>5} {:>6.1}%  {:>6} {:>4} {:>16}  {} ({}x{}){}",
@@ -43,7 +47,7 @@ pub fn table(s: &pb::StatusResponse, each_frame: bool) -> String {
             j.height,
             if j.error.is_empty() { String::new() } else { format!(": {}", j.error) }
         );
-        if let Some(line) = early_end_line(j.settings) {
+        if let Some(line) = ending_line(j) {
             outln!(out, "{line}");
         }
         if let Some(f) = &j.frames {
@@ -69,11 +73,26 @@ pub fn table(s: &pb::StatusResponse, each_frame: bool) -> String {
     out
 }
 
-/// The line under a job in `tessera status` that says how it may end before its spp (a
-/// noise target, a time budget); `None` for a job that runs to its spp, or from a
-/// coordinator too old to say.
-fn early_end_line(settings: Option<pb::RenderSettings>) -> Option<String> {
-    match settings_from_wire(settings?) {
+/// The line under a job in `tessera status` that says how it ended before its spp (a
+/// finished job that its noise target or time budget stopped), or how it may (one still to
+/// finish, with a target or a budget); `None` otherwise, or from a coordinator too old to
+/// say.
+fn ending_line(j: &pb::JobStatus) -> Option<String> {
+    let ongoing = [pb::JobState::Queued, pb::JobState::Running, pb::JobState::Paused].map(|s| s as i32);
+    if j.state == pb::JobState::Done as i32 && !j.halted.is_empty() {
+        let frames = j.frames.map_or(1, |f| u64::from(f.last.saturating_sub(f.first)) + 1);
+        let pixels = (u64::from(j.width) * u64::from(j.height) * frames).max(1);
+        return Some(format!(
+            "       ended by its {} at {:.1} samples a pixel on average, of at most {}",
+            j.halted,
+            j.samples_done as f64 / pixels as f64,
+            j.spp
+        ));
+    }
+    if !ongoing.contains(&j.state) {
+        return None;
+    }
+    match settings_from_wire(j.settings?) {
         Ok(s) => s.early_end().map(|e| format!("       ends {e}")),
         Err(e) => Some(format!("       (the coordinator sent settings that make no sense: {e})")),
     }
@@ -142,12 +161,33 @@ mod tests {
         assert!(lines[1].starts_with("    1  running") && lines[1].contains("25.0%"), "{out}");
         assert_eq!(
             lines[2],
-            "       ends at a relative noise of 0.02, each pixel after at least 16 samples, or after 600s of rendering"
+            "       ends at a relative noise of 0.02, each pixel after at least 16 samples, or when its time budget of 600s is spent"
         );
         // A job that runs to its spp, and one from a coordinator too old to send settings:
         // no line.
         assert!(lines[3].starts_with("    2  running") && lines[4].starts_with("    3  running"), "{out}");
         assert!(out.contains("(no workers connected)"), "{out}");
+    }
+
+    /// A finished job says why it stopped short of its spp, and shows as all done; a
+    /// cancelled one says nothing of how it would have ended.
+    #[test]
+    fn a_finished_job_says_what_ended_it() {
+        let target = JobSettings { noise: Some(Noise::Absolute(0.05)), ..JobSettings::default() };
+        let mut done = job(4, Some(target.clone()));
+        done.state = pb::JobState::Done as i32;
+        done.halted = "noise target".into();
+        let mut cancelled = job(5, Some(target));
+        cancelled.state = pb::JobState::Cancelled as i32;
+        let out = table(&pb::StatusResponse { jobs: vec![done, cancelled], workers: vec![] }, false);
+        let lines: Vec<&str> = out.lines().collect();
+        assert!(lines[1].starts_with("    4  done") && lines[1].contains("100.0%"), "{out}");
+        assert_eq!(
+            lines[2],
+            "       ended by its noise target at 64.0 samples a pixel on average, of at most 256"
+        );
+        assert!(lines[3].starts_with("    5  cancelled") && lines[3].contains("25.0%"), "{out}");
+        assert_eq!(lines[4], "", "{out}");
     }
 
     /// A coordinator may lie: settings no submission could have are shown as nonsense, in

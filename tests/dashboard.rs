@@ -433,9 +433,19 @@ fn the_dashboard_in_a_real_browser() {
     assert_eq!((shown.0, shown.1), (400, 300));
     assert_eq!((served.0, served.1), (400, 300));
     assert_eq!(differing(&shown.2, &served.2), 0, "the final canvas differs from image.png");
-    assert_eq!(page.js("document.getElementById('job-ends-wrap').hidden"), true, "job 1 runs to its spp");
+    // Rendered (the page starts with "—"), and empty: job 1 runs to its spp.
+    assert_eq!(page.js("document.getElementById('job-ends').textContent"), "", "job 1 runs to its spp");
+    assert_eq!(page.js("document.getElementById('job-ends-wrap').hidden"), true);
 
     eprintln!("{:5.1} s: job 1 done", started.elapsed().as_secs_f64());
+    // Job 2's page says how it may end.
+    page.open("/jobs/2");
+    page.wait(
+        "document.getElementById('job-ends').textContent === 'at absolute noise 0.0001, each pixel ≥ 128 spp first' && !document.getElementById('job-ends-wrap').hidden",
+        long,
+        "job 2's noise target on its page",
+        "document.getElementById('status-line').innerText",
+    );
     // The jobs page: job 2 runs now; a screenshot, then cancel it from its row.
     page.open("/");
     page.wait(
@@ -460,15 +470,6 @@ fn the_dashboard_in_a_real_browser() {
     );
 
     eprintln!("{:5.1} s: job 2 cancelled", started.elapsed().as_secs_f64());
-    // Its page says how it would have ended.
-    page.open("/jobs/2");
-    page.wait(
-        "document.getElementById('job-ends').textContent === 'absolute noise 0.0001 (after 128 spp)' && !document.getElementById('job-ends-wrap').hidden",
-        long,
-        "job 2's noise target on its page",
-        "document.getElementById('status-line').innerText",
-    );
-    page.open("/");
     // A viewer sees the jobs but is offered no control, and no submit form.
     page.click("#logout");
     page.wait("document.body.dataset.session === 'out'", long, "logged out", "document.body.dataset.session");

@@ -79,8 +79,8 @@ impl Noise {
     }
 }
 
-/// A duration as people write it on the command line, in seconds: `90s`, `2.5s`.
-fn humantime_seconds(t: Duration) -> String {
+/// A duration in seconds, as the command line takes it: `90s`, `2.5s`.
+fn seconds_text(t: Duration) -> String {
     format!("{}s", t.as_secs_f64())
 }
 
@@ -136,7 +136,7 @@ impl JobSettings {
             };
             format!("at {kind} noise of {v}, each pixel after at least {min} samples")
         });
-        let time = self.time_limit.map(|t| format!("after {} of rendering", humantime_seconds(t)));
+        let time = self.time_limit.map(|t| format!("when its time budget of {} is spent", seconds_text(t)));
         match (noise, time) {
             (Some(n), Some(t)) => Some(format!("{n}, or {t}")),
             (one, other) => one.or(other),
@@ -273,6 +273,11 @@ impl JobState {
     }
 }
 
+/// [`JobProgress::halted`] of a job whose time budget ended it.
+pub const HALTED_BY_TIME: &str = "time budget";
+/// [`JobProgress::halted`] of a job whose every pixel reached its noise target.
+pub const HALTED_BY_NOISE: &str = "noise target";
+
 /// Progress figures of a job.
 #[derive(Debug, Clone, PartialEq)]
 pub struct JobProgress {
@@ -296,7 +301,8 @@ pub struct JobProgress {
     pub samples_total: u64,
     /// Recent samples per second.
     pub samples_per_second: f64,
-    /// Time since the first lease (to the end, once over).
+    /// Time since the first lease, across restarts (to the end, once over): what a time
+    /// budget counts.
     pub elapsed: Duration,
     /// Pass-one pixels merged.
     pub pass_one_done: u64,
@@ -304,8 +310,8 @@ pub struct JobProgress {
     pub nonfinite_samples: u64,
     /// The job's priority.
     pub priority: i32,
-    /// Why the job ended before its sample count: "time budget", or "noise target" when
-    /// every pixel reached it.
+    /// Why the job ended before its sample count: [`HALTED_BY_TIME`], or
+    /// [`HALTED_BY_NOISE`] when every pixel reached its target.
     pub halted: Option<&'static str>,
     /// The settings the job was submitted with: how it may end before its sample count.
     pub settings: JobSettings,
@@ -378,12 +384,12 @@ mod tests {
         };
         assert_eq!(
             both.early_end().as_deref(),
-            Some("at a relative noise of 0.1, each pixel after at least 32 samples, or after 2.5s of rendering")
+            Some("at a relative noise of 0.1, each pixel after at least 32 samples, or when its time budget of 2.5s is spent")
         );
         let time = JobSettings { time_limit: Some(Duration::from_secs(90)), ..JobSettings::default() };
-        assert_eq!(time.early_end().as_deref(), Some("after 90s of rendering"));
+        assert_eq!(time.early_end().as_deref(), Some("when its time budget of 90s is spent"));
         let short = JobSettings { time_limit: Some(Duration::from_micros(500)), ..JobSettings::default() };
-        assert_eq!(short.early_end().as_deref(), Some("after 0.0005s of rendering"));
+        assert_eq!(short.early_end().as_deref(), Some("when its time budget of 0.0005s is spent"));
     }
 
     #[test]

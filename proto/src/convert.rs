@@ -10,7 +10,9 @@ use std::time::Duration;
 use bytes::Bytes;
 use prost::Message;
 use tessera_description::ids::{BatchId, JobId, WorkerId};
-use tessera_description::job::{Aovs, FrameProgress, JobProgress, JobSettings, JobState, Noise};
+use tessera_description::job::{
+    Aovs, FrameProgress, JobProgress, JobSettings, JobState, Noise, HALTED_BY_NOISE, HALTED_BY_TIME,
+};
 use tessera_description::Bundle;
 use tessera_film::PixelState;
 
@@ -251,6 +253,7 @@ pub fn status_to_wire(p: &JobProgress) -> pb::JobStatus {
         workers: 0,
         frames: p.frames.map(|(first, last)| pb::FrameRange { first, last }),
         settings: Some(settings_to_wire(&p.settings)),
+        halted: p.halted.unwrap_or_default().to_string(),
         frame_status: p
             .frame_progress
             .iter()
@@ -264,13 +267,14 @@ pub fn status_to_wire(p: &JobProgress) -> pb::JobStatus {
     }
 }
 
-/// A job's progress from the wire. Why a job halted early does not travel (`halted` is
-/// `None`); a nonsensical elapsed time reads as zero; settings an older coordinator does
-/// not send read as none overridden, and settings out of range are refused as a
-/// submission's are.
+/// A job's progress from the wire. A nonsensical elapsed time reads as zero. The settings
+/// and why the job halted are only shown to people, and a status is not refused for them:
+/// settings out of range, or none (an older coordinator), read as none overridden, and a
+/// reason to halt this build does not know as none.
 pub fn status_from_wire(s: pb::JobStatus) -> Result<JobProgress, WireError> {
     let state = state_from_wire(s.state, &s.error)?;
-    let settings = s.settings.map(settings_from_wire).transpose()?.unwrap_or_default();
+    let settings = s.settings.and_then(|w| settings_from_wire(w).ok()).unwrap_or_default();
+    let halted = [HALTED_BY_TIME, HALTED_BY_NOISE].into_iter().find(|h| *h == s.halted);
     Ok(JobProgress {
         id: JobId(s.job_id),
         scene: s.scene,
@@ -286,7 +290,7 @@ pub fn status_from_wire(s: pb::JobStatus) -> Result<JobProgress, WireError> {
         pass_one_done: s.pass_one_done,
         nonfinite_samples: 0,
         priority: s.priority,
-        halted: None,
+        halted,
         settings,
         frames: s.frames.map(|f| (f.first, f.last)),
         frame_progress: s
@@ -434,7 +438,7 @@ mod tests {
             pass_one_done: 64 * 48,
             nonfinite_samples: 0,
             priority: -1,
-            halted: None,
+            halted: Some(HALTED_BY_NOISE),
             settings: JobSettings {
                 noise: Some(Noise::Absolute(0.05)),
                 noise_min: Some(128),
@@ -453,11 +457,13 @@ mod tests {
         // An older coordinator's status has no settings: none overridden.
         let old = status_from_wire(pb::JobStatus { settings: None, ..wire.clone() }).unwrap();
         assert_eq!(old.settings, JobSettings::default());
-        // Settings a submission could not have had are refused, as a submission's are.
+        // Settings a submission could not have had, and a reason to halt this build does
+        // not know, read as none: the status itself is still taken.
         let mut lying = wire;
         lying.settings.as_mut().unwrap().noise = 0.2;
-        let refused = status_from_wire(lying).unwrap_err().to_string();
-        assert!(refused.contains("not both"), "{refused}");
+        lying.halted = "the moon".into();
+        let taken = status_from_wire(lying).unwrap();
+        assert_eq!((taken.settings, taken.halted), (JobSettings::default(), None));
     }
 
     fn pixel(index: u32, count: u32) -> PixelState {

@@ -93,11 +93,30 @@ fn a_jobs_noise_target_and_time_budget_show_in_the_api_and_the_status() {
     let status = web.coord.status();
     assert!(
         status.contains(
-            "ends at an absolute noise of 0.05, each pixel after at least 32 samples, or after 90s of rendering"
+            "ends at an absolute noise of 0.05, each pixel after at least 32 samples, or when its time budget of 90s is spent"
         ),
         "{status}"
     );
     assert_eq!(status.matches("ends ").count(), 1, "only the job with a target says how it ends: {status}");
+    // A target every pixel meets at its minimum: done at 4 of 64 samples, and said so.
+    for queued in [id, plain] {
+        assert_eq!(post(&web, None, &format!("/api/jobs/{queued}/cancel"), None).status(), 204);
+    }
+    let _worker = web.coord.worker(1);
+    let met =
+        submit_ok(&web, None, small_form(16, 16, 64).text("noise_absolute", "1000").text("noise_min", "4"));
+    let done = wait_state(&web, None, met, "done");
+    assert_eq!(
+        (done["progress"].as_f64(), done["ended_by"].as_str()),
+        (Some(1.0), Some("noise target")),
+        "{done}"
+    );
+    assert_eq!(done["samples_done"], 16 * 16 * 4, "{done}");
+    let status = web.coord.status();
+    assert!(
+        status.contains("ended by its noise target at 4.0 samples a pixel on average, of at most 64"),
+        "{status}"
+    );
 }
 
 #[test]

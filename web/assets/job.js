@@ -179,11 +179,18 @@
   }
 
   // How the job may end before its spp: its noise target (pixels stop as they reach it,
-  // so the samples left are a bound and there is no ETA) and its time budget.
+  // so the samples left are a bound and there is no ETA) and its time budget; once done,
+  // which of them ended it.
   function renderEnds(j) {
     const parts = [];
-    if (j.noise) parts.push(`${j.noise.kind} noise ${j.noise.target} (after ${j.noise.min_samples} spp)`);
-    if (j.time_limit_seconds != null) parts.push(`after ${T.duration(j.time_limit_seconds)}`);
+    if (j.ended_by) {
+      parts.push(`ended by its ${j.ended_by}`);
+    } else if (!T.FINISHED.has(j.state)) {
+      if (j.noise) {
+        parts.push(`at ${j.noise.kind} noise ${j.noise.target}, each pixel ≥ ${j.noise.min_samples} spp first`);
+      }
+      if (j.time_limit_seconds != null) parts.push(`at a ${j.time_limit_seconds} s budget`);
+    }
     document.getElementById("job-ends-wrap").hidden = parts.length === 0;
     document.getElementById("job-ends").textContent = parts.join(" or ");
   }

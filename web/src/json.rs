@@ -32,6 +32,9 @@ pub(crate) struct Job {
     /// `progress` counts samples against the most (`spp`) a pixel may take.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub noise: Option<NoiseTarget>,
+    /// What ended a job that is done short of its spp: `time budget` or `noise target`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub ended_by: Option<String>,
     /// A sequence's frames, `[first, last]` (absent for a still).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub frames: Option<[u32; 2]>,
@@ -101,8 +104,15 @@ fn nonempty(s: String) -> Option<String> {
 
 impl From<pb::JobStatus> for Job {
     fn from(j: pb::JobStatus) -> Self {
-        let progress =
-            if j.samples_total == 0 { 0.0 } else { j.samples_done as f64 / j.samples_total as f64 };
+        // A job its noise target or time budget ended is done, short of its spp.
+        let finished = j.state == pb::JobState::Done as i32;
+        let progress = if finished {
+            1.0
+        } else if j.samples_total == 0 {
+            0.0
+        } else {
+            j.samples_done as f64 / j.samples_total as f64
+        };
         let left = j.samples_total.saturating_sub(j.samples_done);
         let running = j.state == pb::JobState::Running as i32;
         // Settings a coordinator cannot have accepted are shown as none.
@@ -157,6 +167,7 @@ impl From<pb::JobStatus> for Job {
             owner: j.owner,
             time_limit_seconds,
             noise,
+            ended_by: (finished && !j.halted.is_empty()).then_some(j.halted),
             frames: j.frames.map(|f| [f.first, f.last]),
             frame_progress,
         }
@@ -222,6 +233,25 @@ mod tests {
         assert_eq!(json["noise"]["kind"], "absolute");
         assert_eq!(json["noise"]["min_samples"], 64);
         assert!(json.get("time_limit_seconds").is_none());
+    }
+
+    #[test]
+    fn a_job_its_target_ended_is_done_and_says_so() {
+        let j = Job::from(pb::JobStatus {
+            state: pb::JobState::Done as i32,
+            samples_done: 1000,
+            samples_total: 5000,
+            halted: "noise target".into(),
+            ..Default::default()
+        });
+        assert_eq!((j.progress, j.ended_by.as_deref()), (1.0, Some("noise target")));
+        let running = Job::from(pb::JobStatus {
+            state: pb::JobState::Running as i32,
+            samples_done: 1000,
+            samples_total: 5000,
+            ..Default::default()
+        });
+        assert_eq!((running.progress, running.ended_by), (0.2, None));
     }
 
     #[test]

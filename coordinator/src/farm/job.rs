@@ -6,7 +6,9 @@ use std::time::{Duration, Instant};
 
 use tessera_description::bundle::Bundle;
 use tessera_description::ids::{JobId, WorkerId};
-use tessera_description::job::{FrameProgress, JobProgress, JobSettings, JobState};
+use tessera_description::job::{
+    FrameProgress, JobProgress, JobSettings, JobState, HALTED_BY_NOISE, HALTED_BY_TIME,
+};
 use tessera_film::aov::AovLayers;
 use tessera_film::Framebuffer;
 
@@ -84,7 +86,6 @@ impl Job {
             (Some(&(t0, s0)), Some(&(t1, s1))) if t1 > t0 => (s1 - s0) as f64 / (t1 - t0).as_secs_f64(),
             _ => 0.0,
         };
-        let end = self.finished.unwrap_or(now);
         JobProgress {
             id: self.id,
             scene: self.bundle.name.clone(),
@@ -96,7 +97,7 @@ impl Job {
             samples_done: self.queue.samples_done(),
             samples_total: self.queue.samples_total(),
             samples_per_second: rate,
-            elapsed: self.started.map_or(Duration::ZERO, |s| end.saturating_duration_since(s)),
+            elapsed: self.spent(now),
             pass_one_done: self.queue.pass_one_pixels_done(),
             nonfinite_samples: self.nonfinite_samples,
             priority: self.priority,
@@ -160,7 +161,7 @@ impl Job {
         self.abandon_all();
         self.state = JobState::Done;
         self.finished = Some(now);
-        self.halted = Some("time budget");
+        self.halted = Some(HALTED_BY_TIME);
         true
     }
 
@@ -347,7 +348,7 @@ impl Job {
         self.state = JobState::Done;
         self.finished = Some(now);
         if self.settings.noise.is_some() && self.queue.samples_done() < self.queue.samples_total() {
-            self.halted = Some("noise target");
+            self.halted = Some(HALTED_BY_NOISE);
         }
         self.fence.abandon();
     }
