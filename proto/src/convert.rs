@@ -274,7 +274,7 @@ pub fn status_to_wire(p: &JobProgress) -> pb::JobStatus {
 pub fn status_from_wire(s: pb::JobStatus) -> Result<JobProgress, WireError> {
     let state = state_from_wire(s.state, &s.error)?;
     let settings = s.settings.and_then(|w| settings_from_wire(w).ok()).unwrap_or_default();
-    let halted = [HALTED_BY_TIME, HALTED_BY_NOISE].into_iter().find(|h| *h == s.halted);
+    let halted = halted_from_wire(&s.halted);
     Ok(JobProgress {
         id: JobId(s.job_id),
         scene: s.scene,
@@ -304,6 +304,12 @@ pub fn status_from_wire(s: pb::JobStatus) -> Result<JobProgress, WireError> {
             })
             .collect(),
     })
+}
+
+/// Why a done job stopped short of its spp (`JobStatus.halted`), if it is a reason this
+/// build knows: what a coordinator sends is shown to people, and only as one of these.
+pub fn halted_from_wire(halted: &str) -> Option<&'static str> {
+    [HALTED_BY_TIME, HALTED_BY_NOISE].into_iter().find(|h| *h == halted)
 }
 
 /// A job id field of a request: 0 when none is named (the coordinator then picks, e.g. the

@@ -2,7 +2,7 @@
 
 use serde::Serialize;
 use tessera_description::job::Noise;
-use tessera_proto::convert::settings_from_wire;
+use tessera_proto::convert::{halted_from_wire, settings_from_wire};
 use tessera_proto::v1 as pb;
 
 /// A job as the API shows it.
@@ -34,7 +34,7 @@ pub(crate) struct Job {
     pub noise: Option<NoiseTarget>,
     /// What ended a job that is done short of its spp: `time budget` or `noise target`.
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub ended_by: Option<String>,
+    pub ended_by: Option<&'static str>,
     /// A sequence's frames, `[first, last]` (absent for a still).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub frames: Option<[u32; 2]>,
@@ -167,7 +167,7 @@ impl From<pb::JobStatus> for Job {
             owner: j.owner,
             time_limit_seconds,
             noise,
-            ended_by: (finished && !j.halted.is_empty()).then_some(j.halted),
+            ended_by: halted_from_wire(&j.halted).filter(|_| finished),
             frames: j.frames.map(|f| [f.first, f.last]),
             frame_progress,
         }
@@ -244,7 +244,7 @@ mod tests {
             halted: "noise target".into(),
             ..Default::default()
         });
-        assert_eq!((j.progress, j.ended_by.as_deref()), (1.0, Some("noise target")));
+        assert_eq!((j.progress, j.ended_by), (1.0, Some("noise target")));
         let running = Job::from(pb::JobStatus {
             state: pb::JobState::Running as i32,
             samples_done: 1000,
