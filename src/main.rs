@@ -470,19 +470,44 @@ pub async fn shutdown_signal() {
     let _ = tokio::signal::ctrl_c().await;
 }
 
-/// The noise target of `--noise` (relative) or `--noise-abs` (absolute), which clap keeps
-/// apart, and `--noise-min`, which needs one of them; the coordinator checks their ranges.
-pub fn noise_target(
-    relative: Option<f32>,
-    absolute: Option<f32>,
-    min: Option<u32>,
-) -> anyhow::Result<(Option<tessera_description::Noise>, Option<u32>)> {
-    use tessera_description::Noise;
-    let target = relative.map(Noise::Relative).or(absolute.map(Noise::Absolute));
-    if let (None, Some(m)) = (target, min) {
-        anyhow::bail!("--noise-min {m}: a minimum of samples needs a noise target, --noise or --noise-abs");
+/// How a job may end before its spp: the flags `tessera render` and `tessera submit` share.
+#[derive(clap::Args, Debug, Clone)]
+pub struct HaltArgs {
+    /// Stop after this much rendering time, e.g. 90s, 2m, 1h30m (spp is then the most a
+    /// pixel takes): pass two runs in rounds over the whole image, so the image is evenly
+    /// converged whenever it stops.
+    #[arg(long, value_parser = crate::parse_duration, allow_hyphen_values = true)]
+    pub time: Option<std::time::Duration>,
+    /// Stop sampling each pixel once its estimated relative error is below this, e.g.
+    /// 0.01 (adaptive sampling, in rounds as with --time; spp is the most a pixel takes).
+    #[arg(long, allow_negative_numbers = true)]
+    pub noise: Option<f32>,
+    /// As --noise, but the error in the image's linear units, e.g. 0.02: every pixel to
+    /// the same absolute error (what an RMSE counts), so the samples go to the bright,
+    /// noisy highlights and dark pixels stop early.
+    #[arg(long, allow_negative_numbers = true, conflicts_with = "noise")]
+    pub noise_abs: Option<f32>,
+    /// Samples every pixel takes before --noise or --noise-abs may stop it [default: 16
+    /// with --noise, 64 with --noise-abs]; at most --spp. More cuts the low bias of pixels
+    /// whose first samples missed a rare bright path, at the cost of time (docs/accuracy.md).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(2..), allow_negative_numbers = true)]
+    pub noise_min: Option<u32>,
+}
+
+impl HaltArgs {
+    /// The noise target of `--noise` (relative) or `--noise-abs` (absolute), which clap
+    /// keeps apart, and `--noise-min`, which needs one of them; the coordinator checks
+    /// their ranges.
+    pub fn noise_target(&self) -> anyhow::Result<(Option<tessera_description::Noise>, Option<u32>)> {
+        use tessera_description::Noise;
+        let target = self.noise.map(Noise::Relative).or(self.noise_abs.map(Noise::Absolute));
+        if let (None, Some(m)) = (target, self.noise_min) {
+            anyhow::bail!(
+                "--noise-min {m}: a minimum of samples needs a noise target, --noise or --noise-abs"
+            );
+        }
+        Ok((target, self.noise_min))
     }
-    Ok((target, min))
 }
 
 /// A duration such as `90`, `90s`, `2m`, `1h30m` or `1.5h` (also the web API's `time`).

@@ -167,18 +167,8 @@ pub struct SubmitArgs {
     /// Image size WIDTHxHEIGHT [default: the scene's].
     #[arg(long, value_parser = crate::parse_size)]
     pub size: Option<(u32, u32)>,
-    /// Stop after this much rendering time, e.g. 90s, 2m, 1h30m (see `tessera render`).
-    #[arg(long, value_parser = crate::parse_duration, allow_hyphen_values = true)]
-    pub time: Option<Duration>,
-    /// Per-pixel noise target, e.g. 0.01 (adaptive sampling; see `tessera render`).
-    #[arg(long, allow_negative_numbers = true)]
-    pub noise: Option<f32>,
-    /// Per-pixel absolute noise target, e.g. 0.02 (see `tessera render`).
-    #[arg(long, allow_negative_numbers = true, conflicts_with = "noise")]
-    pub noise_abs: Option<f32>,
-    /// Samples every pixel takes before the noise target may stop it (see `tessera render`).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(2..), allow_negative_numbers = true)]
-    pub noise_min: Option<u32>,
+    #[command(flatten)]
+    pub halt: crate::HaltArgs,
     /// Priority: jobs with a higher one are served first, equal ones oldest first (a
     /// submitter may ask at most the coordinator's --max-priority).
     #[arg(long, default_value_t = 0, allow_negative_numbers = true)]
@@ -338,7 +328,7 @@ pub async fn connect(conn: &ClientArgs) -> Result<Client> {
 /// `tessera submit`.
 pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
     let frames = crate::frames::parse(args.frames.as_deref())?;
-    let (noise, noise_min) = crate::noise_target(args.noise, args.noise_abs, args.noise_min)?;
+    let (noise, noise_min) = args.halt.noise_target()?;
     if let Some(out) = &args.output {
         crate::check_output(out)?;
         args.layers.check(Some(out))?;
@@ -356,7 +346,7 @@ pub async fn submit(args: SubmitArgs) -> Result<ExitCode> {
             settings: Some(settings_to_wire(&JobSettings {
                 spp: args.spp,
                 size: args.size,
-                time_limit: args.time,
+                time_limit: args.halt.time,
                 noise,
                 noise_min,
                 aovs: args.layers.aovs(),

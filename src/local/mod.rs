@@ -58,25 +58,8 @@ pub struct RenderArgs {
     /// Open the viewer window on the render (it stays open until closed).
     #[arg(long)]
     pub view: bool,
-    /// Stop after this much rendering time, e.g. 90s, 2m, 1h30m (spp is then the most a
-    /// pixel takes): pass two runs in rounds over the whole image, so the image is evenly
-    /// converged whenever it stops.
-    #[arg(long, value_parser = crate::parse_duration, allow_hyphen_values = true)]
-    pub time: Option<Duration>,
-    /// Stop sampling each pixel once its estimated relative error is below this, e.g.
-    /// 0.01 (adaptive sampling, in rounds as with --time; spp is the most a pixel takes).
-    #[arg(long, allow_negative_numbers = true)]
-    pub noise: Option<f32>,
-    /// As --noise, but the error in the image's linear units, e.g. 0.02: every pixel to
-    /// the same absolute error (what an RMSE counts), so the samples go to the bright,
-    /// noisy highlights and dark pixels stop early.
-    #[arg(long, allow_negative_numbers = true, conflicts_with = "noise")]
-    pub noise_abs: Option<f32>,
-    /// Samples every pixel takes before --noise or --noise-abs may stop it [default: 16
-    /// with --noise, 64 with --noise-abs]; at most --spp. More cuts the low bias of pixels
-    /// whose first samples missed a rare bright path, at the cost of time (docs/accuracy.md).
-    #[arg(long, value_parser = clap::value_parser!(u32).range(2..), allow_negative_numbers = true)]
-    pub noise_min: Option<u32>,
+    #[command(flatten)]
+    pub halt: crate::HaltArgs,
     /// Continue an interrupted render of the same scene and settings from its checkpoint.
     #[arg(long)]
     pub resume: bool,
@@ -427,13 +410,13 @@ pub async fn render(args: RenderArgs) -> Result<ExitCode> {
         interval: crate::seconds("--checkpoint-interval", args.checkpoint_interval)?,
         resume: args.resume,
     };
-    let (noise, noise_min) = crate::noise_target(args.noise, args.noise_abs, args.noise_min)?;
+    let (noise, noise_min) = args.halt.noise_target()?;
     let opts = LocalOptions {
         workers,
         threads,
         spp: args.spp,
         size: args.size,
-        time_limit: args.time,
+        time_limit: args.halt.time,
         noise,
         noise_min,
         layers: args.layers.clone(),
