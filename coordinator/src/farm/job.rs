@@ -58,6 +58,10 @@ pub struct Job {
     pub(super) nonfinite_samples: u64,
     /// Rendering time before a restart, counted against a time budget.
     pub(super) spent_before: Duration,
+    /// Time paused since `started`, not counted against a time budget, and when the
+    /// current pause began (`None` unless paused after starting).
+    pub(super) paused_for: Duration,
+    pub(super) paused_at: Option<Instant>,
     pub(super) halted: Option<&'static str>,
     /// When every batch was merged and no repair was left, while audits still ran: the
     /// start of their grace (see `Farm::settle`).
@@ -146,10 +150,33 @@ impl Job {
         }
     }
 
-    /// Rendering time so far, across restarts.
+    /// Rendering time so far, across restarts: the time since the first lease, less the
+    /// time paused, which a user pausing a job with a budget does not mean to spend.
     pub fn spent(&self, now: Instant) -> Duration {
+        let Some(started) = self.started else { return self.spent_before };
         let end = self.finished.unwrap_or(now);
-        self.spent_before + self.started.map_or(Duration::ZERO, |s| end.saturating_duration_since(s))
+        let paused =
+            self.paused_for + self.paused_at.map_or(Duration::ZERO, |p| end.saturating_duration_since(p));
+        self.spent_before + end.saturating_duration_since(started).saturating_sub(paused)
+    }
+
+    /// Pauses or resumes the job at `now`; a job that is over stays as it is.
+    pub(super) fn set_paused(&mut self, paused: bool, now: Instant) {
+        match (&self.state, paused) {
+            (JobState::Queued | JobState::Running, true) => {
+                self.state = JobState::Paused;
+                if self.started.is_some() {
+                    self.paused_at = Some(now);
+                }
+            }
+            (JobState::Paused, false) => {
+                if let Some(at) = self.paused_at.take() {
+                    self.paused_for += now.saturating_duration_since(at);
+                }
+                self.state = if self.started.is_some() { JobState::Running } else { JobState::Queued }
+            }
+            _ => {}
+        }
     }
 
     /// Ends the job if its time budget is spent; returns whether it did.
@@ -320,6 +347,8 @@ impl Job {
             speeds: Speeds::default(),
             nonfinite_samples: 0,
             spent_before: Duration::ZERO,
+            paused_for: Duration::ZERO,
+            paused_at: None,
             halted: None,
             audits_since: None,
         })

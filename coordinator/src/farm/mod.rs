@@ -534,17 +534,11 @@ impl Farm {
         expired
     }
 
-    /// Pauses or resumes a job; `false` if there is no such job. A job that is over stays
-    /// as it is.
-    pub fn set_paused(&mut self, job_id: JobId, paused: bool) -> bool {
+    /// Pauses or resumes a job at `now`; `false` if there is no such job. A job that is
+    /// over stays as it is. The time it stays paused is not counted against its budget.
+    pub fn set_paused(&mut self, job_id: JobId, paused: bool, now: Instant) -> bool {
         let Some(job) = self.jobs.get_mut(&job_id) else { return false };
-        match (&job.state, paused) {
-            (JobState::Queued | JobState::Running, true) => job.state = JobState::Paused,
-            (JobState::Paused, false) => {
-                job.state = if job.started.is_some() { JobState::Running } else { JobState::Queued }
-            }
-            _ => {}
-        }
+        job.set_paused(paused, now);
         true
     }
 

@@ -327,6 +327,44 @@ fn a_spent_time_budget_ends_the_job() {
     assert_eq!((job.state.clone(), job.progress(t0).halted), (JobState::Done, Some("time budget")));
 }
 
+/// Time paused is not spent: a job with a 5 s budget, paused for an hour after 2 s of
+/// rendering, still has 3 s when resumed, and its elapsed time stands still meanwhile; a
+/// pause before the first lease counts nothing, and a job cancelled while paused keeps
+/// the time it had.
+#[test]
+fn a_paused_job_does_not_spend_its_time_budget() {
+    let s = Duration::from_secs;
+    let mut farm = Farm::new();
+    let timed = JobSettings { time_limit: Some(s(5)), ..settings(16, 16, 1000) };
+    let id = farm.submit(bundle(), timed.clone(), 0).unwrap();
+    let w = farm.add_worker("w".into(), 1, Instant::now());
+    let t0 = Instant::now();
+    // Paused and resumed before it starts: nothing to count yet.
+    assert!(farm.set_paused(id, true, t0));
+    assert!(farm.set_paused(id, false, t0 + s(100)));
+    assert_eq!(farm.job(id).unwrap().state, JobState::Queued);
+    let a = farm.assign(w, t0).unwrap();
+    farm.complete(w, &result(&a, &fake_sums(&a.batch), None), t0).unwrap();
+    farm.set_paused(id, true, t0 + s(2));
+    let elapsed = |farm: &Farm, at| farm.job(id).unwrap().progress(at).elapsed;
+    assert_eq!(elapsed(&farm, t0 + s(3600)), s(2));
+    assert!(farm.enforce_deadlines(t0 + s(3600)).is_empty());
+    farm.set_paused(id, false, t0 + s(3602));
+    assert_eq!(farm.job(id).unwrap().state, JobState::Running);
+    assert_eq!(elapsed(&farm, t0 + s(3604)), s(4));
+    assert!(farm.enforce_deadlines(t0 + s(3604)).is_empty());
+    assert_eq!(farm.enforce_deadlines(t0 + s(3605)), vec![id]);
+    assert_eq!(farm.job(id).unwrap().progress(t0).halted, Some("time budget"));
+
+    // Cancelled while paused: its time stops where the pause began.
+    let other = farm.submit(bundle(), timed, 0).unwrap();
+    let a = farm.assign(w, t0).unwrap();
+    assert_eq!(a.job, other);
+    farm.set_paused(other, true, t0 + s(1));
+    farm.cancel(other, t0 + s(50));
+    assert_eq!(farm.job(other).unwrap().progress(t0 + s(99)).elapsed, s(1));
+}
+
 /// Fake AOV sums: per pixel, within the bounds of its samples, depending on pixel and
 /// samples only.
 fn fake_aov(spec: &BatchSpec, per_pixel: usize) -> Vec<u64> {

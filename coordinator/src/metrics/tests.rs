@@ -95,7 +95,7 @@ fn queued_samples_count_queued_and_running_jobs_only() {
     let _queued = farm.submit(bundle(), settings.clone(), 0).unwrap();
     let paused = farm.submit(bundle(), settings.clone(), 0).unwrap();
     let cancelled = farm.submit(bundle(), settings, 0).unwrap();
-    farm.set_paused(paused, true);
+    farm.set_paused(paused, true, now);
     farm.cancel(cancelled, now);
     let w = farm.add_worker("w".into(), 1, now);
     let a = farm.assign(w, now).unwrap();

@@ -168,7 +168,7 @@ impl CoordinatorService {
         self.check_owner(&auth::caller(&request)?, JobId(request.get_ref().job_id))?;
         let req = request.into_inner();
         let id = JobId(req.job_id);
-        if !self.farm().set_paused(id, req.paused) {
+        if !self.farm().set_paused(id, req.paused, Instant::now()) {
             return Err(Status::not_found(format!("no {id} on this coordinator")));
         }
         info!(%id, paused = req.paused, "job paused or resumed");
