@@ -357,6 +357,7 @@ pub(super) fn build_binary_with(bounds: &[Aabb], policy: LeafPolicy) -> Binary {
 #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
 mod avx;
 mod build;
+mod flat;
 mod fold;
 mod node;
 #[cfg(test)]

@@ -6,6 +6,7 @@
 
 use glam::Vec4;
 
+use super::flat::Flat;
 use super::node::{Node8, GROUPS, LOWER, ORDERS, UPPER, WIDTH};
 use super::wide::Wide;
 use super::Node;
@@ -27,7 +28,7 @@ pub(super) fn fold(binary: &[Node]) -> Wide {
         }
         Some(_) => fold_node(binary, 0, &mut nodes),
     };
-    Wide::new(nodes, depth)
+    Wide::new(nodes, depth, Flat::new(binary))
 }
 
 /// A wide node over binary nodes `kids` (in depth-first order), `lanes` of them, with the

@@ -29,6 +29,7 @@ use glam::Vec3;
 
 #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
 use super::avx::{available as avx_available, Avx};
+use super::flat::Flat;
 use super::node::{BoxTest, Node8, RayLanes, Sse, LANE, LANE_BITS, WIDTH};
 use super::Aabb;
 
@@ -57,6 +58,8 @@ pub(super) struct Wide {
     nodes: Vec<Node8>,
     /// The most entries a traversal's stack can hold.
     depth: usize,
+    /// The same tree walked flat, where it has few leaves (`flat.rs`).
+    flat: Option<Flat>,
     /// Traversals test boxes with AVX2 (`avx.rs`): this CPU has it.
     #[cfg_attr(not(all(target_arch = "x86_64", not(feature = "scalar"))), allow(dead_code))]
     avx: bool,
@@ -64,10 +67,16 @@ pub(super) struct Wide {
 
 impl Wide {
     /// The folded nodes (`fold::fold`), root first, whose traversals need at most `depth`
-    /// stack entries.
-    pub(super) fn new(nodes: Vec<Node8>, depth: usize) -> Wide {
+    /// stack entries, and the tree's flat form where it has one, which the walks then take.
+    pub(super) fn new(nodes: Vec<Node8>, depth: usize, flat: Option<Flat>) -> Wide {
         assert!(nodes.len() <= 1 << (32 - LANE_BITS), "more BVH nodes than a stack entry can name");
-        Wide { nodes, depth, avx: avx_available() }
+        Wide { nodes, depth, flat, avx: avx_available() }
+    }
+
+    /// Whether the walks take the flat form. For tests.
+    #[cfg(test)]
+    pub(super) fn is_flat(&self) -> bool {
+        self.flat.is_some()
     }
 
     /// The same tree traversed with two groups of four lanes even where AVX2 is there: the
@@ -122,6 +131,12 @@ impl Wide {
             #[allow(unsafe_code)]
             return unsafe { self.nearest_avx::<COHERENT>(&r, t_max, hit) };
         }
+        if let Some(flat) = &self.flat {
+            return match r.exact {
+                false => flat.nearest::<false, Sse>(&r, t_max, hit),
+                true => flat.nearest::<true, Sse>(&r, t_max, hit),
+            };
+        }
         self.with_stack(|stack| match r.exact {
             false => self.nearest_in::<false, COHERENT, Sse>(&r, t_max, hit, stack),
             true => self.nearest_in::<true, COHERENT, Sse>(&r, t_max, hit, stack),
@@ -142,6 +157,12 @@ impl Wide {
         t_max: f32,
         hit: impl FnMut(usize, usize, f32) -> f32,
     ) -> f32 {
+        if let Some(flat) = &self.flat {
+            return match r.exact {
+                false => flat.nearest::<false, Avx>(r, t_max, hit),
+                true => flat.nearest::<true, Avx>(r, t_max, hit),
+            };
+        }
         self.with_stack(|stack| match r.exact {
             false => self.nearest_in::<false, COHERENT, Avx>(r, t_max, hit, stack),
             true => self.nearest_in::<true, COHERENT, Avx>(r, t_max, hit, stack),
@@ -262,6 +283,12 @@ impl Wide {
             #[allow(unsafe_code)]
             return unsafe { self.each_avx(&r, t_max, f) };
         }
+        if let Some(flat) = &self.flat {
+            return match r.exact {
+                false => flat.each::<false, Sse>(&r, t_max, f),
+                true => flat.each::<true, Sse>(&r, t_max, f),
+            };
+        }
         self.with_stack(|stack| match r.exact {
             false => self.each_in::<false, Sse>(&r, t_max, f, stack),
             true => self.each_in::<true, Sse>(&r, t_max, f, stack),
@@ -273,6 +300,12 @@ impl Wide {
     #[target_feature(enable = "avx,avx2")]
     #[allow(unsafe_code)]
     unsafe fn each_avx(&self, r: &RayLanes, t_max: f32, f: impl FnMut(usize, usize) -> bool) {
+        if let Some(flat) = &self.flat {
+            return match r.exact {
+                false => flat.each::<false, Avx>(r, t_max, f),
+                true => flat.each::<true, Avx>(r, t_max, f),
+            };
+        }
         self.with_stack(|stack| match r.exact {
             false => self.each_in::<false, Avx>(r, t_max, f, stack),
             true => self.each_in::<true, Avx>(r, t_max, f, stack),
@@ -374,7 +407,7 @@ impl Wide {
 
     /// The bytes of the nodes.
     pub(super) fn bytes(&self) -> usize {
-        std::mem::size_of_val(&self.nodes[..])
+        std::mem::size_of_val(&self.nodes[..]) + self.flat.as_ref().map_or(0, Flat::bytes)
     }
 
     /// The box of everything.

@@ -105,7 +105,8 @@ fn calls(binary: &Binary, wide: &Wide, ray: &Ray, k: u64, t_max: f32) -> [(Vec<(
 /// The folded tree visits the slots the binary tree visits, in the same order and with
 /// the same `t_max` at each, by both nearest-hit walks (coherent and not), for rays that
 /// start on faces and run along them too; with the box test on AVX where the CPU has it,
-/// and without.
+/// and without. Trees of at most `flat::MOST_LEAVES` leaves are walked flat (`flat.rs`),
+/// larger ones are not.
 #[test]
 fn wide_visits_what_the_binary_tree_visits() {
     let sets = [
@@ -115,8 +116,13 @@ fn wide_visits_what_the_binary_tree_visits() {
         (random_boxes(5, 4), 100.0),
         (random_boxes(1, 5), 100.0),
         (exponential_boxes(200), 100.0),
+        (lattice_boxes(12, 6), 10.0),
+        (lattice_boxes(16, 7), 10.0),
+        (random_boxes(16, 8), 100.0),
+        (random_boxes(17, 9), 100.0),
+        (exponential_boxes(16), 100.0),
     ];
-    let mut visits = 0;
+    let (mut visits, mut flat, mut flat_visits) = (0, 0, 0);
     let mut stacks = std::collections::BTreeSet::new();
     let policies = [LeafPolicy::TRIANGLES, LeafPolicy::SHAPES];
     for (set, (boxes, scale, policy)) in
@@ -132,6 +138,9 @@ fn wide_visits_what_the_binary_tree_visits() {
             "heap"
         });
         wide.validate(&binary.indices, boxes).unwrap();
+        let leaves = binary.nodes.iter().filter(|n| n.count > 0).count();
+        assert_eq!(wide.is_flat(), leaves <= super::super::flat::MOST_LEAVES, "set {set}: {leaves} leaves");
+        flat += usize::from(wide.is_flat());
         for wide in [wide.clone(), wide.without_avx()] {
             for k in 0..3000u64 {
                 let r = ray(k * 7 + set as u64, *scale);
@@ -141,11 +150,15 @@ fn wide_visits_what_the_binary_tree_visits() {
                     assert_eq!(a, e, "set {set}, ray {k}: the coherent walk's nearest-hit visits differ");
                     assert_eq!(c, d, "set {set}, ray {k}: any-order visits differ");
                     visits += a.0.len();
+                    if wide.is_flat() {
+                        flat_visits += a.0.len();
+                    }
                 }
             }
         }
     }
     assert!(visits > 200_000, "only {visits} visits: the rays miss the boxes");
+    assert!(flat >= 10 && flat_visits > 20_000, "{flat} flat trees, {flat_visits} visits");
     assert_eq!(stacks.len(), 3, "every stack size is exercised: {stacks:?}");
 }
 

@@ -1,0 +1,177 @@
+//! A tree of a few leaves walked without its nodes: every leaf's box tested at once, two
+//! nodes' worth of lanes, then the leaves entered taken in the order the binary tree
+//! visits them for the ray's direction signs.
+//!
+//! On a scene of a dozen spheres or parallelograms a camera ray tests about one primitive
+//! (1.07 on `spheres`, 1.15 on the Cornell box), yet its walk visited two or three wide
+//! nodes: each a box test, a gather of the lanes entered into the stack and a pop per lane.
+//! That walk was about 700 instructions of a camera ray's nearest hit, and the shadow rays'
+//! and the rays that look for light walk the same way (docs/speed.md, thirty-sixth part).
+//!
+//! It visits what the wide walk visits, in the same order, with the same `t_max` at each
+//! leaf (`wide_tests::wide_visits_what_the_binary_tree_visits` covers trees of up to
+//! [`MOST_LEAVES`]):
+//! - *Order.* The binary walk goes to a node's second child first where the direction is
+//!   negative on its split axis; for a tree this small that order of the leaves is kept
+//!   for each of the eight sign patterns. The any-hit walk's order is the depth-first one,
+//!   the leaves' own.
+//! - *Visits.* The wide walk takes a leaf if the ray enters its box before the `t_max` of
+//!   the moment it is taken (its test at the parent, against a `t_max` no smaller, and
+//!   again when it leaves the stack). Every box on the way down holds the leaf's box, and
+//!   the box test is monotone under containment (`Aabb::hit`), so entering the leaf's box
+//!   by then implies entering theirs: the ancestors decide nothing the leaf's own test
+//!   does not. Here each leaf's box is tested once against the starting `t_max` and its
+//!   entry compared with the current one when its turn comes.
+
+use super::node::{BoxTest, Node8, RayLanes, GROUPS, LOWER, ORDERS, UPPER, WIDTH};
+use super::Node;
+use glam::Vec4;
+
+/// The most leaves a tree may have to be walked flat: two nodes' lanes.
+pub(super) const MOST_LEAVES: usize = 2 * WIDTH;
+/// Bits of a leaf's number in [`Flat::order`].
+const LEAF_BITS: u32 = 4;
+const _: () = assert!(MOST_LEAVES <= 1 << LEAF_BITS);
+
+/// The leaves of a small tree, in depth-first order, as lanes of two nodes.
+#[derive(Debug, Clone)]
+pub(super) struct Flat {
+    /// Leaf k is lane k % 8 of node k / 8: its box, its first slot (`child`) and its slot
+    /// count. The nodes' own visit orders are not used.
+    nodes: Vec<Node8>,
+    leaves: usize,
+    /// For each sign pattern of a direction (as [`RayLanes::signs`]), the leaves in the
+    /// order the binary walk visits them, four bits each, the first in the low bits.
+    order: [u64; 8],
+}
+
+impl Flat {
+    /// The flat form of the builder's binary tree (depth-first, first child after its
+    /// parent), if it has a root and at most [`MOST_LEAVES`] leaves.
+    pub(super) fn new(binary: &[Node]) -> Option<Flat> {
+        let leaves = binary.iter().filter(|n| n.count > 0).count();
+        if binary.is_empty() || leaves > MOST_LEAVES {
+            return None;
+        }
+        // Leaf numbers in depth-first order are their order in the array.
+        let number: Vec<usize> = binary
+            .iter()
+            .scan(0, |next, n| {
+                let k = *next;
+                *next += usize::from(n.count > 0);
+                Some(k)
+            })
+            .collect();
+        let mut nodes = vec![empty_node(); leaves.div_ceil(WIDTH)];
+        for (n, &k) in binary.iter().zip(&number).filter(|(n, _)| n.count > 0) {
+            let (node, lane) = (&mut nodes[k / WIDTH], k % WIDTH);
+            for a in 0..3 {
+                node.planes[LOWER][a][lane / 4][lane % 4] = n.bounds.min[a];
+                node.planes[UPPER][a][lane / 4][lane % 4] = n.bounds.max[a];
+            }
+            node.child[lane] = n.offset;
+            node.counts |= n.count << (4 * lane);
+            node.lanes |= 1 << lane;
+        }
+        let order = std::array::from_fn(|signs| {
+            let mut visit = Vec::with_capacity(leaves);
+            walk(binary, &number, 0, signs, &mut visit);
+            visit.iter().rev().fold(0u64, |bits, &k| bits << LEAF_BITS | k as u64)
+        });
+        Some(Flat { nodes, leaves, order })
+    }
+
+    /// The leaves the ray enters before `t_max` and their entry distances, bit k for leaf k.
+    #[inline(always)]
+    fn entered<const EXACT: bool, B: BoxTest>(&self, r: &RayLanes, t_max: f32) -> (u32, [f32; MOST_LEAVES]) {
+        let mut entries = [0.0; MOST_LEAVES];
+        let (mask, first) = B::hit::<EXACT>(&self.nodes[0], r, t_max);
+        entries[..WIDTH].copy_from_slice(&first);
+        let Some(node) = self.nodes.get(1) else { return (mask, entries) };
+        let (more, second) = B::hit::<EXACT>(node, r, t_max);
+        entries[WIDTH..].copy_from_slice(&second);
+        (mask | more << WIDTH, entries)
+    }
+
+    /// `Wide::nearest_leaves` on this tree: `leaf(first, count, t_max)` for each leaf the
+    /// ray enters before the current `t_max`, in the binary walk's order.
+    #[inline(always)]
+    pub(super) fn nearest<const EXACT: bool, B: BoxTest>(
+        &self,
+        r: &RayLanes,
+        mut t_max: f32,
+        mut leaf: impl FnMut(usize, usize, f32) -> f32,
+    ) -> f32 {
+        let (mask, entries) = self.entered::<EXACT, B>(r, t_max);
+        if mask == 0 {
+            return t_max;
+        }
+        let mut order = self.order[r.signs];
+        for _ in 0..self.leaves {
+            let k = (order & ((1 << LEAF_BITS) - 1)) as usize;
+            order >>= LEAF_BITS;
+            if mask & (1 << k) != 0 && entries[k] <= t_max {
+                let (first, count) = self.slots(k);
+                t_max = leaf(first, count, t_max);
+            }
+        }
+        t_max
+    }
+
+    /// `Wide::each_leaf` on this tree: `leaf(first, count)` for each leaf the ray enters
+    /// before `t_max`, in depth-first order, while it returns true.
+    #[inline(always)]
+    pub(super) fn each<const EXACT: bool, B: BoxTest>(
+        &self,
+        r: &RayLanes,
+        t_max: f32,
+        mut leaf: impl FnMut(usize, usize) -> bool,
+    ) {
+        let (mut mask, _) = self.entered::<EXACT, B>(r, t_max);
+        while mask != 0 {
+            let (first, count) = self.slots(mask.trailing_zeros() as usize);
+            if !leaf(first, count) {
+                return;
+            }
+            mask &= mask - 1;
+        }
+    }
+
+    /// The bytes of its nodes.
+    pub(super) fn bytes(&self) -> usize {
+        std::mem::size_of_val(&self.nodes[..])
+    }
+
+    /// Leaf `k`'s first slot and slot count.
+    #[inline(always)]
+    fn slots(&self, k: usize) -> (usize, usize) {
+        let node = &self.nodes[k / WIDTH];
+        (node.child[k % WIDTH] as usize, node.count(k % WIDTH))
+    }
+}
+
+/// A node with no lanes.
+fn empty_node() -> Node8 {
+    Node8 {
+        planes: [[[Vec4::ZERO; GROUPS]; 3]; 2],
+        child: [0; WIDTH],
+        counts: 0,
+        order: [0; ORDERS],
+        lanes: 0,
+    }
+}
+
+/// Appends the leaves under binary node `b` in the order a ray with direction signs `signs`
+/// visits them: a node's second child first where the direction is negative on its axis.
+fn walk(binary: &[Node], number: &[usize], b: usize, signs: usize, out: &mut Vec<usize>) {
+    let n = &binary[b];
+    if n.count > 0 {
+        out.push(number[b]);
+        return;
+    }
+    let (first, second) = (b + 1, b + n.offset as usize);
+    let swap = signs & (1 << n.axis) != 0;
+    for c in if swap { [second, first] } else { [first, second] } {
+        walk(binary, number, c, signs, out);
+    }
+}
