@@ -49,7 +49,8 @@ impl Flat {
     /// The flat form of the builder's binary tree (depth-first, first child after its
     /// parent), if it has a root and at most [`MOST_LEAVES`] leaves.
     pub(super) fn new(binary: &[Node]) -> Option<Flat> {
-        let leaves = binary.iter().filter(|n| n.count > 0).count();
+        // Counting stops past the limit: a big mesh's tree has millions of nodes.
+        let leaves = binary.iter().filter(|n| n.count > 0).take(MOST_LEAVES + 1).count();
         if binary.is_empty() || leaves > MOST_LEAVES {
             return None;
         }

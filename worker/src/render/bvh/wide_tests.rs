@@ -122,7 +122,7 @@ fn wide_visits_what_the_binary_tree_visits() {
         (random_boxes(17, 9), 100.0),
         (exponential_boxes(16), 100.0),
     ];
-    let (mut visits, mut flat, mut flat_visits) = (0, 0, 0);
+    let (mut visits, mut flat, mut flat_visits, mut most_flat) = (0, 0, 0, 0);
     let mut stacks = std::collections::BTreeSet::new();
     let policies = [LeafPolicy::TRIANGLES, LeafPolicy::SHAPES];
     for (set, (boxes, scale, policy)) in
@@ -141,6 +141,9 @@ fn wide_visits_what_the_binary_tree_visits() {
         let leaves = binary.nodes.iter().filter(|n| n.count > 0).count();
         assert_eq!(wide.is_flat(), leaves <= super::super::flat::MOST_LEAVES, "set {set}: {leaves} leaves");
         flat += usize::from(wide.is_flat());
+        if wide.is_flat() {
+            most_flat = most_flat.max(leaves);
+        }
         for wide in [wide.clone(), wide.without_avx()] {
             for k in 0..3000u64 {
                 let r = ray(k * 7 + set as u64, *scale);
@@ -159,6 +162,8 @@ fn wide_visits_what_the_binary_tree_visits() {
     }
     assert!(visits > 200_000, "only {visits} visits: the rays miss the boxes");
     assert!(flat >= 10 && flat_visits > 20_000, "{flat} flat trees, {flat_visits} visits");
+    // The second node's lanes and the order's last four bits are used.
+    assert_eq!(most_flat, super::super::flat::MOST_LEAVES, "the largest flat tree");
     assert_eq!(stacks.len(), 3, "every stack size is exercised: {stacks:?}");
 }
 
