@@ -83,8 +83,22 @@ impl Flat {
     }
 
     /// The leaves the ray enters before `t_max` and their entry distances, bit k for leaf k.
+    /// The box test's path for rays with a zero direction component is chosen here: the
+    /// walk tests boxes only this once, so nothing is gained by choosing it around the walk.
     #[inline(always)]
-    fn entered<const EXACT: bool, B: BoxTest>(&self, r: &RayLanes, t_max: f32) -> (u32, [f32; MOST_LEAVES]) {
+    fn entered<B: BoxTest>(&self, r: &RayLanes, t_max: f32) -> (u32, [f32; MOST_LEAVES]) {
+        match r.exact {
+            false => self.entered_as::<false, B>(r, t_max),
+            true => self.entered_as::<true, B>(r, t_max),
+        }
+    }
+
+    #[inline(always)]
+    fn entered_as<const EXACT: bool, B: BoxTest>(
+        &self,
+        r: &RayLanes,
+        t_max: f32,
+    ) -> (u32, [f32; MOST_LEAVES]) {
         let mut entries = [0.0; MOST_LEAVES];
         let (mask, first) = B::hit::<EXACT>(&self.nodes[0], r, t_max);
         entries[..WIDTH].copy_from_slice(&first);
@@ -97,13 +111,13 @@ impl Flat {
     /// `Wide::nearest_leaves` on this tree: `leaf(first, count, t_max)` for each leaf the
     /// ray enters before the current `t_max`, in the binary walk's order.
     #[inline(always)]
-    pub(super) fn nearest<const EXACT: bool, B: BoxTest>(
+    pub(super) fn nearest<B: BoxTest>(
         &self,
         r: &RayLanes,
         mut t_max: f32,
         mut leaf: impl FnMut(usize, usize, f32) -> f32,
     ) -> f32 {
-        let (mask, entries) = self.entered::<EXACT, B>(r, t_max);
+        let (mask, entries) = self.entered::<B>(r, t_max);
         if mask == 0 {
             return t_max;
         }
@@ -122,13 +136,13 @@ impl Flat {
     /// `Wide::each_leaf` on this tree: `leaf(first, count)` for each leaf the ray enters
     /// before `t_max`, in depth-first order, while it returns true.
     #[inline(always)]
-    pub(super) fn each<const EXACT: bool, B: BoxTest>(
+    pub(super) fn each<B: BoxTest>(
         &self,
         r: &RayLanes,
         t_max: f32,
         mut leaf: impl FnMut(usize, usize) -> bool,
     ) {
-        let (mut mask, _) = self.entered::<EXACT, B>(r, t_max);
+        let (mut mask, _) = self.entered::<B>(r, t_max);
         while mask != 0 {
             let (first, count) = self.slots(mask.trailing_zeros() as usize);
             if !leaf(first, count) {

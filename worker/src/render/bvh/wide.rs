@@ -132,10 +132,7 @@ impl Wide {
             return unsafe { self.nearest_avx::<COHERENT>(&r, t_max, hit) };
         }
         if let Some(flat) = &self.flat {
-            return match r.exact {
-                false => flat.nearest::<false, Sse>(&r, t_max, hit),
-                true => flat.nearest::<true, Sse>(&r, t_max, hit),
-            };
+            return flat.nearest::<Sse>(&r, t_max, hit);
         }
         self.with_stack(|stack| match r.exact {
             false => self.nearest_in::<false, COHERENT, Sse>(&r, t_max, hit, stack),
@@ -158,10 +155,7 @@ impl Wide {
         hit: impl FnMut(usize, usize, f32) -> f32,
     ) -> f32 {
         if let Some(flat) = &self.flat {
-            return match r.exact {
-                false => flat.nearest::<false, Avx>(r, t_max, hit),
-                true => flat.nearest::<true, Avx>(r, t_max, hit),
-            };
+            return flat.nearest::<Avx>(r, t_max, hit);
         }
         self.with_stack(|stack| match r.exact {
             false => self.nearest_in::<false, COHERENT, Avx>(r, t_max, hit, stack),
@@ -284,10 +278,7 @@ impl Wide {
             return unsafe { self.each_avx(&r, t_max, f) };
         }
         if let Some(flat) = &self.flat {
-            return match r.exact {
-                false => flat.each::<false, Sse>(&r, t_max, f),
-                true => flat.each::<true, Sse>(&r, t_max, f),
-            };
+            return flat.each::<Sse>(&r, t_max, f);
         }
         self.with_stack(|stack| match r.exact {
             false => self.each_in::<false, Sse>(&r, t_max, f, stack),
@@ -301,10 +292,7 @@ impl Wide {
     #[allow(unsafe_code)]
     unsafe fn each_avx(&self, r: &RayLanes, t_max: f32, f: impl FnMut(usize, usize) -> bool) {
         if let Some(flat) = &self.flat {
-            return match r.exact {
-                false => flat.each::<false, Avx>(r, t_max, f),
-                true => flat.each::<true, Avx>(r, t_max, f),
-            };
+            return flat.each::<Avx>(r, t_max, f);
         }
         self.with_stack(|stack| match r.exact {
             false => self.each_in::<false, Avx>(r, t_max, f, stack),
