@@ -86,8 +86,12 @@ impl Job {
 
     /// A snapshot of progress.
     pub fn progress(&self, now: Instant) -> JobProgress {
+        // A paused job renders nothing (the batches it had out still merge), and its
+        // window starts again when it resumes (`set_paused`).
         let rate = match (self.rate.front(), self.rate.back()) {
-            (Some(&(t0, s0)), Some(&(t1, s1))) if t1 > t0 => (s1 - s0) as f64 / (t1 - t0).as_secs_f64(),
+            (Some(&(t0, s0)), Some(&(t1, s1))) if t1 > t0 && self.state != JobState::Paused => {
+                (s1 - s0) as f64 / (t1 - t0).as_secs_f64()
+            }
             _ => 0.0,
         };
         JobProgress {
@@ -172,6 +176,11 @@ impl Job {
             (JobState::Paused, false) => {
                 if let Some(at) = self.paused_at.take() {
                     self.paused_for += now.saturating_duration_since(at);
+                    // The rate's window restarts here: measured across the pause, the
+                    // samples of its first seconds back would be spread over the pause
+                    // too, and the rate and a client's time left off by as much.
+                    self.rate.clear();
+                    self.rate.push_back((now, self.queue.samples_done()));
                 }
                 self.state = if self.started.is_some() { JobState::Running } else { JobState::Queued }
             }

@@ -365,6 +365,35 @@ fn a_paused_job_does_not_spend_its_time_budget() {
     assert_eq!(farm.job(other).unwrap().progress(t0 + s(99)).elapsed, s(1));
 }
 
+/// A paused job reports no rate, and once resumed its rate counts only the time since:
+/// a window spanning the pause would spread the first samples back over it.
+#[test]
+fn a_resumed_jobs_rate_leaves_out_its_pause() {
+    let (s, ms) = (Duration::from_secs, Duration::from_millis);
+    let mut farm = Farm::new();
+    let id = farm.submit(bundle(), settings(16, 16, 1000), 0).unwrap();
+    let w = farm.add_worker("w".into(), 1, Instant::now());
+    let t0 = Instant::now();
+    let rate = |farm: &Farm, at| farm.job(id).unwrap().progress(at).samples_per_second;
+    let samples =
+        |a: &Assignment| u64::from(a.batch.samples.end - a.batch.samples.start) * a.batch.quads.len() as u64;
+    let a = farm.assign(w, t0).unwrap();
+    let first = samples(&a);
+    farm.complete(w, &result(&a, &fake_sums(&a.batch), None), t0 + s(1)).unwrap();
+    assert_eq!(rate(&farm, t0 + s(1)), first as f64);
+    let a = farm.assign(w, t0 + s(1)).unwrap();
+    farm.set_paused(id, true, t0 + s(1));
+    assert_eq!(rate(&farm, t0 + s(2)), 0.0);
+    // The batch out at the pause merges during it.
+    farm.complete(w, &result(&a, &fake_sums(&a.batch), None), t0 + s(2)).unwrap();
+    assert_eq!(rate(&farm, t0 + s(2)), 0.0);
+    farm.set_paused(id, false, t0 + s(100));
+    let a = farm.assign(w, t0 + s(100)).unwrap();
+    let n = samples(&a);
+    farm.complete(w, &result(&a, &fake_sums(&a.batch), None), t0 + s(100) + ms(500)).unwrap();
+    assert_eq!(rate(&farm, t0 + s(101)), n as f64 / 0.5);
+}
+
 /// Fake AOV sums: per pixel, within the bounds of its samples, depending on pixel and
 /// samples only.
 fn fake_aov(spec: &BatchSpec, per_pixel: usize) -> Vec<u64> {
