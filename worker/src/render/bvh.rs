@@ -156,6 +156,24 @@ pub fn nearest_in_leaf(
     t_max
 }
 
+/// What a nearest-hit walk does at a leaf: tests slots `first..first + count` in order, each
+/// against the `t_max` the ones before it left, and returns the last. A trait, not only a
+/// closure (every `FnMut(usize, usize, f32) -> f32` is one), so that the scene's search can
+/// ask for its test to be inlined into the walk (`#[inline(always)]` on its method): as a
+/// closure it was a call at every leaf, with the AVX state cleared before it and the ray's
+/// lanes loaded again after it (docs/speed.md, thirty-seventh part).
+pub trait Leaves {
+    /// The leaf's test.
+    fn leaf(&mut self, first: usize, count: usize, t_max: f32) -> f32;
+}
+
+impl<F: FnMut(usize, usize, f32) -> f32> Leaves for F {
+    #[inline(always)]
+    fn leaf(&mut self, first: usize, count: usize, t_max: f32) -> f32 {
+        self(first, count, t_max)
+    }
+}
+
 /// An entry of [`Bvh::indices`] that holds no primitive: the rest of a leaf's last block.
 pub const PADDING: u32 = u32::MAX;
 
@@ -260,7 +278,7 @@ impl Bvh {
         t_max: f32,
         mut hit: impl FnMut(usize, f32) -> Option<f32>,
     ) -> f32 {
-        self.wide.nearest_leaves::<COHERENT>(ray.origin, ray.dir, t_max, |first, count, t_max| {
+        self.wide.nearest_leaves::<COHERENT>(ray.origin, ray.dir, t_max, &mut |first, count, t_max| {
             nearest_in_leaf(first, count, t_max, &mut hit)
         })
     }
@@ -273,7 +291,7 @@ impl Bvh {
         &self,
         ray: &Ray,
         t_max: f32,
-        leaf: impl FnMut(usize, usize, f32) -> f32,
+        leaf: &mut impl Leaves,
     ) -> f32 {
         self.wide.nearest_leaves::<COHERENT>(ray.origin, ray.dir, t_max, leaf)
     }

@@ -89,7 +89,7 @@ impl Instance {
         let mesh = &meshes[self.mesh as usize];
         let r4 = Ray4::new(&local);
         let mut nearest = None;
-        self.bvh.traverse_leaves::<false>(&local, t_max, |first, count, mut t_max| {
+        self.bvh.traverse_leaves::<false>(&local, t_max, &mut |first, count, mut t_max| {
             self.slots.leaf(first, count, &r4, |k, tri| {
                 let slot = &self.slots[k];
                 let found = match (slot.kind(), tri) {

@@ -14,6 +14,7 @@ pub mod light;
 pub mod material;
 pub mod sample;
 pub mod sampler;
+mod search;
 pub mod shape;
 pub mod surface;
 pub mod texture;
@@ -30,6 +31,7 @@ use geometry::{Hit, Plane, Ray};
 use light::Light;
 use material::Material;
 pub use sampler::{Sampler, SamplerKind};
+use search::{Found, Search};
 use shape::{Mesh, Primitive};
 use texture::Texture;
 use transform::Motion;
@@ -117,14 +119,6 @@ pub fn few_emitters(prims: &[Primitive]) -> Option<Vec<u32>> {
         }
     }
     Some(emitters)
-}
-
-/// What a nearest-hit search found: a candidate its completion turns into the hit, or a
-/// hit its primitive or instance made whole (a moving one, or one whose material has an
-/// alpha cut-out).
-struct Found {
-    nearest: Option<Candidate>,
-    best: Option<SurfaceHit>,
 }
 
 /// The nearest hit found so far, before it is completed: the primitive, the distance and
@@ -299,87 +293,9 @@ impl Scene {
         time: f32,
     ) -> (Found, f32) {
         let w = &*self.world;
-        // An inline triangle's, a still parallelogram's or a still sphere's hit is completed
-        // (point, normals, uv) only once it is known to be the nearest; it is the same hit
-        // `Primitive::intersect` would have made.
-        let mut nearest: Option<Candidate> = None;
-        let mut best: Option<SurfaceHit> = None;
-        // Slot k's test; returns the distance of a hit nearer than `t_max`. `tri` is the
-        // hit of an inline triangle its leaf's test found (only without alpha cut-outs),
-        // which then needs neither the slot nor a test of its own.
-        let mut slot = |k: usize, t_max: f32, tri: Option<(f32, f32, f32)>| -> Option<f32> {
-            if let Some((t, b1, b2)) = tri {
-                if !(t < t_max) {
-                    return None;
-                }
-                nearest = Some(Candidate::Triangle(k, t, b1, b2));
-                best = None;
-                return Some(t);
-            }
-            match w.slots[k].kind() {
-                triangles::SlotKind::Triangle(i) => {
-                    let (t, b1, b2) = w.slots.hit(k, ray, t_max)?;
-                    if ALPHA && !w.covers_slot(i, b1, b2, ray) {
-                        return None;
-                    }
-                    nearest = Some(Candidate::Triangle(k, t, b1, b2));
-                    best = None;
-                    Some(t)
-                }
-                triangles::SlotKind::Instance(j) => {
-                    let inst = &w.instances[j as usize];
-                    let hit = inst.intersect(ray, t_max, time, &w.meshes, &w.motions)?;
-                    nearest = None;
-                    best = Some(SurfaceHit { hit, material: inst.material, light: None });
-                    Some(hit.t)
-                }
-                triangles::SlotKind::Generic(i) => {
-                    let prim = &w.prims[i as usize];
-                    let alpha = ALPHA && w.surfaces.alpha[prim.material as usize];
-                    match (&prim.shape, prim.motion, alpha) {
-                        (shape::Shape::Rect(r), None, false) => {
-                            let (t, s, tt) = r.candidate(ray, t_max)?;
-                            nearest = Some(Candidate::Rect(i, t, s, tt));
-                            best = None;
-                            return Some(t);
-                        }
-                        (shape::Shape::Sphere(s), None, false) => {
-                            let t = s.candidate(ray, t_max)?;
-                            nearest = Some(Candidate::Sphere(i, t));
-                            best = None;
-                            return Some(t);
-                        }
-                        _ => {}
-                    }
-                    let mut hit = prim.intersect(ray, t_max, time, &w.meshes, &w.motions)?;
-                    if alpha && !w.covers_hit(i, hit.p, hit.uv, ray, time) {
-                        return None;
-                    }
-                    hit.prim = i;
-                    nearest = None;
-                    best = Some(SurfaceHit { hit, material: prim.material, light: prim.light });
-                    Some(hit.t)
-                }
-            }
-        };
-        // The ray in four lanes only where there are triangles to test at once: made for
-        // every search, it was 1 % of `spheres`' instructions.
-        let r4 = (!ALPHA && w.slots.any_inline()).then(|| triangles::Ray4::new(ray));
-        let t_max = w.bvh.traverse_leaves::<COHERENT>(ray, t_max, |first, count, mut t_max| {
-            if let Some(r4) = &r4 {
-                // The leaf's triangles tested at once, then taken in slot order with the
-                // other slots, each against the `t_max` the ones before it left.
-                w.slots.leaf(first, count, r4, |k, tri| {
-                    if let Some(t) = slot(k, t_max, tri) {
-                        t_max = t_max.min(t);
-                    }
-                    true
-                });
-                return t_max;
-            }
-            bvh::nearest_in_leaf(first, count, t_max, |k, t_max| slot(k, t_max, None))
-        });
-        (Found { nearest, best }, t_max)
+        let mut search = Search::<ALPHA>::new(w, ray, time);
+        let t_max = w.bvh.traverse_leaves::<COHERENT>(ray, t_max, &mut search);
+        (search.found, t_max)
     }
 
     /// The hit `found` names, completed (point, normals, uv).

@@ -24,7 +24,7 @@
 //!   entry compared with the current one when its turn comes.
 
 use super::node::{BoxTest, Node8, RayLanes, GROUPS, LOWER, ORDERS, UPPER, WIDTH};
-use super::Node;
+use super::{Leaves, Node};
 use glam::Vec4;
 
 /// The most leaves a tree may have to be walked flat: two nodes' lanes.
@@ -111,12 +111,7 @@ impl Flat {
     /// `Wide::nearest_leaves` on this tree: `leaf(first, count, t_max)` for each leaf the
     /// ray enters before the current `t_max`, in the binary walk's order.
     #[inline(always)]
-    pub(super) fn nearest<B: BoxTest>(
-        &self,
-        r: &RayLanes,
-        mut t_max: f32,
-        mut leaf: impl FnMut(usize, usize, f32) -> f32,
-    ) -> f32 {
+    pub(super) fn nearest<B: BoxTest>(&self, r: &RayLanes, mut t_max: f32, leaf: &mut impl Leaves) -> f32 {
         let (mask, entries) = self.entered::<B>(r, t_max);
         if mask == 0 {
             return t_max;
@@ -127,7 +122,7 @@ impl Flat {
             order >>= LEAF_BITS;
             if mask & (1 << k) != 0 && entries[k] <= t_max {
                 let (first, count) = self.slots(k);
-                t_max = leaf(first, count, t_max);
+                t_max = leaf.leaf(first, count, t_max);
             }
         }
         t_max

@@ -31,7 +31,7 @@ use glam::Vec3;
 use super::avx::{available as avx_available, Avx};
 use super::flat::Flat;
 use super::node::{BoxTest, Node8, RayLanes, Sse, LANE, LANE_BITS, WIDTH};
-use super::Aabb;
+use super::{Aabb, Leaves};
 
 /// No AVX2 path where glam runs scalar code or off x86-64.
 #[cfg(not(all(target_arch = "x86_64", not(feature = "scalar"))))]
@@ -97,7 +97,7 @@ impl Wide {
         t_max: f32,
         mut hit: impl FnMut(usize, f32) -> Option<f32>,
     ) -> f32 {
-        self.nearest_leaves::<COHERENT>(origin, dir, t_max, |first, count, t_max| {
+        self.nearest_leaves::<COHERENT>(origin, dir, t_max, &mut |first, count, t_max| {
             super::nearest_in_leaf(first, count, t_max, &mut hit)
         })
     }
@@ -119,7 +119,7 @@ impl Wide {
         origin: Vec3,
         dir: Vec3,
         t_max: f32,
-        hit: impl FnMut(usize, usize, f32) -> f32,
+        hit: &mut impl Leaves,
     ) -> f32 {
         if self.nodes.is_empty() {
             return t_max;
@@ -152,7 +152,7 @@ impl Wide {
         &self,
         r: &RayLanes,
         t_max: f32,
-        hit: impl FnMut(usize, usize, f32) -> f32,
+        hit: &mut impl Leaves,
     ) -> f32 {
         if let Some(flat) = &self.flat {
             return flat.nearest::<Avx>(r, t_max, hit);
@@ -180,7 +180,7 @@ impl Wide {
         &self,
         r: &RayLanes,
         mut t_max: f32,
-        mut hit: impl FnMut(usize, usize, f32) -> f32,
+        hit: &mut impl Leaves,
         stack: &mut [Entry],
     ) -> f32 {
         let mut top = 0;
@@ -233,7 +233,7 @@ impl Wide {
                     node = first;
                     continue;
                 }
-                t_max = hit(first, count, t_max);
+                t_max = hit.leaf(first, count, t_max);
             }
             // The next child the ray still enters before the current `t_max`.
             loop {
@@ -251,7 +251,7 @@ impl Wide {
                     node = first;
                     break;
                 }
-                t_max = hit(first, count, t_max);
+                t_max = hit.leaf(first, count, t_max);
             }
         }
     }
