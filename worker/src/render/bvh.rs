@@ -174,6 +174,21 @@ impl<F: FnMut(usize, usize, f32) -> f32> Leaves for F {
     }
 }
 
+/// What an any-hit walk does at a leaf: visits slots `first..first + count` in order and
+/// returns whether the walk goes on. A trait for the reason [`Leaves`] is one: the shadow
+/// rays' test (`shadow.rs`) is inlined into the walk.
+pub trait Visits {
+    /// The leaf's visit.
+    fn visit(&mut self, first: usize, count: usize) -> bool;
+}
+
+impl<F: FnMut(usize, usize) -> bool> Visits for F {
+    #[inline(always)]
+    fn visit(&mut self, first: usize, count: usize) -> bool {
+        self(first, count)
+    }
+}
+
 /// An entry of [`Bvh::indices`] that holds no primitive: the rest of a leaf's last block.
 pub const PADDING: u32 = u32::MAX;
 
@@ -305,13 +320,13 @@ impl Bvh {
     /// [`Bvh::visit`] by slot (see [`Bvh::traverse_slots`]).
     #[inline]
     pub fn visit_slots(&self, ray: &Ray, t_max: f32, mut f: impl FnMut(usize) -> bool) {
-        self.visit_leaves(ray, t_max, |first, count| (first..first + count).all(&mut f))
+        self.visit_leaves(ray, t_max, &mut |first, count| (first..first + count).all(&mut f))
     }
 
     /// [`Bvh::visit_slots`] a leaf at a time: `leaf(first, count)` visits slots
     /// `first..first + count` in order and returns whether the walk goes on.
     #[inline]
-    pub fn visit_leaves(&self, ray: &Ray, t_max: f32, leaf: impl FnMut(usize, usize) -> bool) {
+    pub fn visit_leaves(&self, ray: &Ray, t_max: f32, leaf: &mut impl Visits) {
         self.wide.each_leaf(ray.origin, ray.dir, t_max, leaf)
     }
 
@@ -506,7 +521,7 @@ mod tests {
             }
             // The triangles' leaves start on a block of four (these boxes take less padding
             // than `MAX_PADDING` allows) and hold no padding.
-            bvh.visit_leaves(&ray, f32::INFINITY, |first, count| {
+            bvh.visit_leaves(&ray, f32::INFINITY, &mut |first, count| {
                 assert_eq!(first % 4, 0, "ray {k}: a leaf at slot {first}");
                 assert!((1..=MAX_LEAF).contains(&count), "ray {k}: a leaf of {count}");
                 assert!(bvh.indices[first..first + count].iter().all(|&i| i != PADDING), "ray {k}");

@@ -135,7 +135,7 @@ impl Instance {
         let mesh = &meshes[self.mesh as usize];
         let r4 = Ray4::new(&local);
         let mut crossed = 0;
-        self.bvh.visit_leaves(&local, dist, |first, count| {
+        self.bvh.visit_leaves(&local, dist, &mut |first, count| {
             self.slots.leaf(first, count, &r4, |k, tri| {
                 let hit = match (self.slots[k].kind(), tri) {
                     (SlotKind::Triangle(_), Some((d, ..))) => d < dist,

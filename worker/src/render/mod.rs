@@ -15,6 +15,7 @@ pub mod material;
 pub mod sample;
 pub mod sampler;
 mod search;
+mod shadow;
 pub mod shape;
 pub mod surface;
 pub mod texture;
@@ -32,6 +33,7 @@ use light::Light;
 use material::Material;
 pub use sampler::{Sampler, SamplerKind};
 use search::{Found, Search};
+use shadow::Shadow;
 use shape::{Mesh, Primitive};
 use texture::Texture;
 use transform::Motion;
@@ -399,101 +401,18 @@ impl Scene {
         time: f32,
         own: Option<u32>,
     ) -> Vec3 {
-        let mut tr = Vec3::ONE;
-        let mut pass = |material: u32, emitter: bool| {
-            // An emitter's own surface does not shadow the light it sends.
-            tr *= if emitter {
-                Vec3::ZERO
-            } else {
-                self.world.materials[material as usize].shadow_transmission()
-            };
-            tr != Vec3::ZERO
-        };
-        let mut open = true;
         let w = &*self.world;
-        let opaque = w.surfaces.opaque;
-        // Slot k's crossings, given its triangle's hit when it holds one; false ends the
-        // walk (the light is blocked).
-        let mut cross = |k: usize, tri_hit: Option<(f32, f32, f32)>| {
-            if !ALPHA && opaque && tri_hit.is_some() {
-                // A triangle crossed, in a scene where every surface stops light: blocked,
-                // without reading the slot (on a million triangles, a load that misses the
-                // cache for most of the rays that end here).
-                open = false;
-                return false;
-            }
-            let (i, crossings) = match w.slots[k].kind() {
-                triangles::SlotKind::Triangle(i) => {
-                    let hit = match tri_hit {
-                        Some((_, b1, b2)) if ALPHA => w.covers_slot(i, b1, b2, ray),
-                        hit => hit.is_some(),
-                    };
-                    if !hit {
-                        // Nothing crossed (`open` is true while the visit goes on).
-                        return true;
-                    }
-                    if let Some(material) = w.slots[k].plain_material() {
-                        // No light, and the material from the slot: the primitive is not read.
-                        open = pass(material, false);
-                        return open;
-                    }
-                    (i, 1)
-                }
-                triangles::SlotKind::Instance(j) => {
-                    let inst = &w.instances[j as usize];
-                    let material = &w.materials[inst.material as usize];
-                    // Past an opaque surface's first crossing the rest change nothing.
-                    let enough = if material.shadow_transmission() == Vec3::ZERO { 1 } else { u32::MAX };
-                    (inst.first, inst.crossings(ray, dist, time, enough, &w.meshes, &w.motions))
-                }
-                triangles::SlotKind::Generic(i) => {
-                    let prim = &w.prims[i as usize];
-                    // Validation keeps lights still; were one to move, its samples would
-                    // not lie on the primitive, so only a still one is passed over.
-                    if own.is_some() && prim.light == own && prim.motion.is_none() {
-                        return true;
-                    }
-                    if ALPHA && w.surfaces.alpha[prim.material as usize] {
-                        // A triangle, crossed at most once.
-                        let hit = prim.intersect(ray, dist, time, &w.meshes, &w.motions);
-                        (i, u32::from(hit.is_some_and(|h| w.covers_hit(i, h.p, h.uv, ray, time))))
-                    } else {
-                        (i, prim.crossings(ray, dist, time, &w.meshes, &w.motions))
-                    }
-                }
-            };
-            let prim = &w.prims[i as usize];
-            for _ in 0..crossings {
-                open = pass(prim.material, prim.light.is_some());
-                if !open {
-                    break;
-                }
-            }
-            open
-        };
-        let r4 = (!ALPHA && w.slots.any_inline()).then(|| triangles::Ray4::new(ray));
-        w.bvh.visit_leaves(ray, dist, |first, count| {
-            if let Some(r4) = &r4 {
-                // The leaf's triangles tested at once; those crossed are taken in slot
-                // order with the other slots.
-                return w.slots.leaf(first, count, r4, |k, tri| cross(k, tri.filter(|h| h.0 < dist)));
-            }
-            (first..first + count).all(|k| {
-                let hit = match w.slots[k].kind() {
-                    triangles::SlotKind::Triangle(_) => w.slots.hit(k, ray, dist),
-                    triangles::SlotKind::Generic(_) | triangles::SlotKind::Instance(_) => None,
-                };
-                cross(k, hit)
-            })
-        });
-        if !open {
+        let mut shadow = Shadow::<ALPHA>::new(w, ray, dist, time, own);
+        w.bvh.visit_leaves(ray, dist, &mut shadow);
+        let mut passed = shadow.passed;
+        if !passed.open {
             return Vec3::ZERO;
         }
-        for (plane, material) in &self.world.planes {
-            if plane.intersect(ray, dist).is_some() && !pass(*material, false) {
+        for (plane, material) in &w.planes {
+            if plane.intersect(ray, dist).is_some() && !passed.pass(w, *material, false) {
                 return Vec3::ZERO;
             }
         }
-        tr
+        passed.tr
     }
 }

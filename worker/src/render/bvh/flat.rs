@@ -24,7 +24,7 @@
 //!   entry compared with the current one when its turn comes.
 
 use super::node::{BoxTest, Node8, RayLanes, GROUPS, LOWER, ORDERS, UPPER, WIDTH};
-use super::{Leaves, Node};
+use super::{Leaves, Node, Visits};
 use glam::Vec4;
 
 /// The most leaves a tree may have to be walked flat: two nodes' lanes.
@@ -131,16 +131,11 @@ impl Flat {
     /// `Wide::each_leaf` on this tree: `leaf(first, count)` for each leaf the ray enters
     /// before `t_max`, in depth-first order, while it returns true.
     #[inline(always)]
-    pub(super) fn each<B: BoxTest>(
-        &self,
-        r: &RayLanes,
-        t_max: f32,
-        mut leaf: impl FnMut(usize, usize) -> bool,
-    ) {
+    pub(super) fn each<B: BoxTest>(&self, r: &RayLanes, t_max: f32, leaf: &mut impl Visits) {
         let (mut mask, _) = self.entered::<B>(r, t_max);
         while mask != 0 {
             let (first, count) = self.slots(mask.trailing_zeros() as usize);
-            if !leaf(first, count) {
+            if !leaf.visit(first, count) {
                 return;
             }
             mask &= mask - 1;

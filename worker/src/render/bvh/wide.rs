@@ -31,7 +31,7 @@ use glam::Vec3;
 use super::avx::{available as avx_available, Avx};
 use super::flat::Flat;
 use super::node::{BoxTest, Node8, RayLanes, Sse, LANE, LANE_BITS, WIDTH};
-use super::{Aabb, Leaves};
+use super::{Aabb, Leaves, Visits};
 
 /// No AVX2 path where glam runs scalar code or off x86-64.
 #[cfg(not(all(target_arch = "x86_64", not(feature = "scalar"))))]
@@ -259,14 +259,14 @@ impl Wide {
     /// [`Wide::each_leaf`] a slot at a time, while `f` returns true. For tests.
     #[cfg(test)]
     pub(super) fn each(&self, origin: Vec3, dir: Vec3, t_max: f32, mut f: impl FnMut(usize) -> bool) {
-        self.each_leaf(origin, dir, t_max, |first, count| (first..first + count).all(&mut f))
+        self.each_leaf(origin, dir, t_max, &mut |first, count| (first..first + count).all(&mut f))
     }
 
     /// Visits the leaves the ray enters before `t_max` in the binary tree's depth-first
     /// order (first child first): `leaf(first, count)` visits slots `first..first + count`
     /// in order and returns whether the walk goes on.
     #[inline]
-    pub(super) fn each_leaf(&self, origin: Vec3, dir: Vec3, t_max: f32, f: impl FnMut(usize, usize) -> bool) {
+    pub(super) fn each_leaf(&self, origin: Vec3, dir: Vec3, t_max: f32, f: &mut impl Visits) {
         if self.nodes.is_empty() {
             return;
         }
@@ -290,7 +290,7 @@ impl Wide {
     #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
     #[target_feature(enable = "avx,avx2")]
     #[allow(unsafe_code)]
-    unsafe fn each_avx(&self, r: &RayLanes, t_max: f32, f: impl FnMut(usize, usize) -> bool) {
+    unsafe fn each_avx(&self, r: &RayLanes, t_max: f32, f: &mut impl Visits) {
         if let Some(flat) = &self.flat {
             return flat.each::<Avx>(r, t_max, f);
         }
@@ -305,7 +305,7 @@ impl Wide {
         &self,
         r: &RayLanes,
         t_max: f32,
-        mut f: impl FnMut(usize, usize) -> bool,
+        f: &mut impl Visits,
         stack: &mut [Entry],
     ) {
         let mut top = 0;
@@ -329,7 +329,7 @@ impl Wide {
                     node = first;
                     continue;
                 }
-                if !f(first, count) {
+                if !f.visit(first, count) {
                     return;
                 }
             }
@@ -346,7 +346,7 @@ impl Wide {
                     node = first;
                     break;
                 }
-                if !f(first, count) {
+                if !f.visit(first, count) {
                     return;
                 }
             }
