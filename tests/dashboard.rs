@@ -305,9 +305,11 @@ fn the_dashboard_in_a_real_browser() {
     page.pick_files("#submit-assets", &[]);
     page.fill("#submit-width", "320");
     page.fill("#submit-height", "240");
-    page.fill("#submit-spp", "256");
+    // Long enough to be cancelled mid-render from the jobs table: at 256 spp it ended
+    // between reaching 10 % and the click in four runs of five (2026-12-07).
+    page.fill("#submit-spp", "1024");
     page.fill("#submit-priority", "-5");
-    // A noise target no pixel reaches in 256 samples: it runs as long, and its page says
+    // A noise target no pixel reaches in 1024 samples: it runs as long, and its page says
     // how it may end.
     page.fill("#submit-noise_absolute", "0.0001");
     page.fill("#submit-noise_min", "128");
@@ -466,7 +468,7 @@ fn the_dashboard_in_a_real_browser() {
         "document.querySelector('#jobs-body tr[data-job-id=\"2\"]')?.dataset.state === 'cancelled'",
         long,
         "job 2 cancelled",
-        "document.getElementById('error').innerText",
+        "document.getElementById('error').innerText + ' | ' + document.getElementById('jobs-body').innerText",
     );
 
     eprintln!("{:5.1} s: job 2 cancelled", started.elapsed().as_secs_f64());
