@@ -306,7 +306,7 @@ fn the_dashboard_in_a_real_browser() {
     page.fill("#submit-width", "320");
     page.fill("#submit-height", "240");
     // Long enough to be cancelled mid-render from the jobs table: at 256 spp it ended
-    // between reaching 10 % and the click in four runs of five (2026-12-07).
+    // between reaching 10 % and the click in six runs of seven (2026-12-07).
     page.fill("#submit-spp", "1024");
     page.fill("#submit-priority", "-5");
     // A noise target no pixel reaches in 1024 samples: it runs as long, and its page says
