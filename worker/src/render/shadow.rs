@@ -72,17 +72,12 @@ impl Along<'_> {
     }
 
     /// Slot k's crossings, given its triangle's hit when it holds one; false ends the
-    /// walk (the light is blocked).
+    /// walk (the light is blocked). An opaque scene's crossed inline triangle has been
+    /// taken before ([`Shadow`]'s visit): without alpha, a slot that holds a triangle is
+    /// one of the inline triangles that only that visit tests.
     #[inline(always)]
     fn cross<const ALPHA: bool>(&self, p: &mut Passed, k: usize, tri_hit: Option<(f32, f32, f32)>) -> bool {
         let (w, ray, dist, time) = (self.w, self.ray, self.dist, self.time);
-        if !ALPHA && w.surfaces.opaque && tri_hit.is_some() {
-            // A triangle crossed, in a scene where every surface stops light: blocked,
-            // without reading the slot (on a million triangles, a load that misses the
-            // cache for most of the rays that end here).
-            p.open = false;
-            return false;
-        }
         let (i, crossings) = match w.slots[k].kind() {
             triangles::SlotKind::Triangle(i) => {
                 let hit = match tri_hit {
@@ -159,6 +154,10 @@ impl<const ALPHA: bool> Visits for Shadow<'_, ALPHA> {
         w.slots.leaf(first, count, r4, |k, tri| {
             let tri = tri.filter(|h| h.0 < dist);
             if !ALPHA && w.surfaces.opaque && tri.is_some() {
+                // A triangle crossed, in a scene where every surface stops light: blocked,
+                // without reading the slot (on a million triangles, a load that misses the
+                // cache for most of the rays that end here). Decided here only, inside the
+                // walk: without alpha, only this visit hands `Along::cross` a triangle's hit.
                 passed.open = false;
                 return false;
             }
