@@ -53,15 +53,16 @@ def mitsuba_times(variant, name, spp, depth, runs):
 
 
 def tessera_times(binary, scene_file, spp, size, runs):
-    out = os.path.join(tempfile.mkdtemp(), "t.exr")
     times = []
-    for _ in range(runs):
-        t0 = time.perf_counter()
-        cp = subprocess.run([binary, "render", scene_file, "-o", out, "--spp", str(spp), "--size", size],
-                            capture_output=True, text=True)
-        times.append(time.perf_counter() - t0)
-        if cp.returncode != 0:
-            sys.exit(f"tessera render failed: {cp.stderr.strip()[-400:]}")
+    with tempfile.TemporaryDirectory() as tmp:
+        out = os.path.join(tmp, "t.exr")
+        for _ in range(runs):
+            t0 = time.perf_counter()
+            cp = subprocess.run([binary, "render", scene_file, "-o", out, "--spp", str(spp), "--size", size],
+                                capture_output=True, text=True)
+            times.append(time.perf_counter() - t0)
+            if cp.returncode != 0:
+                sys.exit(f"tessera render failed: {cp.stderr.strip()[-400:]}")
     return times
 
 
