@@ -22,7 +22,7 @@ use std::arch::x86_64::{
 };
 
 use super::sobol::{ByBytes, SOBOL_BYTES};
-use super::table::{DrawTable, Shape, MOST_SAMPLES};
+use super::table::{DrawTable, Shape};
 use super::{DimensionKeys, Permutation, Sampler, ONE_MINUS_EPSILON};
 
 /// Whether this CPU runs AVX2 (the standard library caches the answer).
@@ -43,11 +43,8 @@ impl Sampler {
         lens: DimensionKeys,
         table: &mut DrawTable,
     ) {
-        let (first, count) = table.planned();
-        let mut values = [[0f32; 4]; MOST_SAMPLES as usize];
         // SAFETY: `wide_4d` is set only where `available()`.
-        unsafe { fill_4d(&self.order, film, lens, first, &mut values[..count as usize]) };
-        table.fill(d, Shape::Four, |i| values[(i - first) as usize]);
+        table.fill_all(d, Shape::Four, |first, out| unsafe { fill_4d(&self.order, film, lens, first, out) });
     }
 }
 

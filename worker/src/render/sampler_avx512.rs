@@ -14,7 +14,7 @@ use std::arch::x86_64::{
     _mm512_slli_epi64, _mm512_srli_epi64, _mm512_srlv_epi64, _mm512_storeu_si512, _mm512_xor_si512,
 };
 
-use super::table::{DrawTable, Shape, MOST_SAMPLES};
+use super::table::{DrawTable, Shape};
 use super::{Cmj, DimensionKeys, Permutation, Sampler, HASH_START, KEPT_OFFSETS, ONE_MINUS_EPSILON};
 
 /// Whether this CPU runs AVX-512 F and DQ (the standard library caches the answer).
@@ -29,7 +29,6 @@ impl Sampler {
     /// Draws the planned samples of the 2-D dimension `d` (keys `k`) eight at a time;
     /// only where [`Sampler::wide`] is set.
     pub(super) fn fill_2d_wide(&mut self, d: u32, k: DimensionKeys, table: &mut DrawTable) {
-        let (first, count) = table.planned();
         // The dimension's fine-grid offsets, through the pixel's kept ones (`wide` asks
         // that they be kept): a run of a pattern's samples meets most of its columns and
         // rows.
@@ -40,21 +39,17 @@ impl Sampler {
             (offsets[j.min(m - 1) as usize], offsets[(m + j.min(rows - 1)) as usize]) = (sx, sy);
         }
         let (columns, rows) = offsets[..(m + rows) as usize].split_at(m as usize);
-        let mut values = [[0f32; 2]; MOST_SAMPLES as usize];
         // SAFETY: `wide` is set only where `available()`.
         #[allow(unsafe_code)]
-        unsafe {
-            fill_2d(&self.cmj, &self.order, k, columns, rows, first, &mut values[..count as usize])
-        };
-        table.fill(d, Shape::Two, |i| {
-            let [x, y] = values[(i - first) as usize];
-            [x, y, 0.0, 0.0]
+        table.fill_all(d, Shape::Two, |first, out| unsafe {
+            fill_2d(&self.cmj, &self.order, k, columns, rows, first, out)
         });
     }
 }
 
 /// Draws samples `first..first + out.len()` of the 2-D dimension keyed by `k` of a
-/// pattern whose grid's sides are powers of two (`cmj.pow2`), into `out`; `columns` and
+/// pattern whose grid's sides are powers of two (`cmj.pow2`), into `out` as (x, y, 0, 0),
+/// the table's entries; `columns` and
 /// `rows` are the dimension's fine-grid offsets (`Sampler::fine_offsets`).
 ///
 /// # Safety
@@ -66,7 +61,7 @@ unsafe fn fill_2d(
     columns: &[u32],
     rows: &[u32],
     first: u32,
-    out: &mut [[f32; 2]],
+    out: &mut [[f32; 4]],
 ) {
     let Some((shift, inv_m, inv_rows)) = cmj.pow2 else { unreachable!("a grid of powers of two") };
     for (n, chunk) in out.chunks_mut(LANES).enumerate() {
@@ -89,7 +84,7 @@ unsafe fn fill_2d(
         // SAFETY: as above.
         let (x, y) = unsafe { place(col, row, sx, sy, jx, jy, inv_m, inv_rows) };
         for (l, v) in chunk.iter_mut().enumerate() {
-            *v = [x[l], y[l]];
+            *v = [x[l], y[l], 0.0, 0.0];
         }
     }
 }
@@ -236,7 +231,7 @@ mod tests {
                     let cmj = sampler.cmj;
                     let columns: Vec<u32> = (0..cmj.m).map(|c| cmj.column_offset(c, k.pattern)).collect();
                     let rows: Vec<u32> = (0..cmj.rows).map(|r| cmj.row_offset(r, k.pattern)).collect();
-                    let mut wide = vec![[0f32; 2]; count as usize];
+                    let mut wide = vec![[0f32; 4]; count as usize];
                     // SAFETY: `available()` said yes above.
                     unsafe { fill_2d(&cmj, &sampler.order, k, &columns, &rows, first, &mut wide) };
                     for (i, w) in (first..).zip(&wide) {

@@ -42,6 +42,8 @@ pub(super) struct DrawTable {
     shapes: [Shape; TABLED],
     /// Sample-major: a sample's dimensions side by side.
     values: Vec<[f32; 4]>,
+    /// The eight-lane fills' output before it is spread into `values` ([`DrawTable::fill_all`]).
+    scratch: Vec<[f32; 4]>,
 }
 
 impl DrawTable {
@@ -56,12 +58,6 @@ impl DrawTable {
         if self.values.len() < len {
             self.values.resize(len, [0.0; 4]);
         }
-    }
-
-    /// The planned samples: the first and their count.
-    #[cfg_attr(not(all(target_arch = "x86_64", not(feature = "scalar"))), allow(dead_code))]
-    pub(super) fn planned(&self) -> (u32, u32) {
-        (self.first, self.count)
     }
 
     /// No samples planned.
@@ -90,6 +86,23 @@ impl DrawTable {
     #[inline]
     pub(super) fn get(&self, at: usize) -> [f32; 4] {
         self.values[at]
+    }
+
+    /// Draws dimension `d` in `shape` for every planned sample at once: `draw(first, out)`
+    /// writes the values of samples `first..first + out.len()` into `out`. The buffer is
+    /// kept with the table: an array of [`MOST_SAMPLES`] values on the stack was zeroed
+    /// for every pixel and dimension the eight-lane fills drew, whatever the plan's length
+    /// (docs/speed.md, thirty-eighth part).
+    pub(super) fn fill_all(&mut self, d: u32, shape: Shape, draw: impl FnOnce(u32, &mut [[f32; 4]])) {
+        let count = self.count as usize;
+        if self.scratch.len() < count {
+            self.scratch.resize(count, [0.0; 4]);
+        }
+        draw(self.first, &mut self.scratch[..count]);
+        for (i, &v) in self.scratch[..count].iter().enumerate() {
+            self.values[i * TABLED + d as usize] = v;
+        }
+        self.shapes[d as usize] = shape;
     }
 
     /// Draws dimension `d` in `shape` for every planned sample: `value(index)`.
