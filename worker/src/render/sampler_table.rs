@@ -43,6 +43,7 @@ pub(super) struct DrawTable {
     /// Sample-major: a sample's dimensions side by side.
     values: Vec<[f32; 4]>,
     /// The eight-lane fills' output before it is spread into `values` ([`DrawTable::fill_all`]).
+    #[cfg_attr(not(all(target_arch = "x86_64", not(feature = "scalar"))), allow(dead_code))]
     scratch: Vec<[f32; 4]>,
 }
 
@@ -93,6 +94,7 @@ impl DrawTable {
     /// kept with the table: an array of [`MOST_SAMPLES`] values on the stack was zeroed
     /// for every pixel and dimension the eight-lane fills drew, whatever the plan's length
     /// (docs/speed.md, thirty-eighth part).
+    #[cfg_attr(not(all(target_arch = "x86_64", not(feature = "scalar"))), allow(dead_code))]
     pub(super) fn fill_all(&mut self, d: u32, shape: Shape, draw: impl FnOnce(u32, &mut [[f32; 4]])) {
         let count = self.count as usize;
         if self.scratch.len() < count {

@@ -24,10 +24,7 @@ pub(super) struct Search<'a, const ALPHA: bool> {
 impl<const ALPHA: bool> Search<'_, ALPHA> {
     /// The search's state for `ray` in `w` at `time`, nothing found yet.
     pub(super) fn new<'a>(w: &'a World, ray: &'a Ray, time: f32) -> Search<'a, ALPHA> {
-        // The ray in four lanes only where there are triangles to test at once: made for
-        // every search, it was 1 % of `spheres`' instructions.
-        let r4 = (!ALPHA && w.slots.any_inline()).then(|| triangles::Ray4::new(ray));
-        Search { w, ray, time, r4, found: Found { nearest: None, best: None } }
+        Search { w, ray, time, r4: w.slots.ray4::<ALPHA>(ray), found: Found { nearest: None, best: None } }
     }
 }
 

@@ -43,7 +43,7 @@ pub(super) struct Passed {
 impl<'a, const ALPHA: bool> Shadow<'a, ALPHA> {
     /// A shadow ray along `ray` for `dist` at `time`, passing over light `own`'s primitive.
     pub(super) fn new(w: &'a World, ray: &'a Ray, dist: f32, time: f32, own: Option<u32>) -> Self {
-        let r4 = (!ALPHA && w.slots.any_inline()).then(|| triangles::Ray4::new(ray));
+        let r4 = w.slots.ray4::<ALPHA>(ray);
         Shadow { along: Along { w, ray, dist, time, own }, r4, passed: Passed { tr: Vec3::ONE, open: true } }
     }
 }

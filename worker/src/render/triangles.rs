@@ -201,10 +201,13 @@ impl Slots {
         self.slots.is_empty()
     }
 
-    /// Whether some slot is an inline triangle.
+    /// `ray` in four lanes for [`Slots::leaf`], where leaves are tested pack by pack: some
+    /// slot is an inline triangle and, without `ALPHA` (no material cuts out hits), no
+    /// triangle's hit needs a test of its own. Made for every search without a check, it
+    /// was 1 % of `spheres`' instructions.
     #[inline(always)]
-    pub fn any_inline(&self) -> bool {
-        self.any_inline
+    pub fn ray4<const ALPHA: bool>(&self, ray: &Ray) -> Option<Ray4> {
+        (!ALPHA && self.any_inline).then(|| Ray4::new(ray))
     }
 
     /// Whether some inline triangle emits light: where none does, a ray that only looks
