@@ -48,9 +48,9 @@ impl Sampler {
 }
 
 /// Draws samples `first..first + out.len()` of the 2-D dimension keyed by `k` of a
-/// pattern whose grid's sides are powers of two (`cmj.pow2`), into `out` as (x, y, 0, 0),
-/// the table's entries; `columns` and
-/// `rows` are the dimension's fine-grid offsets (`Sampler::fine_offsets`).
+/// pattern whose grid's sides are powers of two (`cmj.pow2`), into `out` as the table's
+/// entries, (x, y, 0, 0); `columns` and `rows` are the dimension's fine-grid offsets
+/// (`Sampler::fine_offsets`).
 ///
 /// # Safety
 /// The CPU must run AVX-512 F and DQ ([`available`]).
