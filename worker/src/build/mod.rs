@@ -150,8 +150,10 @@ fn build_observed(
     let slots = crate::render::triangles::slots(&bvh, &shapes.prims, &shapes.meshes);
     mark(Phase::Slots);
     let emitters = crate::render::few_emitters(&shapes.prims);
+    let own_leaves = crate::render::own_leaves(&lights, &shapes.prims, &bvh);
     let world = World {
         emitters,
+        own_leaves,
         materials,
         textures,
         prims: shapes.prims,

@@ -180,6 +180,24 @@ impl<F: FnMut(usize, usize, f32) -> f32> Leaves for F {
 pub trait Visits {
     /// The leaf's visit.
     fn visit(&mut self, first: usize, count: usize) -> bool;
+
+    /// Leaves whose visits would do nothing and go on (the leaf of a shadow ray's own
+    /// light, [`Bvh::lone_leaf`]): a walk may leave them out.
+    #[inline(always)]
+    fn left_out(&self) -> LeftOut {
+        LeftOut::NONE
+    }
+}
+
+/// Leaves an any-hit walk may leave out ([`Visits::left_out`]), as [`Bvh::lone_leaf`]
+/// names them: bit k for leaf k of a tree walked flat (`flat.rs`); other trees leave out
+/// none.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct LeftOut(u32);
+
+impl LeftOut {
+    /// No leaf.
+    pub const NONE: LeftOut = LeftOut(0);
 }
 
 impl<F: FnMut(usize, usize) -> bool> Visits for F {
@@ -265,6 +283,12 @@ impl Bvh {
     /// the walks never hand them over, and whatever reads this array whole must skip them.
     pub fn indices(&self) -> &[u32] {
         &self.indices
+    }
+
+    /// The leaf that holds slot `k` alone, for a visit that passes that slot over to hand
+    /// the walk as [`Visits::left_out`]; [`LeftOut::NONE`] where no walk leaves it out.
+    pub fn lone_leaf(&self, k: usize) -> LeftOut {
+        LeftOut(self.wide.lone_leaf(k))
     }
 
     /// Renames the primitives: slot k then holds `name(indices()[k])` (padding stays

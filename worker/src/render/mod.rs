@@ -103,6 +103,24 @@ pub struct World {
     /// The emitting primitives, when there are at most [`FEW_EMITTERS`] of them: few enough
     /// to test a ray against each ([`Scene::may_find_light`]).
     pub emitters: Option<Vec<u32>>,
+    /// For each light, the leaf its shadow rays' walk may leave out ([`own_leaves`]).
+    pub own_leaves: Vec<bvh::LeftOut>,
+}
+
+/// For each of `lights`, the leaf of `bvh` that holds only its primitive, where that is
+/// one convex primitive and still: the primitive [`Scene::shadow`] passes over, so the
+/// leaf's visit would do nothing.
+pub fn own_leaves(lights: &[Light], prims: &[Primitive], bvh: &Bvh) -> Vec<bvh::LeftOut> {
+    let mut own = vec![bvh::LeftOut::NONE; lights.len()];
+    for (k, &i) in bvh.indices().iter().enumerate() {
+        // Padding and instances name no primitive.
+        let Some(prim) = prims.get(i as usize) else { continue };
+        let passed_over = |&l: &u32| prim.motion.is_none() && lights[l as usize].is_one_convex_primitive();
+        if let Some(l) = prim.light.filter(passed_over) {
+            own[l as usize] = bvh.lone_leaf(k);
+        }
+    }
+    own
 }
 
 /// The most emitting primitives [`Scene::may_find_light`] tests one by one; a scene with

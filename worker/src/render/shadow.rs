@@ -9,7 +9,7 @@
 
 use glam::Vec3;
 
-use super::bvh::Visits;
+use super::bvh::{LeftOut, Visits};
 use super::geometry::Ray;
 use super::{triangles, World};
 
@@ -19,6 +19,9 @@ pub(super) struct Shadow<'a, const ALPHA: bool> {
     along: Along<'a>,
     /// The ray in four lanes, where the scene has inline triangles to test at once.
     r4: Option<triangles::Ray4>,
+    /// The leaf of the light's primitive that [`Along::cross`] passes over, where it holds
+    /// nothing else.
+    own_leaf: LeftOut,
     pub(super) passed: Passed,
 }
 
@@ -44,7 +47,9 @@ impl<'a, const ALPHA: bool> Shadow<'a, ALPHA> {
     /// A shadow ray along `ray` for `dist` at `time`, passing over light `own`'s primitive.
     pub(super) fn new(w: &'a World, ray: &'a Ray, dist: f32, time: f32, own: Option<u32>) -> Self {
         let r4 = w.slots.ray4::<ALPHA>(ray);
-        Shadow { along: Along { w, ray, dist, time, own }, r4, passed: Passed { tr: Vec3::ONE, open: true } }
+        let own_leaf = own.map_or(LeftOut::NONE, |l| w.own_leaves[l as usize]);
+        let passed = Passed { tr: Vec3::ONE, open: true };
+        Shadow { along: Along { w, ray, dist, time, own }, r4, own_leaf, passed }
     }
 }
 
@@ -146,7 +151,7 @@ impl Along<'_> {
 impl<const ALPHA: bool> Visits for Shadow<'_, ALPHA> {
     #[inline(always)]
     fn visit(&mut self, first: usize, count: usize) -> bool {
-        let Shadow { along, r4, passed } = self;
+        let Shadow { along, r4, passed, .. } = self;
         let Some(r4) = r4 else { return along.slots_out_of_line::<ALPHA>(passed, first, count) };
         // The leaf's triangles tested at once; those crossed are taken in slot order with
         // the other slots.
@@ -163,5 +168,10 @@ impl<const ALPHA: bool> Visits for Shadow<'_, ALPHA> {
             }
             along.cross_out_of_line::<ALPHA>(passed, k, tri)
         })
+    }
+
+    #[inline(always)]
+    fn left_out(&self) -> LeftOut {
+        self.own_leaf
     }
 }

@@ -32,6 +32,8 @@ pub(super) const MOST_LEAVES: usize = 2 * WIDTH;
 /// Bits of a leaf's number in [`Flat::order`].
 const LEAF_BITS: u32 = 4;
 const _: () = assert!(MOST_LEAVES <= 1 << LEAF_BITS);
+// [`Flat::alone`] holds a bit a leaf.
+const _: () = assert!(MOST_LEAVES <= u16::BITS as usize);
 
 /// The leaves of a small tree, in depth-first order, as lanes of two nodes.
 #[derive(Debug, Clone)]
@@ -43,6 +45,8 @@ pub(super) struct Flat {
     /// For each sign pattern of a direction (as [`RayLanes::signs`]), the leaves in the
     /// order the binary walk visits them, four bits each, the first in the low bits.
     order: [u64; 8],
+    /// For each slot, bit k if leaf k holds that slot alone, else 0 ([`Flat::lone_leaf`]).
+    alone: Vec<u16>,
 }
 
 impl Flat {
@@ -74,12 +78,17 @@ impl Flat {
             node.counts |= n.count << (4 * lane);
             node.lanes |= 1 << lane;
         }
+        let slots = binary.iter().map(|n| (n.offset + n.count) as usize).max().unwrap_or(0);
+        let mut alone = vec![0; slots];
+        for (n, &k) in binary.iter().zip(&number).filter(|(n, _)| n.count == 1) {
+            alone[n.offset as usize] = 1 << k;
+        }
         let order = std::array::from_fn(|signs| {
             let mut visit = Vec::with_capacity(leaves);
             walk(binary, &number, 0, signs, &mut visit);
             visit.iter().rev().fold(0u64, |bits, &k| bits << LEAF_BITS | k as u64)
         });
-        Some(Flat { nodes, leaves, order })
+        Some(Flat { nodes, leaves, order, alone })
     }
 
     /// The leaves the ray enters before `t_max` and their entry distances, bit k for leaf k.
@@ -133,6 +142,9 @@ impl Flat {
     #[inline(always)]
     pub(super) fn each<B: BoxTest>(&self, r: &RayLanes, t_max: f32, leaf: &mut impl Visits) {
         let (mut mask, _) = self.entered::<B>(r, t_max);
+        // A shadow ray ends on its light, so it enters the light's leaf nearly always;
+        // where the leaf holds only the light, its visit would change nothing.
+        mask &= !leaf.left_out().0;
         while mask != 0 {
             let (first, count) = self.slots(mask.trailing_zeros() as usize);
             if !leaf.visit(first, count) {
@@ -142,9 +154,15 @@ impl Flat {
         }
     }
 
-    /// The bytes of its nodes.
+    /// The leaf that holds slot `k` alone (bit k), else 0: the leaf an any-hit walk need
+    /// not enter when its visit passes the slot over.
+    pub(super) fn lone_leaf(&self, k: usize) -> u32 {
+        self.alone.get(k).map_or(0, |&bit| u32::from(bit))
+    }
+
+    /// The bytes of its nodes and tables.
     pub(super) fn bytes(&self) -> usize {
-        std::mem::size_of_val(&self.nodes[..])
+        std::mem::size_of_val(&self.nodes[..]) + std::mem::size_of_val(&self.alone[..])
     }
 
     /// Leaf `k`'s first slot and slot count.

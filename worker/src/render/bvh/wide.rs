@@ -73,6 +73,11 @@ impl Wide {
         Wide { nodes, depth, flat, avx: avx_available() }
     }
 
+    /// [`Bvh::lone_leaf`]'s bits: only a flat walk leaves out leaves.
+    pub(super) fn lone_leaf(&self, k: usize) -> u32 {
+        self.flat.as_ref().map_or(0, |flat| flat.lone_leaf(k))
+    }
+
     /// Whether the walks take the flat form. For tests.
     #[cfg(test)]
     pub(super) fn is_flat(&self) -> bool {

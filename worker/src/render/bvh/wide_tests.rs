@@ -278,3 +278,75 @@ fn box_test_is_monotone_under_containment() {
     }
     assert!(checked > 1000, "{checked} hits");
 }
+
+/// A visit that hands the walk the leaf of a slot it passes over, and records the slots it
+/// is given.
+struct PassingOver<F> {
+    /// The walk's bits of the leaf that holds the slot alone, if any.
+    leaf: u32,
+    f: F,
+}
+
+impl<F: FnMut(usize, usize) -> bool> super::super::Visits for PassingOver<F> {
+    fn visit(&mut self, first: usize, count: usize) -> bool {
+        (self.f)(first, count)
+    }
+
+    fn left_out(&self) -> super::super::LeftOut {
+        super::super::LeftOut(self.leaf)
+    }
+}
+
+/// Given a slot its visit passes over, a flat any-hit walk leaves out the leaf that holds
+/// that slot alone, and nothing else: its visits are the binary tree's without that leaf.
+/// A tree walked with its nodes visits what the binary tree visits.
+#[test]
+fn a_flat_walk_leaves_out_a_lone_slot_passed_over() {
+    let sets = [
+        (lattice_boxes(12, 6), 10.0),
+        (random_boxes(16, 8), 100.0),
+        (random_boxes(5, 4), 100.0),
+        (exponential_boxes(16), 100.0),
+        (random_boxes(40, 9), 100.0),
+    ];
+    let (mut left_out, mut flat) = (0, 0);
+    for (set, (boxes, scale)) in sets.iter().enumerate() {
+        let binary = build_binary_with(boxes, LeafPolicy::SHAPES);
+        let lone: Vec<usize> =
+            binary.nodes.iter().filter(|n| n.count == 1).map(|n| n.offset as usize).collect();
+        let wide = super::super::fold::fold(&binary.nodes);
+        flat += usize::from(wide.is_flat());
+        for wide in [wide.clone(), wide.without_avx()] {
+            for k in 0..2000u64 {
+                let r = ray(k * 5 + set as u64, *scale);
+                let mut expected = vec![];
+                reference::visit_slots(&binary, &r, f32::INFINITY, |s| {
+                    expected.push(s);
+                    true
+                });
+                // A slot the ray reaches, mostly (as a shadow ray reaches its light).
+                let h = hash_words(&[k, 11]);
+                let over = if expected.is_empty() || h.is_multiple_of(4) {
+                    (h / 4 % boxes.len() as u64) as usize
+                } else {
+                    expected[(h / 4 % expected.len() as u64) as usize]
+                };
+                if wide.is_flat() && lone.contains(&over) {
+                    let before = expected.len();
+                    expected.retain(|&s| s != over);
+                    left_out += before - expected.len();
+                }
+                let mut seen = vec![];
+                let f = |first, count| {
+                    seen.extend(first..first + count);
+                    true
+                };
+                let mut visit = PassingOver { leaf: wide.lone_leaf(over), f };
+                wide.each_leaf(r.origin, r.dir, f32::INFINITY, &mut visit);
+                assert_eq!(seen, expected, "set {set}, ray {k}: slot {over} passed over");
+            }
+        }
+    }
+    assert_eq!(flat, 4, "the sets walked flat");
+    assert!(left_out > 500, "only {left_out} leaves left out: the rays miss the lone slots");
+}
