@@ -272,10 +272,95 @@ emission = 1
     assert!(matches!(lights[0], Light::Sphere { .. }) && matches!(lights[1], Light::Rect { .. }));
     assert!(lights[0].is_one_convex_primitive() && lights[1].is_one_convex_primitive());
     assert!(matches!(lights[2], Light::Mesh(_)) && !lights[2].is_one_convex_primitive());
+    let (blocked, open, by_itself) = shadows_against_brute_force(&s, Vec3::ZERO, 6.0);
+    assert!(by_itself < 100, "{by_itself} rays blocked by their own light");
+    assert!(blocked > 1000 && open > 1000, "{blocked} blocked, {open} open");
+    // A ray through the sphere light: its own surface is passed over, no other light's is.
+    let through = Ray::new(Vec3::new(1.5, 1.8, 3.0), -Vec3::Z);
+    assert_eq!(s.transmittance(&through, 6.0, 0.0), Vec3::ZERO);
+    assert_eq!(s.shadow(&through, 6.0, 0.0, 0), Vec3::ONE);
+    assert_eq!(s.shadow(&through, 6.0, 0.0, 1), Vec3::ZERO);
+    // Through the parallelogram light likewise; the mesh light's triangles always count.
+    let across = Ray::new(Vec3::new(-1.5, 1.8, 3.0), -Vec3::Z);
+    assert_eq!(s.shadow(&across, 6.0, 0.0, 1), Vec3::ONE);
+    assert_eq!(s.shadow(&across, 6.0, 0.0, 0), Vec3::ZERO);
+    let folded = Ray::new(Vec3::new(0.5, -1.5, 0.0), -Vec3::Z);
+    assert_eq!(s.shadow(&folded, 6.0, 0.0, 2), Vec3::ZERO);
+}
+
+/// A light alone in a leaf of a small scene's tree, as `spheres`' is: its shadow rays' walk
+/// leaves that leaf out (`World::own_leaves`), with the same answers as every primitive's
+/// crossings but the light's own.
+#[test]
+fn a_shadow_ray_leaves_out_the_leaf_of_its_own_light() {
+    let text = r#"
+[render]
+width = 1
+height = 1
+spp = 1
+
+[camera]
+position = [0, 3, 10]
+look_at = [0, 0.5, 0]
+fov = 40
+
+[materials.m]
+type = "lambert"
+albedo = 0.5
+
+[[rectangle]]
+center = [0, 0, 0]
+u = [10, 0, 0]
+v = [0, 0, -10]
+material = "m"
+
+[[sphere]]
+center = [0, 1, 0]
+radius = 1
+material = "m"
+
+[[sphere]]
+center = [-2.5, 0.8, -0.9]
+radius = 0.8
+material = "m"
+
+[[sphere]]
+center = [2.5, 0.8, -0.7]
+radius = 0.8
+material = "m"
+
+[[sphere]]
+center = [-4, 6, 4]
+radius = 0.6
+emission = 10
+
+[[rectangle]]
+center = [5, 7, -4]
+u = [0.5, 0, 0]
+v = [0, 0, 0.5]
+emission = 10
+"#;
+    let s = parse_scene("t.toml", text).unwrap();
+    let own = &s.world.own_leaves;
+    assert!(
+        own.iter().all(|&leaf| leaf != crate::render::bvh::LeftOut::NONE),
+        "lights alone in their leaves: {own:?}"
+    );
+    let (blocked, open, by_itself) = shadows_against_brute_force(&s, Vec3::new(0.0, 2.0, 0.0), 8.0);
+    assert!(by_itself < 100, "{by_itself} rays blocked by their own light");
+    assert!(blocked > 1000 && open > 1000, "{blocked} blocked, {open} open");
+}
+
+/// [`Scene::shadow`] and [`Scene::transmittance`] against every primitive's crossings taken
+/// one by one, for light samples from 20 000 points in a cube of side `size` around
+/// `centre`, up to the edges of the lights' cones and parallelograms (grazing rays): the
+/// shadow rays blocked, those open, and those a light's own surface blocked in
+/// `transmittance` but not in `shadow`.
+fn shadows_against_brute_force(s: &Scene, centre: Vec3, size: f32) -> (u32, u32, u32) {
+    let (w, lights) = (&*s.world, &s.world.lights);
     let h = |k: u32, i: u64| unit_float(hash_words(&[u64::from(k), i]));
     // Every primitive's crossings but `skip`'s, one by one: opaque and emitting surfaces
     // both block, so the answer is all or nothing.
-    let w = &*s.world;
     let brute = |ray: &Ray, dist: f32, skip: Option<usize>| {
         let crossed = (w.prims.iter().enumerate())
             .filter(|&(i, _)| Some(i) != skip)
@@ -291,7 +376,7 @@ emission = 1
     for k in 0..20_000u32 {
         // Points around the scene, some close to the lights, and light samples up to the
         // edges of their cones and parallelograms (grazing rays).
-        let p = Vec3::new(h(k, 0) - 0.5, h(k, 1) - 0.5, h(k, 2) - 0.5) * 6.0;
+        let p = centre + Vec3::new(h(k, 0) - 0.5, h(k, 1) - 0.5, h(k, 2) - 0.5) * size;
         let mut u = Vec2::new(h(k, 3), h(k, 4));
         if k % 4 == 0 {
             u.x = 1.0 - u.x * 1e-6;
@@ -318,17 +403,5 @@ emission = 1
             }
         }
     }
-    assert!(by_itself < 100, "{by_itself} rays blocked by their own light");
-    assert!(blocked > 1000 && open > 1000, "{blocked} blocked, {open} open");
-    // A ray through the sphere light: its own surface is passed over, no other light's is.
-    let through = Ray::new(Vec3::new(1.5, 1.8, 3.0), -Vec3::Z);
-    assert_eq!(s.transmittance(&through, 6.0, 0.0), Vec3::ZERO);
-    assert_eq!(s.shadow(&through, 6.0, 0.0, 0), Vec3::ONE);
-    assert_eq!(s.shadow(&through, 6.0, 0.0, 1), Vec3::ZERO);
-    // Through the parallelogram light likewise; the mesh light's triangles always count.
-    let across = Ray::new(Vec3::new(-1.5, 1.8, 3.0), -Vec3::Z);
-    assert_eq!(s.shadow(&across, 6.0, 0.0, 1), Vec3::ONE);
-    assert_eq!(s.shadow(&across, 6.0, 0.0, 0), Vec3::ZERO);
-    let folded = Ray::new(Vec3::new(0.5, -1.5, 0.0), -Vec3::Z);
-    assert_eq!(s.shadow(&folded, 6.0, 0.0, 2), Vec3::ZERO);
+    (blocked, open, by_itself)
 }

@@ -78,8 +78,9 @@ impl Flat {
             node.counts |= n.count << (4 * lane);
             node.lanes |= 1 << lane;
         }
-        let slots = binary.iter().map(|n| (n.offset + n.count) as usize).max().unwrap_or(0);
-        let mut alone = vec![0; slots];
+        // A leaf's offset is its first slot; an interior node's is its second child's.
+        let slots = binary.iter().filter(|n| n.count > 0).map(|n| (n.offset + n.count) as usize).max();
+        let mut alone = vec![0; slots.unwrap_or(0)];
         for (n, &k) in binary.iter().zip(&number).filter(|(n, _)| n.count == 1) {
             alone[n.offset as usize] = 1 << k;
         }
