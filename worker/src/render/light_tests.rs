@@ -226,24 +226,29 @@ material = "floor"
     }
 }
 
-#[test]
-fn a_shadow_ray_passes_over_its_own_convex_light_and_nothing_else() {
-    // A sphere light, a parallelogram light, an emitting mesh of two triangles folded so
-    // that one can block the other, and an opaque ball in the middle of it all.
-    let text = r#"
+/// A one-pixel render and a grey lambert material `m`: the shadow tests' scenes add their
+/// camera and shapes.
+const ONE_PIXEL_GREY: &str = r#"
 [render]
 width = 1
 height = 1
 spp = 1
 
+[materials.m]
+type = "lambert"
+albedo = 0.5
+"#;
+
+#[test]
+fn a_shadow_ray_passes_over_its_own_convex_light_and_nothing_else() {
+    // A sphere light, a parallelogram light, an emitting mesh of two triangles folded so
+    // that one can block the other, and an opaque ball in the middle of it all.
+    let text = format!(
+        r#"{ONE_PIXEL_GREY}
 [camera]
 position = [0, 0, 8]
 look_at = [0, 0, 0]
 fov = 40
-
-[materials.m]
-type = "lambert"
-albedo = 0.5
 
 [[sphere]]
 center = [0, 0, 0]
@@ -264,10 +269,11 @@ emission = 2
 [[mesh]]
 file = "fold.obj"
 emission = 1
-"#;
+"#
+    );
     let fold =
         b"v 0 -2 -1\nv 1 -2 -1\nv 0 -1 -2\nv 1 -1 -2\nv 0 -1 -1.2\nv 1 -1 -1.2\nf 1 2 4 3\nf 3 4 6 5\n";
-    let s = parse_scene_with_assets("t.toml", text, &One("fold.obj", fold.to_vec())).unwrap();
+    let s = parse_scene_with_assets("t.toml", &text, &One("fold.obj", fold.to_vec())).unwrap();
     let lights = &s.world.lights;
     assert!(matches!(lights[0], Light::Sphere { .. }) && matches!(lights[1], Light::Rect { .. }));
     assert!(lights[0].is_one_convex_primitive() && lights[1].is_one_convex_primitive());
@@ -293,20 +299,12 @@ emission = 1
 /// crossings but the light's own.
 #[test]
 fn a_shadow_ray_leaves_out_the_leaf_of_its_own_light() {
-    let text = r#"
-[render]
-width = 1
-height = 1
-spp = 1
-
+    let text = format!(
+        r#"{ONE_PIXEL_GREY}
 [camera]
 position = [0, 3, 10]
 look_at = [0, 0.5, 0]
 fov = 40
-
-[materials.m]
-type = "lambert"
-albedo = 0.5
 
 [[rectangle]]
 center = [0, 0, 0]
@@ -339,8 +337,9 @@ center = [5, 7, -4]
 u = [0.5, 0, 0]
 v = [0, 0, 0.5]
 emission = 10
-"#;
-    let s = parse_scene("t.toml", text).unwrap();
+"#
+    );
+    let s = parse_scene("t.toml", &text).unwrap();
     let own = &s.world.own_leaves;
     assert!(
         own.iter().all(|&leaf| leaf != crate::render::bvh::LeftOut::NONE),
