@@ -261,9 +261,19 @@ impl Sampler {
     }
 
     /// The next 2-D dimension, following the pixel's pattern.
+    #[inline]
     pub fn get_2d(&mut self) -> Vec2 {
         let d = self.dimension;
         let k = self.next_dimension();
+        if let Some([x, y, ..]) = self.table_hit(d, Shape::Two) {
+            return Vec2::new(x, y);
+        }
+        self.draw_2d(d, k)
+    }
+
+    /// [`Sampler::get_2d`] of dimension `d` (keys `k`) where the table does not hold it.
+    #[inline(never)]
+    fn draw_2d(&mut self, d: u32, k: DimensionKeys) -> Vec2 {
         if self.index >= self.spp || self.kind == SamplerKind::Independent {
             // Beyond the pattern, or no pattern: plain random (hash_words(&[key, index])).
             let h = hash_step(k.from_key, u64::from(self.index));
@@ -370,13 +380,23 @@ impl Sampler {
         }
         let d = self.dimension;
         let (film, lens) = (self.next_dimension(), self.next_dimension());
+        let [a, b, c, e] = match self.table_hit(d, Shape::Four) {
+            Some(v) => v,
+            None => self.draw_4d(d, film, lens),
+        };
+        (Vec2::new(a, b), Vec2::new(c, e))
+    }
+
+    /// [`Sampler::get_4d`]'s joint draw of dimension `d` (keys `film` and `lens`) where
+    /// the table does not hold it.
+    #[inline(never)]
+    fn draw_4d(&mut self, d: u32, film: DimensionKeys, lens: DimensionKeys) -> [f32; 4] {
         let tabled = if self.wide_4d {
             self.tabled_with(d, Shape::Four, |s, table| s.fill_4d_wide(d, film, lens, table))
         } else {
             self.tabled(d, Shape::Four, |s, i| s.pattern_4d(film, lens, i))
         };
-        let [a, b, c, e] = tabled.unwrap_or_else(|| self.pattern_4d(film, lens, self.index));
-        (Vec2::new(a, b), Vec2::new(c, e))
+        tabled.unwrap_or_else(|| self.pattern_4d(film, lens, self.index))
     }
 
     /// The film's and the lens's coordinates of the 4-D net at sample `index`.
@@ -394,9 +414,19 @@ impl Sampler {
     }
 
     /// The next 1-D dimension, following the pixel's pattern.
+    #[inline]
     pub fn get_1d(&mut self) -> f32 {
         let d = self.dimension;
         let k = self.next_dimension();
+        if let Some([x, ..]) = self.table_hit(d, Shape::One) {
+            return x;
+        }
+        self.draw_1d(d, k)
+    }
+
+    /// [`Sampler::get_1d`] of dimension `d` (keys `k`) where the table does not hold it.
+    #[inline(never)]
+    fn draw_1d(&mut self, d: u32, k: DimensionKeys) -> f32 {
         if self.index >= self.spp || self.kind == SamplerKind::Independent {
             return unit_float(hash_step(k.from_key, u64::from(self.index)));
         }

@@ -78,6 +78,18 @@ impl DrawTable {
         (held == shape || held == Shape::Empty).then_some(i as usize * TABLED + d as usize)
     }
 
+    /// Sample `index`'s draw of dimension `d`, if the dimension holds its values in
+    /// `shape`: [`DrawTable::entry`] and [`DrawTable::is_filled`] in one test, the read
+    /// most draws make.
+    #[inline(always)]
+    pub(super) fn filled(&self, d: u32, index: u32, shape: Shape) -> Option<[f32; 4]> {
+        let i = index.wrapping_sub(self.first);
+        if i >= self.count || *self.shapes.get(d as usize)? != shape {
+            return None;
+        }
+        Some(self.values[i as usize * TABLED + d as usize])
+    }
+
     /// Whether dimension `d` holds its values.
     #[inline]
     pub(super) fn is_filled(&self, d: u32) -> bool {
@@ -129,6 +141,20 @@ impl Sampler {
         value: impl Fn(&mut Self, u32) -> [f32; 4],
     ) -> Option<[f32; 4]> {
         self.tabled_with(d, shape, |s, table| table.fill(d, shape, |i| value(s, i)))
+    }
+
+    /// The current sample's draw of dimension `d` if the pixel's table holds it in
+    /// `shape` already: the draws' common path. The draws' other paths (filling the
+    /// table, drawing one value alone) are out of line behind it; inlined into one
+    /// function with it, they made every draw pay their stack frame and saved registers
+    /// (docs/speed.md, fortieth part).
+    #[inline(always)]
+    pub(super) fn table_hit(&self, d: u32, shape: Shape) -> Option<[f32; 4]> {
+        // Past the pattern, or without one, a draw is a hash, whatever a plan holds.
+        if self.index >= self.spp || self.kind == super::SamplerKind::Independent {
+            return None;
+        }
+        self.table.filled(d, self.index, shape)
     }
 
     /// [`Sampler::tabled`] with the dimension's values drawn by `fill`.
