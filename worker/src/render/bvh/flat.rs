@@ -1,6 +1,9 @@
 //! A tree of a few leaves walked without its nodes: every leaf's box tested at once, two
 //! nodes' worth of lanes, then the leaves entered taken in the order the binary tree
-//! visits them for the ray's direction signs.
+//! visits them for the ray's direction signs. The leaves are kept once in that order for
+//! each of the eight sign patterns, so that the entered ones are the set bits of the box
+//! test's mask, in order: the walk passes over none of the leaves it does not enter
+//! (docs/speed.md, fortieth part).
 //!
 //! On a scene of a dozen spheres or parallelograms a camera ray tests about one primitive
 //! (1.07 on `spheres`, 1.15 on the Cornell box), yet its walk visited two or three wide
@@ -29,9 +32,6 @@ use glam::Vec4;
 
 /// The most leaves a tree may have to be walked flat: two nodes' lanes.
 pub(super) const MOST_LEAVES: usize = 2 * WIDTH;
-/// Bits of a leaf's number in [`Flat::order`].
-const LEAF_BITS: u32 = 4;
-const _: () = assert!(MOST_LEAVES <= 1 << LEAF_BITS);
 // [`Flat::alone`] holds a bit a leaf.
 const _: () = assert!(MOST_LEAVES <= u16::BITS as usize);
 
@@ -41,10 +41,12 @@ pub(super) struct Flat {
     /// Leaf k is lane k % 8 of node k / 8: its box, its first slot (`child`) and its slot
     /// count. The nodes' own visit orders are not used.
     nodes: Vec<Node8>,
-    leaves: usize,
-    /// For each sign pattern of a direction (as [`RayLanes::signs`]), the leaves in the
-    /// order the binary walk visits them, four bits each, the first in the low bits.
-    order: [u64; 8],
+    /// The same leaves for each sign pattern of a direction (as [`RayLanes::signs`]), in the
+    /// order the binary walk visits them: pattern s's k-th leaf is lane k % 8 of node
+    /// `s * per + k / 8`.
+    ordered: Vec<Node8>,
+    /// Nodes a sign pattern takes in `ordered` (as many as in `nodes`).
+    per: usize,
     /// For each slot, bit k if leaf k holds that slot alone, else 0 ([`Flat::lone_leaf`]).
     alone: Vec<u16>,
 }
@@ -84,35 +86,49 @@ impl Flat {
         for (n, &k) in binary.iter().zip(&number).filter(|(n, _)| n.count == 1) {
             alone[n.offset as usize] = 1 << k;
         }
-        let order = std::array::from_fn(|signs| {
+        let per = nodes.len();
+        let mut ordered = vec![empty_node(); 8 * per];
+        for signs in 0..8 {
             let mut visit = Vec::with_capacity(leaves);
             walk(binary, &number, 0, signs, &mut visit);
-            visit.iter().rev().fold(0u64, |bits, &k| bits << LEAF_BITS | k as u64)
-        });
-        Some(Flat { nodes, leaves, order, alone })
+            for (at, &k) in visit.iter().enumerate() {
+                let (from, lane) = (&nodes[k / WIDTH], k % WIDTH);
+                let (to, into) = (&mut ordered[signs * per + at / WIDTH], at % WIDTH);
+                for side in [LOWER, UPPER] {
+                    for a in 0..3 {
+                        to.planes[side][a][into / 4][into % 4] = from.planes[side][a][lane / 4][lane % 4];
+                    }
+                }
+                to.child[into] = from.child[lane];
+                to.counts |= (from.count(lane) as u32) << (4 * into);
+                to.lanes |= 1 << into;
+            }
+        }
+        Some(Flat { nodes, ordered, per, alone })
     }
 
-    /// The leaves the ray enters before `t_max` and their entry distances, bit k for leaf k.
-    /// The box test's path for rays with a zero direction component is chosen here: the
-    /// walk tests boxes only this once, so nothing is gained by choosing it around the walk.
+    /// The leaves of `nodes` the ray enters before `t_max` and their entry distances, bit k
+    /// for the k-th leaf. The box test's path for rays with a zero direction component is
+    /// chosen here: the walk tests boxes only this once, so nothing is gained by choosing it
+    /// around the walk.
     #[inline(always)]
-    fn entered<B: BoxTest>(&self, r: &RayLanes, t_max: f32) -> (u32, [f32; MOST_LEAVES]) {
+    fn entered<B: BoxTest>(nodes: &[Node8], r: &RayLanes, t_max: f32) -> (u32, [f32; MOST_LEAVES]) {
         match r.exact {
-            false => self.entered_as::<false, B>(r, t_max),
-            true => self.entered_as::<true, B>(r, t_max),
+            false => Self::entered_as::<false, B>(nodes, r, t_max),
+            true => Self::entered_as::<true, B>(nodes, r, t_max),
         }
     }
 
     #[inline(always)]
     fn entered_as<const EXACT: bool, B: BoxTest>(
-        &self,
+        nodes: &[Node8],
         r: &RayLanes,
         t_max: f32,
     ) -> (u32, [f32; MOST_LEAVES]) {
         let mut entries = [0.0; MOST_LEAVES];
-        let (mask, first) = B::hit::<EXACT>(&self.nodes[0], r, t_max);
+        let (mask, first) = B::hit::<EXACT>(&nodes[0], r, t_max);
         entries[..WIDTH].copy_from_slice(&first);
-        let Some(node) = self.nodes.get(1) else { return (mask, entries) };
+        let Some(node) = nodes.get(1) else { return (mask, entries) };
         let (more, second) = B::hit::<EXACT>(node, r, t_max);
         entries[WIDTH..].copy_from_slice(&second);
         (mask | more << WIDTH, entries)
@@ -122,18 +138,15 @@ impl Flat {
     /// ray enters before the current `t_max`, in the binary walk's order.
     #[inline(always)]
     pub(super) fn nearest<B: BoxTest>(&self, r: &RayLanes, mut t_max: f32, leaf: &mut impl Leaves) -> f32 {
-        let (mask, entries) = self.entered::<B>(r, t_max);
-        if mask == 0 {
-            return t_max;
-        }
-        let mut order = self.order[r.signs];
-        for _ in 0..self.leaves {
-            let k = (order & ((1 << LEAF_BITS) - 1)) as usize;
-            order >>= LEAF_BITS;
-            if mask & (1 << k) != 0 && entries[k] <= t_max {
-                let (first, count) = self.slots(k);
+        let nodes = &self.ordered[r.signs * self.per..][..self.per];
+        let (mut mask, entries) = Self::entered::<B>(nodes, r, t_max);
+        while mask != 0 {
+            let k = mask.trailing_zeros() as usize;
+            if entries[k] <= t_max {
+                let (first, count) = slots(nodes, k);
                 t_max = leaf.leaf(first, count, t_max);
             }
+            mask &= mask - 1;
         }
         t_max
     }
@@ -142,12 +155,12 @@ impl Flat {
     /// before `t_max`, in depth-first order, while it returns true.
     #[inline(always)]
     pub(super) fn each<B: BoxTest>(&self, r: &RayLanes, t_max: f32, leaf: &mut impl Visits) {
-        let (mut mask, _) = self.entered::<B>(r, t_max);
+        let (mut mask, _) = Self::entered::<B>(&self.nodes, r, t_max);
         // A shadow ray ends on its light, so it enters the light's leaf nearly always;
         // where the leaf holds only the light, its visit would change nothing.
         mask &= !leaf.left_out().0;
         while mask != 0 {
-            let (first, count) = self.slots(mask.trailing_zeros() as usize);
+            let (first, count) = slots(&self.nodes, mask.trailing_zeros() as usize);
             if !leaf.visit(first, count) {
                 return;
             }
@@ -163,15 +176,17 @@ impl Flat {
 
     /// The bytes of its nodes and tables.
     pub(super) fn bytes(&self) -> usize {
-        std::mem::size_of_val(&self.nodes[..]) + std::mem::size_of_val(&self.alone[..])
+        std::mem::size_of_val(&self.nodes[..])
+            + std::mem::size_of_val(&self.ordered[..])
+            + std::mem::size_of_val(&self.alone[..])
     }
+}
 
-    /// Leaf `k`'s first slot and slot count.
-    #[inline(always)]
-    fn slots(&self, k: usize) -> (usize, usize) {
-        let node = &self.nodes[k / WIDTH];
-        (node.child[k % WIDTH] as usize, node.count(k % WIDTH))
-    }
+/// The first slot and slot count of the k-th leaf of `nodes`.
+#[inline(always)]
+fn slots(nodes: &[Node8], k: usize) -> (usize, usize) {
+    let node = &nodes[k / WIDTH];
+    (node.child[k % WIDTH] as usize, node.count(k % WIDTH))
 }
 
 /// A node with no lanes.
