@@ -232,6 +232,17 @@ impl Sampler {
         self.new_dimension(d)
     }
 
+    /// [`Sampler::next_dimension`] where the draw does not need the keys (the table holds
+    /// it): the same dimensions kept, without loading a kept one's keys.
+    #[inline(always)]
+    fn pass_dimension(&mut self) {
+        let d = self.dimension;
+        self.dimension += 1;
+        if d >= self.kept {
+            self.new_dimension(d);
+        }
+    }
+
     /// The keys of dimension `d`, not kept yet: the first sample of a pixel to draw it
     /// computes them. Out of line, so that the draws' common path (the keys kept) holds
     /// fewer registers.
@@ -264,10 +275,11 @@ impl Sampler {
     #[inline]
     pub fn get_2d(&mut self) -> Vec2 {
         let d = self.dimension;
-        let k = self.next_dimension();
         if let Some([x, y, ..]) = self.table_hit(d, Shape::Two) {
+            self.pass_dimension();
             return Vec2::new(x, y);
         }
+        let k = self.next_dimension();
         self.draw_2d(d, k)
     }
 
@@ -379,10 +391,16 @@ impl Sampler {
             return (self.get_2d(), self.get_2d());
         }
         let d = self.dimension;
-        let (film, lens) = (self.next_dimension(), self.next_dimension());
         let [a, b, c, e] = match self.table_hit(d, Shape::Four) {
-            Some(v) => v,
-            None => self.draw_4d(d, film, lens),
+            Some(v) => {
+                self.pass_dimension();
+                self.pass_dimension();
+                v
+            }
+            None => {
+                let (film, lens) = (self.next_dimension(), self.next_dimension());
+                self.draw_4d(d, film, lens)
+            }
         };
         (Vec2::new(a, b), Vec2::new(c, e))
     }
@@ -417,10 +435,11 @@ impl Sampler {
     #[inline]
     pub fn get_1d(&mut self) -> f32 {
         let d = self.dimension;
-        let k = self.next_dimension();
         if let Some([x, ..]) = self.table_hit(d, Shape::One) {
+            self.pass_dimension();
             return x;
         }
+        let k = self.next_dimension();
         self.draw_1d(d, k)
     }
 
