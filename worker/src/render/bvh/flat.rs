@@ -69,40 +69,20 @@ impl Flat {
                 Some(k)
             })
             .collect();
-        let mut nodes = vec![empty_node(); leaves.div_ceil(WIDTH)];
-        for (n, &k) in binary.iter().zip(&number).filter(|(n, _)| n.count > 0) {
-            let (node, lane) = (&mut nodes[k / WIDTH], k % WIDTH);
-            for a in 0..3 {
-                node.planes[LOWER][a][lane / 4][lane % 4] = n.bounds.min[a];
-                node.planes[UPPER][a][lane / 4][lane % 4] = n.bounds.max[a];
-            }
-            node.child[lane] = n.offset;
-            node.counts |= n.count << (4 * lane);
-            node.lanes |= 1 << lane;
-        }
+        let leaf_nodes: Vec<&Node> = binary.iter().filter(|n| n.count > 0).collect();
+        let nodes = lanes(leaf_nodes.iter().copied());
         // A leaf's offset is its first slot; an interior node's is its second child's.
-        let slots = binary.iter().filter(|n| n.count > 0).map(|n| (n.offset + n.count) as usize).max();
+        let slots = leaf_nodes.iter().map(|n| (n.offset + n.count) as usize).max();
         let mut alone = vec![0; slots.unwrap_or(0)];
-        for (n, &k) in binary.iter().zip(&number).filter(|(n, _)| n.count == 1) {
+        for (k, n) in leaf_nodes.iter().enumerate().filter(|(_, n)| n.count == 1) {
             alone[n.offset as usize] = 1 << k;
         }
         let per = nodes.len();
-        let mut ordered = vec![empty_node(); 8 * per];
+        let mut ordered = Vec::with_capacity(8 * per);
         for signs in 0..8 {
             let mut visit = Vec::with_capacity(leaves);
             walk(binary, &number, 0, signs, &mut visit);
-            for (at, &k) in visit.iter().enumerate() {
-                let (from, lane) = (&nodes[k / WIDTH], k % WIDTH);
-                let (to, into) = (&mut ordered[signs * per + at / WIDTH], at % WIDTH);
-                for side in [LOWER, UPPER] {
-                    for a in 0..3 {
-                        to.planes[side][a][into / 4][into % 4] = from.planes[side][a][lane / 4][lane % 4];
-                    }
-                }
-                to.child[into] = from.child[lane];
-                to.counts |= (from.count(lane) as u32) << (4 * into);
-                to.lanes |= 1 << into;
-            }
+            ordered.extend(lanes(visit.iter().map(|&k| leaf_nodes[k])));
         }
         Some(Flat { nodes, ordered, per, alone })
     }
@@ -187,6 +167,23 @@ impl Flat {
 fn slots(nodes: &[Node8], k: usize) -> (usize, usize) {
     let node = &nodes[k / WIDTH];
     (node.child[k % WIDTH] as usize, node.count(k % WIDTH))
+}
+
+/// The binary tree's leaves `leaves`, in their order, as the lanes of nodes of eight: the
+/// k-th is lane k % 8 of node k / 8.
+fn lanes<'a>(leaves: impl ExactSizeIterator<Item = &'a Node>) -> Vec<Node8> {
+    let mut nodes = vec![empty_node(); leaves.len().div_ceil(WIDTH)];
+    for (k, n) in leaves.enumerate() {
+        let (node, lane) = (&mut nodes[k / WIDTH], k % WIDTH);
+        for a in 0..3 {
+            node.planes[LOWER][a][lane / 4][lane % 4] = n.bounds.min[a];
+            node.planes[UPPER][a][lane / 4][lane % 4] = n.bounds.max[a];
+        }
+        node.child[lane] = n.offset;
+        node.counts |= n.count << (4 * lane);
+        node.lanes |= 1 << lane;
+    }
+    nodes
 }
 
 /// A node with no lanes.
