@@ -232,6 +232,13 @@ impl Sampler {
         self.new_dimension(d)
     }
 
+    /// Whether the current sample's draws come from a pattern: below `spp`, and not
+    /// independent samples. Past the pattern, or without one, a draw is a hash.
+    #[inline(always)]
+    fn in_pattern(&self) -> bool {
+        self.index < self.spp && self.kind != SamplerKind::Independent
+    }
+
     /// [`Sampler::next_dimension`] where the draw does not need the keys (the table holds
     /// it): the same dimensions kept, without loading a kept one's keys.
     #[inline(always)]
@@ -286,7 +293,7 @@ impl Sampler {
     /// [`Sampler::get_2d`] of dimension `d` (keys `k`) where the table does not hold it.
     #[inline(never)]
     fn draw_2d(&mut self, d: u32, k: DimensionKeys) -> Vec2 {
-        if self.index >= self.spp || self.kind == SamplerKind::Independent {
+        if !self.in_pattern() {
             // Beyond the pattern, or no pattern: plain random (hash_words(&[key, index])).
             let h = hash_step(k.from_key, u64::from(self.index));
             return Vec2::new(unit_float(h), unit_float(mix64(h)));
@@ -446,7 +453,7 @@ impl Sampler {
     /// [`Sampler::get_1d`] of dimension `d` (keys `k`) where the table does not hold it.
     #[inline(never)]
     fn draw_1d(&mut self, d: u32, k: DimensionKeys) -> f32 {
-        if self.index >= self.spp || self.kind == SamplerKind::Independent {
+        if !self.in_pattern() {
             return unit_float(hash_step(k.from_key, u64::from(self.index)));
         }
         match self.tabled(d, Shape::One, |s, i| [s.pattern_1d(k, i), 0.0, 0.0, 0.0]) {

@@ -144,10 +144,10 @@ impl super::Sampler {
     /// where as many separate dimensions would leave them independent of one another.
     /// Beyond the pattern, and for independent samples, the points are independent.
     pub fn each_2d_of_set(&mut self, count: u32, mut f: impl FnMut(glam::Vec2)) {
-        use super::{hash_step, mix64, unit_float, SamplerKind};
+        use super::{hash_step, mix64, unit_float};
         debug_assert!(count <= tessera_description::limits::MAX_DIFFUSE_RAYS);
         let k = self.next_dimension();
-        if self.index >= self.spp || self.kind == SamplerKind::Independent {
+        if !self.in_pattern() {
             let from = hash_step(k.from_key, u64::from(self.index));
             for j in 0..count {
                 let h = hash_step(from, u64::from(j));

@@ -151,7 +151,7 @@ impl Sampler {
     #[inline(always)]
     pub(super) fn table_hit(&self, d: u32, shape: Shape) -> Option<[f32; 4]> {
         // Past the pattern, or without one, a draw is a hash, whatever a plan holds.
-        if self.index >= self.spp || self.kind == super::SamplerKind::Independent {
+        if !self.in_pattern() {
             return None;
         }
         self.table.filled(d, self.index, shape)
