@@ -35,17 +35,16 @@ pub(super) const MOST_LEAVES: usize = 2 * WIDTH;
 // [`Flat::alone`] holds a bit a leaf.
 const _: () = assert!(MOST_LEAVES <= u16::BITS as usize);
 
-/// The leaves of a small tree, in depth-first order, as lanes of two nodes.
+/// The leaves of a small tree as lanes of one or two nodes, in each sign pattern's order.
 #[derive(Debug, Clone)]
 pub(super) struct Flat {
-    /// Leaf k is lane k % 8 of node k / 8: its box, its first slot (`child`) and its slot
-    /// count. The nodes' own visit orders are not used.
-    nodes: Vec<Node8>,
-    /// The same leaves for each sign pattern of a direction (as [`RayLanes::signs`]), in the
+    /// The leaves for each sign pattern of a direction (as [`RayLanes::signs`]), in the
     /// order the binary walk visits them: pattern s's k-th leaf is lane k % 8 of node
-    /// `s * per + k / 8`.
+    /// `s * per + k / 8`, with its box, its first slot (`child`) and its slot count. The
+    /// nodes' own visit orders are not used. Pattern 0 (no negative component) swaps no
+    /// children: its order is the depth-first one, leaf k the k-th leaf of the array.
     ordered: Vec<Node8>,
-    /// Nodes a sign pattern takes in `ordered` (as many as in `nodes`).
+    /// Nodes a sign pattern takes in `ordered`.
     per: usize,
     /// For each slot, bit k if leaf k holds that slot alone, else 0 ([`Flat::lone_leaf`]).
     alone: Vec<u16>,
@@ -70,21 +69,20 @@ impl Flat {
             })
             .collect();
         let leaf_nodes: Vec<&Node> = binary.iter().filter(|n| n.count > 0).collect();
-        let nodes = lanes(leaf_nodes.iter().copied());
         // A leaf's offset is its first slot; an interior node's is its second child's.
         let slots = leaf_nodes.iter().map(|n| (n.offset + n.count) as usize).max();
         let mut alone = vec![0; slots.unwrap_or(0)];
         for (k, n) in leaf_nodes.iter().enumerate().filter(|(_, n)| n.count == 1) {
             alone[n.offset as usize] = 1 << k;
         }
-        let per = nodes.len();
+        let per = leaves.div_ceil(WIDTH);
         let mut ordered = Vec::with_capacity(8 * per);
         for signs in 0..8 {
             let mut visit = Vec::with_capacity(leaves);
             walk(binary, &number, 0, signs, &mut visit);
             ordered.extend(lanes(visit.iter().map(|&k| leaf_nodes[k])));
         }
-        Some(Flat { nodes, ordered, per, alone })
+        Some(Flat { ordered, per, alone })
     }
 
     /// The leaves of `nodes` the ray enters before `t_max` and their entry distances, bit k
@@ -135,12 +133,13 @@ impl Flat {
     /// before `t_max`, in depth-first order, while it returns true.
     #[inline(always)]
     pub(super) fn each<B: BoxTest>(&self, r: &RayLanes, t_max: f32, leaf: &mut impl Visits) {
-        let (mut mask, _) = Self::entered::<B>(&self.nodes, r, t_max);
+        let nodes = &self.ordered[..self.per];
+        let (mut mask, _) = Self::entered::<B>(nodes, r, t_max);
         // A shadow ray ends on its light, so it enters the light's leaf nearly always;
         // where the leaf holds only the light, its visit would change nothing.
         mask &= !leaf.left_out().0;
         while mask != 0 {
-            let (first, count) = slots(&self.nodes, mask.trailing_zeros() as usize);
+            let (first, count) = slots(nodes, mask.trailing_zeros() as usize);
             if !leaf.visit(first, count) {
                 return;
             }
@@ -156,9 +155,7 @@ impl Flat {
 
     /// The bytes of its nodes and tables.
     pub(super) fn bytes(&self) -> usize {
-        std::mem::size_of_val(&self.nodes[..])
-            + std::mem::size_of_val(&self.ordered[..])
-            + std::mem::size_of_val(&self.alone[..])
+        std::mem::size_of_val(&self.ordered[..]) + std::mem::size_of_val(&self.alone[..])
     }
 }
 
