@@ -15,13 +15,13 @@
 #![allow(unsafe_code)]
 
 use std::arch::x86_64::{
-    __m128, _mm256_and_si256, _mm256_blendv_ps, _mm256_broadcast_ps, _mm256_castsi256_ps, _mm256_cmp_ps,
-    _mm256_load_ps, _mm256_max_ps, _mm256_min_ps, _mm256_movemask_ps, _mm256_mul_ps, _mm256_set1_epi32,
-    _mm256_set1_ps, _mm256_setr_epi32, _mm256_setzero_ps, _mm256_sllv_epi32, _mm256_srlv_epi32,
-    _mm256_storeu_ps, _mm256_sub_epi32, _mm256_sub_ps, _CMP_LE_OQ, _CMP_UNORD_Q,
+    __m128, _mm256_and_ps, _mm256_and_si256, _mm256_blendv_ps, _mm256_broadcast_ps, _mm256_castsi256_ps,
+    _mm256_cmp_ps, _mm256_load_ps, _mm256_max_ps, _mm256_min_ps, _mm256_movemask_ps, _mm256_mul_ps,
+    _mm256_set1_epi32, _mm256_set1_ps, _mm256_setr_epi32, _mm256_setzero_ps, _mm256_sllv_epi32,
+    _mm256_srlv_epi32, _mm256_storeu_ps, _mm256_sub_epi32, _mm256_sub_ps, _CMP_LE_OQ, _CMP_UNORD_Q,
 };
 
-use super::node::{BoxTest, Node8, RayLanes, LOWER, UPPER, WIDTH};
+use super::node::{reduce, BoxTest, Node8, RayLanes, LOWER, UPPER, WIDTH};
 use super::slab_widening;
 
 /// Whether this CPU runs AVX and AVX2 (the standard library caches the answer).
@@ -66,8 +66,7 @@ unsafe fn visit(mask: u32, order: u32) -> u32 {
 #[target_feature(enable = "avx,avx2")]
 #[inline]
 unsafe fn hit<const EXACT: bool>(n: &Node8, r: &RayLanes, t_max: f32) -> (u32, [f32; WIDTH]) {
-    let mut enter = _mm256_setzero_ps();
-    let mut exit = _mm256_set1_ps(f32::INFINITY);
+    let (mut nears, mut fars) = ([_mm256_setzero_ps(); 3], [_mm256_setzero_ps(); 3]);
     for a in 0..3 {
         let (origin, inv): (__m128, __m128) = (r.origin[a].into(), r.inv[a].into());
         let (origin, inv) = (_mm256_broadcast_ps(&origin), _mm256_broadcast_ps(&inv));
@@ -102,11 +101,18 @@ unsafe fn hit<const EXACT: bool>(n: &Node8, r: &RayLanes, t_max: f32) -> (u32, [
                 _mm256_mul_ps(_mm256_sub_ps(last, origin), inv),
             )
         };
-        enter = _mm256_max_ps(enter, near);
-        exit = _mm256_min_ps(exit, far);
+        (nears[a], fars[a]) = (near, far);
     }
-    let exit = _mm256_min_ps(_mm256_mul_ps(exit, _mm256_set1_ps(slab_widening())), _mm256_set1_ps(t_max));
-    let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(enter, exit)) as u32;
+    // Closures made here have AVX too, so the two calls are safe in them.
+    let (enter, exit) =
+        reduce(nears, fars, |a, b| _mm256_max_ps(a, b), |a, b| _mm256_min_ps(a, b), _mm256_setzero_ps());
+    // `Node8::hit`'s two comparisons, in the same order.
+    let exit = _mm256_mul_ps(exit, _mm256_set1_ps(slab_widening()));
+    let entered = _mm256_and_ps(
+        _mm256_cmp_ps::<_CMP_LE_OQ>(enter, exit),
+        _mm256_cmp_ps::<_CMP_LE_OQ>(enter, _mm256_set1_ps(t_max)),
+    );
+    let mask = _mm256_movemask_ps(entered) as u32;
     let mut entries = [0.0; WIDTH];
     // SAFETY: `entries` holds eight floats.
     unsafe { _mm256_storeu_ps(entries.as_mut_ptr(), enter) };

@@ -105,10 +105,9 @@ impl Node8 {
         // A node with four children or fewer (near the leaves) tests one group.
         let groups = if self.lanes >> 4 == 0 { 1 } else { GROUPS };
         for g in 0..groups {
-            let mut enter = Vec4::ZERO;
-            let mut exit = Vec4::INFINITY;
+            let (mut near, mut far) = ([Vec4::ZERO; 3], [Vec4::ZERO; 3]);
             for a in 0..3 {
-                let (near, far) = if EXACT {
+                let (n, f) = if EXACT {
                     let t0 = (self.planes[LOWER][a][g] - r.origin[a]) * r.inv[a];
                     let t1 = (self.planes[UPPER][a][g] - r.origin[a]) * r.inv[a];
                     let inside = t0.is_nan_mask() | t1.is_nan_mask();
@@ -117,21 +116,46 @@ impl Node8 {
                         Vec4::select(inside, Vec4::INFINITY, t0.max(t1)),
                     )
                 } else {
-                    let near = r.near[a] & 1;
+                    let side = r.near[a] & 1;
                     (
-                        (self.planes[near][a][g] - r.origin[a]) * r.inv[a],
-                        (self.planes[near ^ 1][a][g] - r.origin[a]) * r.inv[a],
+                        (self.planes[side][a][g] - r.origin[a]) * r.inv[a],
+                        (self.planes[side ^ 1][a][g] - r.origin[a]) * r.inv[a],
                     )
                 };
-                enter = enter.max(near);
-                exit = exit.min(far);
+                (near[a], far[a]) = (n, f);
             }
-            let exit = (exit * slab_widening()).min(Vec4::splat(t_max));
-            mask |= enter.cmple(exit).bitmask() << (4 * g);
+            // [`reduce`]: the axes' distances folded as a tree.
+            let (enter, exit) = reduce(near, far, Vec4::max, Vec4::min, Vec4::ZERO);
+            // Entered before both the widened exit and `t_max`: two comparisons side by
+            // side, where the minimum of the two and then one comparison were a step
+            // longer. The same decisions, none of the three being NaN.
+            let entered = enter.cmple(exit * slab_widening()) & enter.cmple(Vec4::splat(t_max));
+            mask |= entered.bitmask() << (4 * g);
             entries[4 * g..4 * g + 4].copy_from_slice(&enter.to_array());
         }
         (mask & u32::from(self.lanes), entries)
     }
+}
+
+/// A box test's entry and exit distances from the three axes' near and far distances:
+/// the entry the largest of 0 and the nears, the exit the smallest far, folded as a tree
+/// (two steps deep) where a chain from 0 and +∞ was three and four. The box test is a step
+/// of every walk's chain of dependent steps, node to node, and these were the longest part
+/// of it after the loads (docs/speed.md, forty-first part). The same values: the distances
+/// are never NaN (the origin is finite, and a slab the ray runs inside of is given ±∞
+/// first), a maximum or minimum of them is exact in any order but for the sign of a zero,
+/// which the comparisons that read them cannot see, and the minimum with +∞ the chain began
+/// with was its other operand. Both box tests fold in this order, so their bits stay equal
+/// (`wide_tests::avx_box_test_gives_the_sse_bits`).
+#[inline(always)]
+pub(super) fn reduce<V: Copy>(
+    near: [V; 3],
+    far: [V; 3],
+    max: impl Fn(V, V) -> V,
+    min: impl Fn(V, V) -> V,
+    zero: V,
+) -> (V, V) {
+    (max(max(zero, near[0]), max(near[1], near[2])), min(far[0], min(far[1], far[2])))
 }
 
 /// A node's eight box tests: [`Node8::hit`]'s decisions and entry distances, bit for bit.
