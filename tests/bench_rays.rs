@@ -143,4 +143,6 @@ fn the_rays_benchmark_refuses_bad_files_in_one_line() {
     std::fs::write(dir.path().join("rays.json"), json.replace("\"any\"", "\"all\"")).unwrap();
     check(dir.path(), &[], "has query \"all\"");
     check(dir.path(), &["--repeats", "1000000000"], "--repeats");
+    // The tests' build has no `ab` switch (worker/src/ab.rs): both sides would be A.
+    check(dir.path(), &["--ab"], "--ab needs a build with the switch");
 }

@@ -50,6 +50,8 @@ fn the_samples_benchmark_reports_runs_and_one_checksum_for_any_thread_count() {
         (vec!["bench", "samples", scene, "--spp", "99999999"], "--spp 99999999"),
         (vec!["bench", "samples", scene, "--size", "100000x100000"], "--size 100000x100000"),
         (vec!["bench", "samples", "no/such/scene.toml"], "no/such/scene.toml"),
+        // The tests' build has no `ab` switch: both sides would be the same code.
+        (vec!["bench", "samples", scene, "--ab"], "--ab needs a build with the switch"),
     ] {
         let out = run_with_timeout(&args, Duration::from_secs(30));
         assert!(!out.status.success(), "{args:?} was accepted");

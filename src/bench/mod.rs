@@ -11,6 +11,7 @@ use tessera_worker::batch::{render_batch, Sums};
 use tessera_worker::build::parse_bundle;
 use tessera_worker::render::sampler::MOST_PLANNED;
 
+mod ab;
 mod audit;
 mod checkpoint;
 mod convergence;
@@ -176,6 +177,11 @@ pub enum BenchCommand {
         /// Runs of each set and thread count (the median is reported) [default: 3].
         #[arg(long, default_value_t = 3)]
         repeats: usize,
+        /// Time a change against the code it replaces instead, in this process: each set on
+        /// one thread in chunks of 20 000 rays, each chunk with the switch off (A) and on
+        /// (B), `repeats` rounds. Needs a build with `--features ab` (worker/src/ab.rs).
+        #[arg(long)]
+        ab: bool,
     },
     /// A worker's load of a scene, step by step (OBJ read and parsed, validation,
     /// primitives, BVH build, slots), in wall and CPU seconds per run, and the medians.
@@ -208,6 +214,11 @@ pub enum BenchCommand {
         /// Runs (the median is reported) [default: 3].
         #[arg(long, default_value_t = 3)]
         runs: usize,
+        /// Time a change against the code it replaces instead, in this process: the image
+        /// a row at a time on one thread, each row with the switch off (A) and on (B), `runs`
+        /// rounds. Needs a build with `--features ab` (worker/src/ab.rs).
+        #[arg(long)]
+        ab: bool,
     },
     /// The farm's overhead: `tessera render` with local workers against the same image
     /// loaded and traced in one process on the same cores, as a ratio (and against the
@@ -260,14 +271,17 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             audit::run(trials, audit_fraction)?;
             Ok(ExitCode::SUCCESS)
         }
-        BenchCommand::Rays { dir, mesh, repeats } => {
+        BenchCommand::Rays { dir, mesh, repeats, ab } => {
             if repeats > 1000 {
                 anyhow::bail!("--repeats {repeats}: at most 1000");
             }
-            rays::run(&dir, mesh.as_deref(), repeats.max(1))
+            if ab {
+                ab::require_switch()?;
+            }
+            rays::run(&dir, mesh.as_deref(), repeats.max(1), ab)
         }
         BenchCommand::Load { scene, runs, threads } => load::run(&scene, runs.max(1), threads),
-        BenchCommand::Samples { scene, spp, size, threads, runs } => {
+        BenchCommand::Samples { scene, spp, size, threads, runs, ab } => {
             if spp == Some(0) || threads == Some(0) || runs == 0 {
                 anyhow::bail!("--spp, --threads and --runs must be at least 1");
             }
@@ -278,6 +292,11 @@ pub async fn run(cmd: BenchCommand) -> Result<ExitCode> {
             }
             check_spp_and_size(spp, size)?;
             let threads = threads.unwrap_or_else(crate::cores);
+            if ab {
+                ab::require_switch()?;
+                samples::run_ab(&scene, spp, size, runs)?;
+                return Ok(ExitCode::SUCCESS);
+            }
             samples::run(&scene, &samples::SamplesOptions { spp, size, threads, runs })?;
             Ok(ExitCode::SUCCESS)
         }

@@ -21,6 +21,8 @@ use tessera_worker::render::Scene;
 
 /// Largest difference of hit fraction from Embree's that still counts as the same rays.
 const FRACTION_TOLERANCE: f64 = 1e-3;
+/// Rays to a chunk of `--ab`: a few milliseconds of one thread.
+const AB_CHUNK: usize = 20_000;
 
 #[derive(Deserialize)]
 struct RaysJson {
@@ -130,7 +132,7 @@ fn cast(scene: &Scene, rays: &[Record], query: Query, coherent: bool, threads: u
 
 /// Runs the benchmark on the rays in `dir`, `repeats` times per thread count (the median
 /// is reported).
-pub fn run(dir: &Path, mesh: Option<&Path>, repeats: usize) -> Result<ExitCode> {
+pub fn run(dir: &Path, mesh: Option<&Path>, repeats: usize, ab: bool) -> Result<ExitCode> {
     let json = dir.join("rays.json");
     let meta: RaysJson = serde_json::from_str(
         &std::fs::read_to_string(&json).with_context(|| format!("reading {}", json.display()))?,
@@ -145,10 +147,12 @@ pub fn run(dir: &Path, mesh: Option<&Path>, repeats: usize) -> Result<ExitCode> 
         bail!("{}: {tris} triangles, rays.json says {}", mesh.display(), meta.triangles);
     }
     println!("{} ({tris} triangles): validated, read and BVH built in {load:.2} s", mesh.display());
-    println!(
-        "{:8} {:8} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11}",
-        "set", "query", "rays", "hits", "Embree", "1t M/s", "Embree", "2t M/s", "Embree", "1t, +shade"
-    );
+    if !ab {
+        println!(
+            "{:8} {:8} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>11}",
+            "set", "query", "rays", "hits", "Embree", "1t M/s", "Embree", "2t M/s", "Embree", "1t, +shade"
+        );
+    }
     let mut ok = true;
     // The script's order: camera, random, diffuse, shadow.
     let mut names: Vec<&String> = meta.sets.keys().collect();
@@ -163,6 +167,15 @@ pub fn run(dir: &Path, mesh: Option<&Path>, repeats: usize) -> Result<ExitCode> 
         };
         let rays = read_rays(&dir.join(&set.file), set.rays)?;
         let coherent = name == "camera";
+        if ab {
+            // One thread, chunks of 20 000 rays (some 5 ms), each with the switch off and on.
+            let chunks: Vec<&[Record]> = rays.chunks(AB_CHUNK).collect();
+            let r = super::ab::interleave_timed(chunks.len(), repeats, |k, _| {
+                cast(&scene, chunks[k], query, coherent, 1) as u64
+            });
+            println!("{name:8} {:8} {}", set.query, r.line());
+            continue;
+        }
         // The median rate of `repeats` casts, and the hits of the last.
         let rate = |query: Query, threads: usize| {
             let mut times = Vec::with_capacity(repeats);
@@ -204,6 +217,10 @@ pub fn run(dir: &Path, mesh: Option<&Path>, repeats: usize) -> Result<ExitCode> 
             completed,
             if same { "" } else { "  <- hit fraction differs from Embree's" }
         );
+    }
+    if ab {
+        println!("(A: the switch off, B: on; above 1, B is faster)");
+        return Ok(ExitCode::SUCCESS);
     }
     println!("(Embree's figures are the script's, from rays.json: run it just before, on the same machine)");
     if !ok {

@@ -28,6 +28,22 @@ pub struct SamplesOptions {
     pub runs: usize,
 }
 
+/// `--ab`: the scene's image a row at a time on this thread, each row with the switch off
+/// and on, `rounds` times (`ab.rs`); a row's answer is the hash of its sums.
+pub fn run_ab(scene_path: &Path, spp: Option<u32>, size: Option<(u32, u32)>, rounds: usize) -> Result<()> {
+    let bundle = Bundle::read(scene_path)?;
+    let mut scene = parse_bundle(&bundle).with_context(|| format!("building {}", scene_path.display()))?;
+    scene.apply(spp, size);
+    let (w, h, spp) = (scene.width, scene.height, scene.spp);
+    println!("scene {} ({w}x{h}, {spp} spp), one thread, A against B a row at a time", scene_path.display());
+    let r = super::ab::interleave_timed(h as usize, rounds, |y, _| {
+        let pixels: Vec<UVec2> = (0..w).map(|x| UVec2::new(x, y as u32)).collect();
+        hash_words(&render_batch(&scene, &pixels, 0..spp, Sums::Radiance).sums)
+    });
+    println!("{}", r.line());
+    Ok(())
+}
+
 /// Renders the scene `runs` times and prints each run's rate, the median and the checksum.
 pub fn run(scene_path: &Path, opts: &SamplesOptions) -> Result<()> {
     let bundle = Bundle::read(scene_path)?;

@@ -8,6 +8,7 @@
 // `!(x > 0.0)` is how this crate rejects NaN along with the values out of range.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+pub mod ab;
 pub mod aov;
 mod aov_tests;
 pub mod batch;
