@@ -139,7 +139,7 @@ impl Node8 {
 
 /// A box test's entry and exit distances from the three axes' near and far distances:
 /// the entry the largest of 0 and the nears, the exit the smallest far, folded as a tree
-/// (two steps deep) where a chain from 0 and +∞ was three and four. The box test is a step
+/// (two steps deep) where each was a chain three deep, from 0 and from +∞. The box test is a step
 /// of every walk's chain of dependent steps, node to node, and these were the longest part
 /// of it after the loads (docs/speed.md, forty-first part). The same values: the distances
 /// are never NaN (the origin is finite, and a slab the ray runs inside of is given ±∞
