@@ -25,6 +25,8 @@
 //! three fewer than a node of four, and its four cache lines are adjacent, so they arrive
 //! together (docs/speed.md, "Seventh part").
 
+use std::cell::RefCell;
+
 use glam::Vec3;
 
 #[cfg(all(target_arch = "x86_64", not(feature = "scalar")))]
@@ -46,11 +48,19 @@ struct Entry {
     at: u32,
 }
 
-/// Entries of the stacks kept in the traversal's frame, a small one for small scenes (a
-/// stack is zeroed for every ray, which a scene of a few primitives notices); a deeper
-/// tree (the builder's worst cases) traverses with a stack on the heap.
+/// Entries of the stacks: a small one in the traversal's frame for small trees, and one a
+/// thread keeps for the rest; a deeper tree (the builder's worst cases) traverses with a
+/// stack on the heap.
 const SMALL_STACK: usize = 16;
 const STACK: usize = 64;
+
+thread_local! {
+    /// A stack made once per thread rather than per ray: zeroing 64 entries in the frame
+    /// for every ray took 5 % of the torus knot's camera rays (`bench rays --ab`,
+    /// docs/speed.md, forty-second part), where 16 cost a small scene nothing it notices.
+    /// A walk inside a walk (a leaf's own tree) finds it taken and zeroes one of its own.
+    static THREAD_STACK: RefCell<[Entry; STACK]> = const { RefCell::new([Entry { t: 0.0, at: 0 }; STACK]) };
+}
 
 /// The wide tree.
 #[derive(Debug, Clone, Default)]
@@ -174,7 +184,10 @@ impl Wide {
         if self.depth <= SMALL_STACK {
             f(&mut [Entry::default(); SMALL_STACK])
         } else if self.depth <= STACK {
-            f(&mut [Entry::default(); STACK])
+            THREAD_STACK.with(|stack| match stack.try_borrow_mut() {
+                Ok(mut stack) => f(&mut stack[..]),
+                Err(_) => f(&mut [Entry::default(); STACK]),
+            })
         } else {
             f(&mut vec![Entry::default(); self.depth])
         }

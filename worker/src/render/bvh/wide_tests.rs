@@ -133,7 +133,7 @@ fn wide_visits_what_the_binary_tree_visits() {
         stacks.insert(if wide.depth <= super::SMALL_STACK {
             "small"
         } else if wide.depth <= super::STACK {
-            "frame"
+            "thread"
         } else {
             "heap"
         });
@@ -165,6 +165,53 @@ fn wide_visits_what_the_binary_tree_visits() {
     // The second node's lanes and the order's last four bits are used.
     assert_eq!(most_flat, super::super::flat::MOST_LEAVES, "the largest flat tree");
     assert_eq!(stacks.len(), 3, "every stack size is exercised: {stacks:?}");
+}
+
+/// A walk inside a walk (an instance's tree inside the scene's) finds the thread's stack
+/// taken and uses one of its own: both visit what they visit alone, nearest-hit and
+/// any-order, with the inner walk entered from every leaf of the outer one.
+#[test]
+fn a_walk_inside_a_walk_visits_what_each_visits_alone() {
+    let boxes = random_boxes(20_000, 3);
+    let wide = super::super::fold::fold(&build_binary_with(&boxes, LeafPolicy::TRIANGLES).nodes);
+    assert!(wide.depth > super::SMALL_STACK && wide.depth <= super::STACK, "depth {}", wide.depth);
+    let made_up = |k: u64, slot: usize, t_max: f32| {
+        let h = hash_words(&[k, slot as u64, 11]);
+        h.is_multiple_of(3).then(|| t_max.min(100.0) * unit(&[h]))
+    };
+    let alone = |k: u64| {
+        let r = ray(k, 100.0);
+        let (mut nearest, mut each) = (vec![], vec![]);
+        wide.nearest::<false>(r.origin, r.dir, f32::INFINITY, |s, t| {
+            nearest.push((s, t.to_bits()));
+            made_up(k, s, t)
+        });
+        wide.each(r.origin, r.dir, f32::INFINITY, |s| {
+            each.push(s);
+            true
+        });
+        (nearest, each)
+    };
+    let mut inner_walks = 0;
+    for k in 0..200u64 {
+        let (outer, inner) = (k * 2 + 1, k * 2 + 1001);
+        let want = (alone(outer), alone(inner));
+        let r = ray(outer, 100.0);
+        let (mut nearest, mut each) = (vec![], vec![]);
+        wide.nearest::<false>(r.origin, r.dir, f32::INFINITY, |s, t| {
+            nearest.push((s, t.to_bits()));
+            assert_eq!(alone(inner), want.1, "ray {k}: the inner walks inside a nearest-hit walk");
+            inner_walks += 1;
+            made_up(outer, s, t)
+        });
+        wide.each(r.origin, r.dir, f32::INFINITY, |s| {
+            each.push(s);
+            assert_eq!(alone(inner), want.1, "ray {k}: the inner walks inside an any-order walk");
+            true
+        });
+        assert_eq!((nearest, each), want.0, "ray {k}: the outer walks");
+    }
+    assert!(inner_walks > 1000, "only {inner_walks} walks inside a walk: the rays miss the boxes");
 }
 
 /// Whether the AVX2 path can be tested here; says why not where it cannot.
