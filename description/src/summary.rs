@@ -12,14 +12,15 @@ use crate::model::{Description, Shape, TextureKind};
 pub const PRIMITIVE_BYTES: u64 = 96;
 /// Bytes per primitive in the BVH, at the peak of building it and after: the binary tree
 /// (at most two nodes of 36 bytes a primitive), the builder's boxes and bins (33), the
-/// primitives' bounds (24), the slots in leaf order (44 bytes each: a primitive's index
-/// and material, and its corners in a pack of four; a mesh's leaves start on a pack, and
-/// the padding between them, a tenth more slots on the torus knot, is at most a quarter
-/// more, `MAX_PADDING`, and 256 slots: 55 a primitive), and the folded nodes of eight
+/// primitives' bounds (24), the slots in leaf order (48 bytes each: a primitive's index
+/// and material, and its corners, a quarter of a 192-byte pack of four; a mesh's leaves
+/// start on a pack, and the padding between them, a tenth more slots on the torus knot,
+/// is at most a quarter more, `MAX_PADDING`, and 256 slots: 60 a primitive), and the
+/// folded nodes of eight
 /// with the primitive's index (75: up to 67 measured on the trees with the most nodes per
 /// primitive). A worker test (`build::tests`) builds such trees, padding included, and
 /// holds the total to this constant.
-pub const BVH_BYTES_PER_PRIMITIVE: u64 = 2 * 36 + 33 + 24 + 55 + 75;
+pub const BVH_BYTES_PER_PRIMITIVE: u64 = 2 * 36 + 33 + 24 + 60 + 75;
 /// Bytes per triangle: three corners of (position, normal, uv) indices.
 pub const TRIANGLE_BYTES: u64 = 36;
 /// Bytes per mesh position or normal.

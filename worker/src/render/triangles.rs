@@ -89,16 +89,25 @@ fn plain(prim: &Primitive, meshes: &[Mesh]) -> bool {
     prim.light.is_none() && c[0][1] == u32::MAX && c[0][2] == u32::MAX
 }
 
-/// Four consecutive slots' triangle corners, lane by lane (slot 4j + l in lane l of pack
-/// j): corner, axis, lane. A slot that is not an inline triangle has NaN corners, which
-/// no ray hits and which mark it for its leaf's walk ([`Slots::leaf`]); a lane past
-/// the last slot, or of the padding between leaves (`bvh::PADDING`), has zeros, and is
-/// never in a leaf.
+/// Four consecutive slots (slot 4j + l in lane l of pack j) and their triangle corners,
+/// lane by lane: corner, axis, lane. A slot that is not an inline triangle has NaN
+/// corners, which no ray hits and which mark it for its leaf's walk ([`Slots::leaf`]); a
+/// lane past the last slot, or of the padding between leaves (`bvh::PADDING`), has zeros,
+/// and is never in a leaf.
+///
+/// The slots sit in the corners' third cache line, which the leaf's test has just read:
+/// in an array of their own, the nearest hit's slot (its primitive, its material) was
+/// one more load that missed the cache on a million triangles, 9 % of a random ray's time
+/// on the terrain. Three lines a pack either way (144 bytes at 16-byte alignment always
+/// spanned three); a slot takes 48 bytes instead of 44 (docs/speed.md, forty-second part).
 #[derive(Debug, Clone, Copy)]
-#[repr(C, align(16))]
+#[repr(C, align(64))]
 pub struct Pack {
     p: [[Vec4; 3]; 3],
+    slots: [Slot; 4],
 }
+
+const _: () = assert!(std::mem::size_of::<Pack>() == 192);
 
 /// A ray's origin and direction splatted over four lanes, for [`Slots::leaf`].
 pub struct Ray4 {
@@ -131,7 +140,9 @@ fn dot4(a: [Vec4; 3], b: [Vec4; 3]) -> Vec4 {
 }
 
 impl Pack {
-    const EMPTY: Pack = Pack { p: [[Vec4::ZERO; 3]; 3] };
+    /// Padding (`bvh::PADDING`), and lanes past the last slot: never visited.
+    const EMPTY: Pack =
+        Pack { p: [[Vec4::ZERO; 3]; 3], slots: [Slot { prim: INDEX | GENERIC, material: 0 }; 4] };
 
     /// [`moller_trumbore`] in four lanes without its last comparison (`t < t_max`, which
     /// the caller makes in slot order): bit l set where lane l's line meets its triangle at
@@ -165,8 +176,9 @@ impl Pack {
 /// The BVH's slots and their triangles' corners.
 #[derive(Debug, Clone, Default)]
 pub struct Slots {
-    slots: Vec<Slot>,
     packs: Vec<Pack>,
+    /// How many slots: the BVH's leaf order, of which the last pack may hold fewer than four.
+    len: usize,
     /// Some slot is an inline triangle: leaves are tested pack by pack.
     any_inline: bool,
     /// Some inline triangle emits light.
@@ -178,27 +190,28 @@ impl std::ops::Index<usize> for Slots {
 
     #[inline(always)]
     fn index(&self, k: usize) -> &Slot {
-        &self.slots[k]
+        debug_assert!(k < self.len);
+        &self.packs[k / 4].slots[k % 4]
     }
 }
 
 impl Slots {
-    /// Bytes a slot takes: its record and a quarter of a pack.
-    pub const BYTES_PER_SLOT: usize = std::mem::size_of::<Slot>() + std::mem::size_of::<Pack>() / 4;
+    /// Bytes a slot takes: a quarter of a pack.
+    pub const BYTES_PER_SLOT: usize = std::mem::size_of::<Pack>() / 4;
 
     /// The slots.
     pub fn iter(&self) -> impl Iterator<Item = &Slot> {
-        self.slots.iter()
+        self.packs.iter().flat_map(|p| &p.slots).take(self.len)
     }
 
     /// How many.
     pub fn len(&self) -> usize {
-        self.slots.len()
+        self.len
     }
 
     /// Whether there are none.
     pub fn is_empty(&self) -> bool {
-        self.slots.is_empty()
+        self.len == 0
     }
 
     /// `ray` in four lanes for [`Slots::leaf`], where leaves are tested pack by pack: some
@@ -295,12 +308,11 @@ pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Slots {
     // once (and whether one of them is an emitting inline triangle, read from the
     // primitive in hand rather than by a second pass over the slots); maps in order: the
     // same slots on any number of threads.
-    let (packs, fours): (Vec<Pack>, Vec<([Slot; 4], bool)>) = indices
+    let (packs, emits): (Vec<Pack>, Vec<bool>) = indices
         .par_chunks(4)
         .map(|four| {
             let mut pack = Pack::EMPTY;
-            // Padding (`bvh::PADDING`), and lanes past the last slot: never visited.
-            let mut slots = [Slot { prim: INDEX | GENERIC, material: 0 }; 4];
+            let slots = &mut pack.slots;
             let mut emits = false;
             for (l, &i) in four.iter().enumerate() {
                 let Some(prim) = prims.get(i as usize) else {
@@ -330,13 +342,13 @@ pub fn slots(bvh: &Bvh, prims: &[Primitive], meshes: &[Mesh]) -> Slots {
                     }
                 }
             }
-            (pack, (slots, emits))
+            (pack, emits)
         })
         .unzip();
-    let any_inline_emitter = fours.iter().any(|&(_, emits)| emits);
-    let slots: Vec<Slot> = fours.into_iter().flat_map(|(slots, _)| slots).take(indices.len()).collect();
-    let any_inline = slots.par_iter().any(|s| s.prim & GENERIC == 0);
-    Slots { slots, packs, any_inline, any_inline_emitter }
+    let any_inline_emitter = emits.into_iter().any(|e| e);
+    // Lanes past the last slot are GENERIC, so the whole last pack may be asked.
+    let any_inline = packs.par_iter().any(|p| p.slots.iter().any(|s| s.prim & GENERIC == 0));
+    Slots { packs, len: indices.len(), any_inline, any_inline_emitter }
 }
 
 #[cfg(test)]
