@@ -140,7 +140,8 @@ fn dot4(a: [Vec4; 3], b: [Vec4; 3]) -> Vec4 {
 }
 
 impl Pack {
-    /// Padding (`bvh::PADDING`), and lanes past the last slot: never visited.
+    /// A pack before its lanes are filled: what the lanes of padding (`bvh::PADDING`) and
+    /// those past the last slot keep, never visited.
     const EMPTY: Pack =
         Pack { p: [[Vec4::ZERO; 3]; 3], slots: [Slot { prim: INDEX | GENERIC, material: 0 }; 4] };
 
@@ -190,7 +191,8 @@ impl std::ops::Index<usize> for Slots {
 
     #[inline(always)]
     fn index(&self, k: usize) -> &Slot {
-        debug_assert!(k < self.len);
+        // The bound the slots' own array had: the last pack's lanes past `len` are not slots.
+        assert!(k < self.len, "slot {k} of {}", self.len);
         &self.packs[k / 4].slots[k % 4]
     }
 }
